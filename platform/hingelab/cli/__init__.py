@@ -1,0 +1,1 @@
+"""The ``hingelab`` command: one module per verb, registered in ``main``."""

@@ -1,0 +1,68 @@
+"""Entry point of the ``hingelab`` command.
+
+Each verb lives in its own module under ``hingelab.cli`` with two functions:
+``add_parser(subparsers)`` registers the verb and its options, and the parser's
+``func`` default runs it. Errors a user can fix are raised as ``HingelabError``
+and printed as one line; everything else propagates with its traceback.
+"""
+
+from __future__ import annotations
+
+import argparse
+import importlib
+import sys
+
+from hingelab.errors import HingelabError
+
+# Verb modules in the order ``hingelab --help`` lists them.
+VERB_MODULES = [
+    "hingelab.cli.demo",
+    "hingelab.cli.generate",
+    "hingelab.cli.train",
+    "hingelab.cli.eval",
+    "hingelab.cli.view",
+    "hingelab.cli.report",
+    "hingelab.cli.datasets",
+    "hingelab.cli.bench",
+]
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(
+        prog="hingelab",
+        description=(
+            "Hierarchical RL of articulated-tool use with a multifingered hand: "
+            "generate episode datasets, train from them, view and report on them."
+        ),
+    )
+    subparsers = parser.add_subparsers(title="commands", metavar="COMMAND")
+    for name in VERB_MODULES:
+        try:
+            module = importlib.import_module(name)
+        except ModuleNotFoundError as exc:
+            if exc.name == name:  # verb not built yet
+                continue
+            raise
+        module.add_parser(subparsers)
+    return parser
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    if not hasattr(args, "func"):
+        parser.print_help()
+        return 2
+    try:
+        result = args.func(args)
+    except HingelabError as exc:
+        print(f"hingelab: error: {exc}", file=sys.stderr)
+        return 1
+    except KeyboardInterrupt:
+        print("hingelab: interrupted", file=sys.stderr)
+        return 130
+    return int(result or 0)
+
+
+if __name__ == "__main__":
+    sys.exit(main())
