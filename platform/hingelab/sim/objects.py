@@ -1,0 +1,82 @@
+"""The graspable objects: shapes, sizes and masses, and building their geoms in an MjSpec.
+
+``size`` is the object's characteristic width in metres, the opening the tweezer must
+span: a sphere's or cylinder's diameter (the cylinder is as tall as it is wide), a
+cube's or regular tetrahedron's edge. The paper trains on a 1 cm radius, 10 g sphere
+and tests a sphere, cube, cylinder and tetrahedron of 1.5 to 2.5 cm.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import mujoco
+import numpy as np
+
+from hingelab.errors import ConfigError
+
+SHAPES = ("sphere", "cube", "cylinder", "tetrahedron")
+TRAINING_OBJECT = ("sphere", 0.02, 0.010)  # shape, size (m), mass (kg): the paper's training sphere
+TEST_SIZE_RANGE = (0.015, 0.025)  # the paper's test objects, metres
+# What the scene accepts: the tweezer's tips open 0 to ~38 mm (hinge 0 to 0.3 rad).
+SIZE_LIMITS = (0.005, 0.035)
+MASS_LIMITS = (0.001, 0.2)
+
+
+@dataclass(frozen=True)
+class ObjectSpec:
+    """One graspable object. size: metres (see module doc); mass: kg; friction: sliding."""
+
+    shape: str = "sphere"
+    size: float = 0.02
+    mass: float = 0.010
+    friction: float = 1.0
+
+    def __post_init__(self):
+        if self.shape not in SHAPES:
+            raise ConfigError(
+                f"unknown object {self.shape!r}; choose one of: {', '.join(SHAPES)}"
+            )
+        if not np.isfinite(self.size) or not SIZE_LIMITS[0] <= self.size <= SIZE_LIMITS[1]:
+            raise ConfigError(
+                f"object size {self.size!r} m is out of range: the tweezer grasps "
+                f"{SIZE_LIMITS[0]} to {SIZE_LIMITS[1]} m (give metres, e.g. 0.02 for 2 cm)"
+            )
+        if not np.isfinite(self.mass) or not MASS_LIMITS[0] <= self.mass <= MASS_LIMITS[1]:
+            raise ConfigError(
+                f"object mass {self.mass!r} kg is out of range {MASS_LIMITS[0]} to {MASS_LIMITS[1]} kg"
+            )
+
+    @property
+    def rest_height(self) -> float:
+        """Height of the body origin above the surface it rests on, metres."""
+        if self.shape == "tetrahedron":
+            return 0.0  # mesh origin is on its base face
+        return self.size / 2
+
+
+def tetrahedron_vertices(edge: float) -> np.ndarray:
+    """Regular tetrahedron standing on a face; origin at the base face's centroid. (4, 3)."""
+    r = edge / np.sqrt(3.0)  # circumradius of the base triangle
+    h = edge * np.sqrt(2.0 / 3.0)
+    base = [(r * np.cos(a), r * np.sin(a), 0.0) for a in (0.0, 2 * np.pi / 3, 4 * np.pi / 3)]
+    return np.array(base + [(0.0, 0.0, h)])
+
+
+def add_object_geom(spec: mujoco.MjSpec, body: mujoco.MjsBody, obj: ObjectSpec) -> None:
+    """Add ``obj``'s collision geom (named ``object_geom``) to ``body``, with its mass."""
+    kwargs = dict(name="object_geom", mass=obj.mass, friction=[obj.friction, 0.01, 0.0001],
+                  condim=4, rgba=[0.1, 0.2, 0.6, 1.0])
+    if obj.shape == "sphere":
+        body.add_geom(type=mujoco.mjtGeom.mjGEOM_SPHERE, size=[obj.size / 2, 0, 0], **kwargs)
+    elif obj.shape == "cube":
+        body.add_geom(type=mujoco.mjtGeom.mjGEOM_BOX, size=[obj.size / 2] * 3, **kwargs)
+    elif obj.shape == "cylinder":
+        body.add_geom(type=mujoco.mjtGeom.mjGEOM_CYLINDER, size=[obj.size / 2, obj.size / 2, 0], **kwargs)
+    else:
+        mesh_name = "object_tetrahedron"
+        existing = spec.mesh(mesh_name)
+        if existing is not None:
+            spec.delete(existing)
+        spec.add_mesh(name=mesh_name, uservert=tetrahedron_vertices(obj.size).ravel().tolist())
+        body.add_geom(type=mujoco.mjtGeom.mjGEOM_MESH, meshname=mesh_name, **kwargs)

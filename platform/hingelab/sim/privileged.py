@@ -1,0 +1,126 @@
+"""The privileged simulator state: what the simulator knows and a real robot would not.
+
+Frames: ``*_hand`` quantities are in the ``hand_base`` frame (metres, unit quaternions
+w x y z); ``*_world`` in the world (= arm base) frame. The tool frame is ``tool_leg_a``'s:
+origin on the hinge axis, +x toward the tips.
+"""
+
+from __future__ import annotations
+
+from dataclasses import asdict, dataclass
+
+import mujoco
+import numpy as np
+
+from hingelab.sim import names
+
+# geom categories for contact bookkeeping
+OTHER, ARM, HAND, TOOL, OBJECT, TABLE = range(6)
+
+
+@dataclass(frozen=True)
+class PrivilegedState:
+    time: float  # s, simulated
+    hinge_angle: float  # rad, 0 = closed
+    tool_pos_hand: np.ndarray  # (3,) tool frame origin in hand_base
+    tool_quat_hand: np.ndarray  # (4,) w x y z
+    tip_a_hand: np.ndarray  # (3,) inner tip face of leg a
+    tip_b_hand: np.ndarray  # (3,)
+    tip_gap: float  # m, distance between the tip sites
+    hand_pos_world: np.ndarray  # (3,)
+    hand_quat_world: np.ndarray  # (4,)
+    object_pos_world: np.ndarray  # (3,) NaN in scenes without an object
+    object_quat_world: np.ndarray  # (4,)
+    object_pos_hand: np.ndarray  # (3,)
+    n_contacts: int  # all active contacts
+    hand_tool_contacts: int
+    tool_object_contacts: int
+    table_collision: bool  # arm, hand or tool touching the table or the platform
+
+    def as_dict(self) -> dict:
+        """Plain dict of floats / lists (for logging)."""
+        out = {}
+        for key, value in asdict(self).items():
+            out[key] = value.tolist() if isinstance(value, np.ndarray) else value
+        return out
+
+
+class PrivilegedReader:
+    """Reads ``PrivilegedState`` from MjData; the by-name lookups are done once here."""
+
+    def __init__(self, model: mujoco.MjModel):
+        self.model = model
+        self.hand_body = model.body(names.HAND_BASE_BODY).id
+        self.tool_body = model.body(names.TOOL_BODY_A).id
+        self.tips = [model.site(s).id for s in names.TOOL_TIP_SITES]
+        self.hinge_qpos = model.jnt_qposadr[model.joint(names.TOOL_HINGE).id]
+        self.object_body = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_BODY, names.OBJECT_BODY)
+        self.geom_category = self._categorize(model)
+
+    def _categorize(self, model: mujoco.MjModel) -> np.ndarray:
+        category = np.full(model.ngeom, OTHER, dtype=np.int8)
+        for g in range(model.ngeom):
+            geom_name = model.geom(g).name
+            body_name = model.body(model.geom_bodyid[g]).name
+            if geom_name in names.TABLE_GEOMS:
+                category[g] = TABLE
+            elif body_name.startswith("arm_"):
+                category[g] = ARM
+            elif body_name.startswith("svh_") or body_name == names.HAND_BASE_BODY:
+                category[g] = HAND
+            elif body_name.startswith("tool_"):
+                category[g] = TOOL
+            elif body_name == names.OBJECT_BODY:
+                category[g] = OBJECT
+        return category
+
+    def contact_counts(self, data: mujoco.MjData) -> tuple[int, int, int, bool]:
+        n = data.ncon
+        if n == 0:
+            return 0, 0, 0, False
+        g1 = self.geom_category[data.contact.geom1[:n]]
+        g2 = self.geom_category[data.contact.geom2[:n]]
+        pair = {frozenset((a, b)) for a, b in zip(g1.tolist(), g2.tolist())}
+        hand_tool = int(np.sum(((g1 == HAND) & (g2 == TOOL)) | ((g1 == TOOL) & (g2 == HAND))))
+        tool_obj = int(np.sum(((g1 == TOOL) & (g2 == OBJECT)) | ((g1 == OBJECT) & (g2 == TOOL))))
+        table = any(p in pair for p in (frozenset((ARM, TABLE)), frozenset((HAND, TABLE)), frozenset((TOOL, TABLE))))
+        return n, hand_tool, tool_obj, table
+
+    def read(self, data: mujoco.MjData) -> PrivilegedState:
+        rot_h = data.xmat[self.hand_body].reshape(3, 3)
+        pos_h = data.xpos[self.hand_body]
+
+        def to_hand(p):
+            return rot_h.T @ (p - pos_h)
+
+        tool_rot = rot_h.T @ data.xmat[self.tool_body].reshape(3, 3)
+        tool_quat = np.zeros(4)
+        mujoco.mju_mat2Quat(tool_quat, tool_rot.ravel())
+        tip_a = to_hand(data.site_xpos[self.tips[0]])
+        tip_b = to_hand(data.site_xpos[self.tips[1]])
+        if self.object_body >= 0:
+            obj_pos = data.xpos[self.object_body].copy()
+            obj_quat = data.xquat[self.object_body].copy()
+            obj_hand = to_hand(obj_pos)
+        else:
+            obj_pos = obj_hand = np.full(3, np.nan)
+            obj_quat = np.full(4, np.nan)
+        n, hand_tool, tool_obj, table = self.contact_counts(data)
+        return PrivilegedState(
+            time=float(data.time),
+            hinge_angle=float(data.qpos[self.hinge_qpos]),
+            tool_pos_hand=to_hand(data.xpos[self.tool_body]),
+            tool_quat_hand=tool_quat,
+            tip_a_hand=tip_a,
+            tip_b_hand=tip_b,
+            tip_gap=float(np.linalg.norm(tip_a - tip_b)),
+            hand_pos_world=pos_h.copy(),
+            hand_quat_world=data.xquat[self.hand_body].copy(),
+            object_pos_world=obj_pos,
+            object_quat_world=obj_quat,
+            object_pos_hand=obj_hand,
+            n_contacts=n,
+            hand_tool_contacts=hand_tool,
+            tool_object_contacts=tool_obj,
+            table_collision=table,
+        )
