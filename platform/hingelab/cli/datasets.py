@@ -1,0 +1,110 @@
+"""``hingelab datasets info|index|verify|recover|export``: look after episode datasets."""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from pathlib import Path
+
+from hingelab.episodes.errors import DatasetError
+from hingelab.paths import DATASETS_DIR
+
+
+def add_parser(subparsers) -> None:
+    p = subparsers.add_parser(
+        "datasets",
+        help="inspect, index, verify, recover and export episode datasets",
+        description="Look after episode datasets (folders of MCAP episode files, see datasets/README.md). "
+                    f"Dataset folders are usually under {DATASETS_DIR}.",
+    )
+    verbs = p.add_subparsers(title="subcommands", metavar="SUBCOMMAND", required=True)
+
+    info = verbs.add_parser("info", help="the dataset card and episode counts per source and object")
+    info.add_argument("dir", type=Path, help="dataset folder (holds dataset.json and episodes/)")
+    info.set_defaults(func=run_info)
+
+    index = verbs.add_parser("index", help="rebuild index.parquet from the episode files alone")
+    index.add_argument("dir", type=Path, help="dataset folder")
+    index.set_defaults(func=run_index)
+
+    verify = verbs.add_parser("verify", help="check every episode file; exit 1 naming each bad one")
+    verify.add_argument("dir", type=Path, help="dataset folder")
+    verify.set_defaults(func=run_verify)
+
+    recover = verbs.add_parser("recover", help="salvage the complete messages of a cut-off episode file")
+    recover.add_argument("file", type=Path, help="the cut-off file (usually episodes/<id>.mcap.partial)")
+    recover.add_argument("--out", type=Path, required=True, help="the new episode file to write")
+    recover.set_defaults(func=run_recover)
+
+    export = verbs.add_parser("export", help="export a dataset as Minari (HDF5) or LeRobot-style parquet")
+    export.add_argument("dir", type=Path, help="dataset folder")
+    export.add_argument("--format", choices=["minari", "lerobot"], required=True, help="target layout")
+    export.add_argument("--out", type=Path, required=True, help="output folder (must not exist)")
+    export.set_defaults(func=run_export)
+
+
+def _open(root: Path):
+    from hingelab.episodes.dataset import open_dataset
+
+    return open_dataset(root)
+
+
+def run_info(args: argparse.Namespace) -> int:
+    dataset = _open(args.dir)
+    card, frame, summary = dataset.card, dataset.index, dataset.summary()
+    print(f"dataset {card.name!r} at {dataset.root}")
+    print(f"  source {card.source}, seed {card.seed}, config {card.config_hash}, schema v{card.schema_version}, "
+          f"hingelab {card.hingelab_version} ({card.git_commit}), created {card.created}")
+    if len(frame):
+        table = frame.groupby(["source", "object"], dropna=False).agg(
+            episodes=("file", "size"), steps=("length", "sum"), success_rate=("success", "mean"),
+            mean_return=("return", "mean"))
+        print(table.to_string())
+    print(f"{summary['episodes']} episodes, {summary['steps']} steps, success rate "
+          f"{summary['success_rate']:.3f}, {summary['bytes'] / 1e6:.1f} MB, "
+          f"{summary['partial_files']} unfinished (.partial) files"
+          + ("; run hingelab datasets verify" if summary["partial_files"] else "") + ".")
+    return 0
+
+
+def run_index(args: argparse.Namespace) -> int:
+    dataset = _open(args.dir)
+    frame = dataset.build_index(rebuild=True, progress=True)
+    print(f"Rebuilt {dataset.root / 'index.parquet'} from {len(frame)} episode files "
+          f"({int(frame['length'].fillna(0).sum())} steps); "
+          f"{len(dataset.partial_files())} unfinished .partial files were left out.")
+    return 0
+
+
+def run_verify(args: argparse.Namespace) -> int:
+    from hingelab.episodes.verify import verify_dataset
+
+    _open(args.dir)
+    good, problems = verify_dataset(args.dir, progress=True)
+    for problem in problems:
+        print(str(problem), file=sys.stderr)
+    if problems:
+        names = ", ".join(p.path.name for p in problems)
+        raise DatasetError(f"{args.dir}: {len(problems)} bad file(s) of {len(good) + len(problems)} ({names}); "
+                           "see the lines above for each fix")
+    print(f"{args.dir}: all {len(good)} episode files are complete, decode and match their metadata.")
+    return 0
+
+
+def run_recover(args: argparse.Namespace) -> int:
+    from hingelab.episodes.recover import recover_episode
+
+    result = recover_episode(args.file, args.out)
+    state = (f"cut off at byte {result['cut_at']}" if result["cut_off"] else "complete (nothing was lost)")
+    print(f"Recovered {result['messages']} messages ({result['steps']} steps) from {args.file}, which was "
+          f"{state}, into {result['out']} (marked recovered=true).")
+    return 0
+
+
+def run_export(args: argparse.Namespace) -> int:
+    from hingelab.episodes.export import export_dataset
+
+    dataset = _open(args.dir)
+    out = export_dataset(dataset, args.format, args.out)
+    print(f"Exported {len(dataset)} episodes of {dataset.root} as {args.format} into {out}.")
+    return 0

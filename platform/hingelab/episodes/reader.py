@@ -1,0 +1,286 @@
+"""Read an episode file into numpy arrays per topic.
+
+``read_episode(path)`` returns an ``Episode``: ``episode.topics[topic][field]`` is a
+numpy array with one row per message of that topic (per step), plus
+``log_time_ns``. Two ways in:
+
+- fast (files from ``EpisodeWriter``): every field except clouds comes from the one
+  ``/episode/columns`` message; clouds are sliced out of cloud-only chunks
+  (``mcap_raw.py``) without decoding a message;
+- generic (any file whose messages use the contract's schemas, e.g. written by
+  another tool): every message is decoded with protobuf and stacked.
+Both give identical arrays (tested).
+
+Errors a user can act on (not an MCAP file, cut off, foreign schema, written by a
+newer schema version) raise ``DatasetError`` naming the file and the fix.
+"""
+
+from __future__ import annotations
+
+import json
+import struct
+from collections.abc import Iterable, Iterator
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+from mcap.reader import make_reader
+
+from hingelab.episodes import codec, mcap_raw
+from hingelab.episodes import schemas as S
+from hingelab.episodes.errors import DatasetError
+from hingelab.episodes.metadata import parse_metadata
+
+# Schema versions this reader understands. A version-2 reader keeps 1 here and
+# maps old topics/fields onto new names in ``_upgrade`` (nothing to map yet).
+SUPPORTED_SCHEMA_VERSIONS = frozenset({1})
+
+
+@dataclass
+class Episode:
+    """One episode as numpy arrays.
+
+    topics: {topic: {field: (T_topic, ...) array}}, each with ``log_time_ns`` (T_topic,) int64.
+    final: fields of the observation after the last action (``observation``, ...), or {}.
+    metadata: the parsed ``episode`` record (or ``episode_start`` of a cut-off file).
+    """
+
+    path: Path
+    metadata: dict
+    topics: dict[str, dict[str, np.ndarray]]
+    final: dict[str, np.ndarray] = field(default_factory=dict)
+
+    def __getitem__(self, topic: str) -> dict[str, np.ndarray]:
+        return self.topics[topic]
+
+    def __contains__(self, topic: str) -> bool:
+        return topic in self.topics
+
+    @property
+    def length(self) -> int:
+        return int(self.metadata.get(S.KEY_LENGTH, len(self.topics.get(S.TOPIC_STEP, {}).get("log_time_ns", []))))
+
+    @property
+    def points(self) -> np.ndarray:
+        """(T, N, 3) float32 tool clouds, metres, hand_base."""
+        return self.topics[S.TOPIC_POINTS]["points"]
+
+    def time_s(self, topic: str = S.TOPIC_STEP) -> np.ndarray:
+        """Log times of a topic's messages in seconds (simulated time)."""
+        return self.topics[topic]["log_time_ns"] / 1e9
+
+
+class EpisodeFile:
+    """An open episode file with its MCAP summary; the source of every read."""
+
+    def __init__(self, path):
+        self.path = Path(path)
+        if not self.path.is_file():
+            raise DatasetError(f"{self.path}: no such episode file; check the path")
+        self._stream = open(self.path, "rb")
+        self._reader = None
+        try:
+            self.summary = mcap_raw.read_summary(self._stream)
+        except mcap_raw.CutOffError as exc:
+            self.close()
+            raise DatasetError(
+                f"{self.path} is cut off ({exc}: the writer stopped before closing it); "
+                f"salvage it with: hingelab datasets recover {self.path} --out NEWFILE"
+            ) from exc
+        except (ValueError, struct.error, UnicodeDecodeError) as exc:
+            self.close()
+            raise DatasetError(f"{self.path} is not a valid MCAP file ({exc}); "
+                               "move it out of episodes/ or replace it") from exc
+        self.channels = {c.topic: c for c in self.summary.channels.values()}
+        self._check_schemas()
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()
+
+    def close(self) -> None:
+        self._stream.close()
+
+    def _check_schemas(self) -> None:
+        for channel in self.summary.channels.values():
+            schema = self.summary.schemas.get(channel.schema_id)
+            expected = S.TOPIC_TYPES.get(channel.topic)
+            name = schema.name if schema else "(no schema)"
+            if schema is None or schema.encoding != "protobuf" or expected is None \
+                    or name != expected.DESCRIPTOR.full_name:
+                want = expected.DESCRIPTOR.full_name if expected else "none: not a hingelab topic"
+                raise DatasetError(
+                    f"{self.path}: topic {channel.topic!r} has foreign schema {name!r} "
+                    f"(contract: {want}); this is not a hingelab episode file, move it out of episodes/"
+                )
+
+    def raw_metadata(self) -> dict[str, dict[str, str]]:
+        """{record name: {key: value}} of all metadata records (the last of each name)."""
+        out = {}
+        for name, places in self.summary.metadata_offsets.items():
+            for offset, length in places:
+                out[name] = mcap_raw.read_metadata_record(self._stream, offset, length)[1]
+        return out
+
+    def metadata(self) -> dict:
+        records = self.raw_metadata()
+        record = records.get(S.METADATA_EPISODE) or records.get(S.METADATA_EPISODE_START)
+        if record is None:
+            raise DatasetError(f"{self.path} has no 'episode' metadata record; it was not written "
+                               "by EpisodeWriter: rewrite it with hingelab.episodes.EpisodeWriter")
+        meta = parse_metadata(record)
+        version = meta.get(S.KEY_SCHEMA_VERSION, 1)
+        if version not in SUPPORTED_SCHEMA_VERSIONS:
+            raise DatasetError(f"{self.path} uses episode schema version {version}; this hingelab reads "
+                               f"{sorted(SUPPORTED_SCHEMA_VERSIONS)}: upgrade hingelab")
+        return meta
+
+    def channel_info(self, topic: str, key: str) -> dict | None:
+        channel = self.channels.get(topic)
+        if channel is None or key not in channel.metadata:
+            return None
+        return json.loads(channel.metadata[key])
+
+    def chunks_of(self, topic: str) -> tuple[list, bool]:
+        """Chunk indexes holding ``topic`` and whether all of them hold nothing else."""
+        channel_id = self.channels[topic].id
+        found = [c for c in self.summary.chunks if channel_id in c.channel_ids]
+        return found, all(c.channel_ids == {channel_id} for c in found)
+
+    def columns(self) -> dict[str, np.ndarray] | None:
+        """The packed ``/episode/columns`` arrays, or None if the file has none."""
+        if S.TOPIC_COLUMNS not in self.channels:
+            return None
+        chunk_indexes, _ = self.chunks_of(S.TOPIC_COLUMNS)
+        channel_id = self.channels[S.TOPIC_COLUMNS].id
+        for chunk_index in chunk_indexes:
+            records = mcap_raw.read_chunk_records(self._stream, chunk_index)
+            for _, start, end in mcap_raw.message_spans(records, channel_id):
+                message = S.EpisodeColumns.FromString(records[start:end])
+                return {c.name: np.frombuffer(c.data, dtype=c.dtype).reshape(tuple(c.shape))
+                        for c in message.columns}
+        return None
+
+    def clouds(self) -> tuple[np.ndarray, np.ndarray]:
+        """(log_time_ns (T,), points (T, N, 3) float32) of every ``/tool/points`` message."""
+        shapes = self.channel_info(S.TOPIC_POINTS, S.CHANNEL_SHAPES_KEY)
+        chunk_indexes, cloud_only = self.chunks_of(S.TOPIC_POINTS)
+        if not shapes or not cloud_only:
+            fields = self._decode_topics([S.TOPIC_POINTS])[S.TOPIC_POINTS]
+            return fields["log_time_ns"], fields["points"]
+        n_points = shapes["points"][0]
+        n_bytes = 12 * n_points
+        prefix = codec.cloud_data_prefix(n_points)
+        channel_id = self.channels[S.TOPIC_POINTS].id
+        times, pieces = [], []
+        for chunk_index in chunk_indexes:
+            records = mcap_raw.read_chunk_records(self._stream, chunk_index)
+            view = memoryview(records)
+            for log_time, start, end in mcap_raw.message_spans(records, channel_id):
+                data_start = end - n_bytes
+                if records[data_start - len(prefix):data_start] == prefix:
+                    pieces.append(view[data_start:end])
+                else:  # not laid out as EpisodeWriter writes it: decode this one message
+                    message = S.PointCloud.FromString(records[start:end])
+                    pieces.append(codec.decode_point_cloud(message).astype("<f4").tobytes())
+                times.append(log_time)
+        points = np.frombuffer(b"".join(pieces), dtype="<f4").reshape(len(times), n_points, 3)
+        times = np.asarray(times, dtype=np.int64)
+        if len(times) > 1 and np.any(np.diff(times) < 0):
+            order = np.argsort(times, kind="stable")
+            times, points = times[order], points[order]
+        return times, points
+
+    def iter_messages(self, topics: Iterable[str] | None = None) -> Iterator[tuple[str, int, object]]:
+        """(topic, log_time_ns, decoded protobuf message) in log-time order (mcap's reader)."""
+        if self._reader is None:
+            self._stream.seek(0)
+            self._reader = make_reader(self._stream)
+        for _, channel, message in self._reader.iter_messages(topics=topics):
+            cls = S.TOPIC_TYPES[channel.topic]
+            yield channel.topic, message.log_time, cls.FromString(message.data)
+
+    def _decode_topics(self, topics: Iterable[str] | None = None) -> dict:
+        wanted = [t for t in (topics or self.channels) if t in self.channels and t != S.TOPIC_COLUMNS]
+        return stack_messages(self.iter_messages(wanted), self._dtypes())[0]
+
+    def _dtypes(self) -> dict[str, dict]:
+        return {t: self.channel_info(t, S.CHANNEL_DTYPES_KEY) for t in self.channels}
+
+
+def stack_messages(messages: Iterable[tuple[str, int, object]],
+                   dtypes: dict[str, dict | None]) -> tuple[dict, dict]:
+    """Decoded per-step messages -> ({topic: {field: stacked array}}, final observation fields).
+
+    Used by the generic read path and by recover, which has no columns to read.
+    """
+    rows: dict[str, dict[str, list]] = {}
+    final: dict[str, np.ndarray] = {}
+    for topic, log_time, message in messages:
+        if topic == S.TOPIC_STEP and message.final:
+            step_dtypes = dtypes.get(topic)
+            for name, value in codec.decode_message(topic, message).items():
+                dtype = (step_dtypes or {}).get(name)
+                final[name] = value.astype(dtype) if dtype else value
+            continue
+        if topic == S.TOPIC_TF:  # viewer copy of /tool/pose: no arrays of its own
+            continue
+        fields = codec.cast_fields(codec.decode_message(topic, message), dtypes.get(topic))
+        topic_rows = rows.setdefault(topic, {"log_time_ns": []})
+        topic_rows["log_time_ns"].append(log_time)
+        for name, value in fields.items():
+            topic_rows.setdefault(name, []).append(value)
+    stacked = {}
+    for topic, fields in rows.items():
+        stacked[topic] = {name: (np.asarray(values, dtype=np.int64) if name == "log_time_ns" else np.stack(values))
+                          for name, values in fields.items()}
+    return stacked, final
+
+
+def columns_to_topics(columns: dict[str, np.ndarray]) -> tuple[dict, dict]:
+    """Split ``<topic>:<field>`` columns into per-topic dicts and the final observation."""
+    topics: dict[str, dict[str, np.ndarray]] = {}
+    final: dict[str, np.ndarray] = {}
+    for name, array in columns.items():
+        topic, _, field_name = name.rpartition(":")
+        if topic == S.TOPIC_STEP and field_name.startswith("final."):
+            final[field_name[len("final."):]] = array[0]
+        else:
+            topics.setdefault(topic, {})[field_name] = array
+    return topics, final
+
+
+def read_episode(path, topics: Iterable[str] | None = None, generic: bool = False) -> Episode:
+    """Read an episode file into arrays (all topics, or only ``topics``).
+
+    ``generic=True`` skips the fast path and decodes every message (used to test
+    that both give the same arrays, and for files from other writers).
+    """
+    wanted = None if topics is None else set(topics)
+    with EpisodeFile(path) as episode_file:
+        metadata = episode_file.metadata()
+        columns = None if generic else episode_file.columns()
+        if columns is None:
+            arrays, final = stack_messages(
+                episode_file.iter_messages([t for t in episode_file.channels
+                                            if t != S.TOPIC_COLUMNS and (wanted is None or t in wanted)]),
+                episode_file._dtypes(),
+            )
+            arrays.pop(S.TOPIC_TF, None)
+        else:
+            arrays, final = columns_to_topics(columns)
+            points_wanted = wanted is None or S.TOPIC_POINTS in wanted
+            if points_wanted and S.TOPIC_POINTS in episode_file.channels:
+                times, points = episode_file.clouds()
+                arrays[S.TOPIC_POINTS] = {"log_time_ns": times, "points": points}
+            else:
+                arrays.pop(S.TOPIC_POINTS, None)
+            if wanted is not None:
+                arrays = {t: v for t, v in arrays.items() if t in wanted}
+    return Episode(path=Path(path), metadata=metadata, topics=arrays, final=final)
+
+
+__all__ = ["Episode", "EpisodeFile", "read_episode", "stack_messages", "columns_to_topics",
+           "SUPPORTED_SCHEMA_VERSIONS"]

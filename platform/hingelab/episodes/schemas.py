@@ -1,0 +1,223 @@
+"""The episode contract in one place: topics, message types, metadata keys, units.
+
+Everything a reader outside hingelab needs to know is mirrored in
+``datasets/README.md``; a change here is a schema-version bump (see
+``SCHEMA_VERSION`` and ``reader.SUPPORTED_SCHEMA_VERSIONS``).
+
+hingelab's own messages are protobuf types built at import time from a
+``FileDescriptorProto`` (no generated ``_pb2`` file, no protoc): the file
+``hingelab/episodes_v1.proto`` in package ``hingelab``. Every MCAP file carries
+the full descriptor set of each schema it uses, so standard tools decode it.
+"""
+
+from __future__ import annotations
+
+from google.protobuf import descriptor_pb2, descriptor_pool, timestamp_pb2
+from google.protobuf.message_factory import GetMessageClass
+
+from foxglove_schemas_protobuf.FrameTransform_pb2 import FrameTransform
+from foxglove_schemas_protobuf.JointStates_pb2 import JointStates
+from foxglove_schemas_protobuf.PackedElementField_pb2 import PackedElementField
+from foxglove_schemas_protobuf.Point3InFrame_pb2 import Point3InFrame
+from foxglove_schemas_protobuf.PointCloud_pb2 import PointCloud
+from foxglove_schemas_protobuf.PoseInFrame_pb2 import PoseInFrame
+
+# Version of topics, schemas and metadata keys. Bump on any incompatible change
+# and keep the reader able to read every older version.
+SCHEMA_VERSION = 1
+
+# --- frames -------------------------------------------------------------------
+FRAME_HAND = "hand_base"  # the SVH hand's base frame; every position below is in it
+FRAME_TOOL = "tool"  # the registered tool (tweezer) frame, child of hand_base
+
+# --- topics (name -> what is on it) ---------------------------------------------
+TOPIC_POINTS = "/tool/points"  # foxglove.PointCloud, 256 x (x, y, z) float32 metres, hand_base
+TOPIC_TOOL_POSE = "/tool/pose"  # foxglove.PoseInFrame, registered tool pose, hand_base
+TOPIC_TF = "/tf"  # foxglove.FrameTransform hand_base -> tool (viewer copy of /tool/pose)
+TOPIC_JOINTS = "/hand/joints"  # foxglove.JointStates, 9 actuated SVH DoF: rad, rad/s
+TOPIC_LATENT = "/tool/latent"  # hingelab.ToolLatent: z (2), z_smoothed (2), unitless
+TOPIC_ACTION = "/action"  # hingelab.Action: the action applied at this step
+TOPIC_GOAL = "/goal"  # hingelab.LatentGoal: z_goal (2), unitless
+TOPIC_REWARD = "/reward/terms"  # hingelab.RewardTerms: named terms and their sum
+TOPIC_OBJECT = "/object/position"  # foxglove.Point3InFrame, metres, hand_base
+TOPIC_TARGET = "/target/position"  # foxglove.Point3InFrame, metres, hand_base
+TOPIC_PRIVILEGED = "/sim/privileged"  # hingelab.PrivilegedState: simulator ground truth
+TOPIC_STEP = "/step"  # hingelab.Step: the compact learner record
+TOPIC_COLUMNS = "/episode/columns"  # hingelab.EpisodeColumns: one message per episode
+
+# Per-step topics in the order the writer logs them within a step.
+STEP_TOPICS = (
+    TOPIC_POINTS, TOPIC_TOOL_POSE, TOPIC_TF, TOPIC_JOINTS, TOPIC_LATENT, TOPIC_ACTION,
+    TOPIC_GOAL, TOPIC_REWARD, TOPIC_OBJECT, TOPIC_TARGET, TOPIC_PRIVILEGED, TOPIC_STEP,
+)
+
+# --- metadata records -------------------------------------------------------------
+METADATA_EPISODE = "episode"  # written at close: the full per-episode facts
+METADATA_EPISODE_START = "episode_start"  # written at open: survives a crash, used by recover
+
+# Keys of the ``episode`` record. Values are strings (MCAP requires it); see
+# ``metadata.py`` for how each is formatted and parsed.
+KEY_SOURCE = "source"
+KEY_TASK = "task"
+KEY_OBJECT = "object"
+KEY_SEED = "seed"
+KEY_LENGTH = "length"
+KEY_RETURN = "return"
+KEY_SUCCESS = "success"
+KEY_ATTEMPT = "attempt"
+KEY_CONFIG_HASH = "config_hash"
+KEY_FAILURE_REASON = "failure_reason"
+KEY_TRUNCATED_FILE = "recovered"  # "true" if the file was salvaged from a cut-off write
+KEY_EPISODE_ID = "episode_id"
+KEY_SCHEMA_VERSION = "schema_version"
+KEY_START_TIME = "start_time_s"
+KEY_END_TIME = "end_time_s"
+KEY_CREATED = "created"
+KEY_HINGELAB_VERSION = "hingelab_version"
+KEY_GIT_COMMIT = "git_commit"
+KEY_JOINT_NAMES = "joint_names"
+KEY_ACTION_LEVEL = "action_level"
+
+REQUIRED_EPISODE_KEYS = (
+    KEY_SOURCE, KEY_TASK, KEY_OBJECT, KEY_SEED, KEY_LENGTH, KEY_RETURN, KEY_SUCCESS,
+    KEY_ATTEMPT, KEY_CONFIG_HASH,
+)
+
+# Channel metadata key: JSON {field: numpy dtype name} so that the per-step
+# messages (which carry float fields as double) decode back to the dtypes the
+# writer was given, bit for bit.
+CHANNEL_DTYPES_KEY = "hingelab.dtypes"
+CHANNEL_SHAPES_KEY = "hingelab.shapes"  # JSON {field: per-step shape}, e.g. {"points": [256, 3]}
+
+# The 9 actuated DoF of the Schunk SVH, in the order of q, q-dot and 9-D actions.
+SVH_JOINT_NAMES = (
+    "thumb_flexion", "thumb_opposition", "index_distal", "index_proximal",
+    "middle_distal", "middle_proximal", "ring", "pinky", "finger_spread",
+)
+
+
+# --- hingelab's own protobuf messages ---------------------------------------------
+_PROTO_FILE = "hingelab/episodes_v1.proto"
+_F = descriptor_pb2.FieldDescriptorProto
+
+# (message, [(field, number, type, label, type_name)]); type_name for messages only.
+_REPEATED, _OPTIONAL = _F.LABEL_REPEATED, _F.LABEL_OPTIONAL
+_TS = (_F.TYPE_MESSAGE, ".google.protobuf.Timestamp")
+_MESSAGES = {
+    "ToolLatent": [
+        ("timestamp", 1, *_TS, _OPTIONAL),
+        ("z", 2, _F.TYPE_DOUBLE, None, _REPEATED),
+        ("z_smoothed", 3, _F.TYPE_DOUBLE, None, _REPEATED),
+    ],
+    "Action": [
+        ("timestamp", 1, *_TS, _OPTIONAL),
+        ("values", 2, _F.TYPE_DOUBLE, None, _REPEATED),
+        ("level", 3, _F.TYPE_STRING, None, _OPTIONAL),
+    ],
+    "LatentGoal": [
+        ("timestamp", 1, *_TS, _OPTIONAL),
+        ("z_goal", 2, _F.TYPE_DOUBLE, None, _REPEATED),
+    ],
+    "RewardTerms": [
+        ("timestamp", 1, *_TS, _OPTIONAL),
+        ("names", 2, _F.TYPE_STRING, None, _REPEATED),
+        ("values", 3, _F.TYPE_DOUBLE, None, _REPEATED),
+        ("total", 4, _F.TYPE_DOUBLE, None, _OPTIONAL),
+    ],
+    "PrivilegedState": [
+        ("timestamp", 1, *_TS, _OPTIONAL),
+        ("hinge_angle", 2, _F.TYPE_DOUBLE, None, _OPTIONAL),
+        ("tool_position", 3, _F.TYPE_DOUBLE, None, _REPEATED),
+        ("tool_orientation", 4, _F.TYPE_DOUBLE, None, _REPEATED),
+        ("tip_a", 5, _F.TYPE_DOUBLE, None, _REPEATED),
+        ("tip_b", 6, _F.TYPE_DOUBLE, None, _REPEATED),
+        ("object_position", 7, _F.TYPE_DOUBLE, None, _REPEATED),
+        ("object_orientation", 8, _F.TYPE_DOUBLE, None, _REPEATED),
+        ("contact_count", 9, _F.TYPE_UINT32, None, _OPTIONAL),
+        ("table_collision", 10, _F.TYPE_BOOL, None, _OPTIONAL),
+    ],
+    "Step": [
+        ("timestamp", 1, *_TS, _OPTIONAL),
+        ("index", 2, _F.TYPE_UINT32, None, _OPTIONAL),
+        ("observation", 3, _F.TYPE_DOUBLE, None, _REPEATED),
+        ("achieved_goal", 4, _F.TYPE_DOUBLE, None, _REPEATED),
+        ("desired_goal", 5, _F.TYPE_DOUBLE, None, _REPEATED),
+        ("action", 6, _F.TYPE_DOUBLE, None, _REPEATED),
+        ("reward", 7, _F.TYPE_DOUBLE, None, _OPTIONAL),
+        ("terminated", 8, _F.TYPE_BOOL, None, _OPTIONAL),
+        ("truncated", 9, _F.TYPE_BOOL, None, _OPTIONAL),
+        ("info_names", 10, _F.TYPE_STRING, None, _REPEATED),
+        ("info_values", 11, _F.TYPE_DOUBLE, None, _REPEATED),
+        ("final", 12, _F.TYPE_BOOL, None, _OPTIONAL),
+    ],
+    "Column": [
+        ("name", 1, _F.TYPE_STRING, None, _OPTIONAL),
+        ("dtype", 2, _F.TYPE_STRING, None, _OPTIONAL),
+        ("shape", 3, _F.TYPE_UINT64, None, _REPEATED),
+        ("data", 4, _F.TYPE_BYTES, None, _OPTIONAL),
+    ],
+    "EpisodeColumns": [
+        ("timestamp", 1, *_TS, _OPTIONAL),
+        ("length", 2, _F.TYPE_UINT32, None, _OPTIONAL),
+        ("columns", 3, _F.TYPE_MESSAGE, ".hingelab.Column", _REPEATED),
+    ],
+}
+
+
+def _build_messages() -> dict[str, type]:
+    file_proto = descriptor_pb2.FileDescriptorProto(
+        name=_PROTO_FILE, package="hingelab", syntax="proto3",
+        dependency=[timestamp_pb2.DESCRIPTOR.name],
+    )
+    for message_name, fields in _MESSAGES.items():
+        message = file_proto.message_type.add(name=message_name)
+        for name, number, ftype, type_name, label in fields:
+            field = message.field.add(name=name, number=number, type=ftype, label=label)
+            if type_name:
+                field.type_name = type_name
+    pool = descriptor_pool.Default()
+    try:  # already built (module reloaded): reuse, the default pool refuses duplicates
+        file_descriptor = pool.FindFileByName(_PROTO_FILE)
+    except KeyError:
+        pool.Add(file_proto)
+        file_descriptor = pool.FindFileByName(_PROTO_FILE)
+    return {
+        name: GetMessageClass(file_descriptor.message_types_by_name[name]) for name in _MESSAGES
+    }
+
+
+_CLASSES = _build_messages()
+ToolLatent = _CLASSES["ToolLatent"]
+Action = _CLASSES["Action"]
+LatentGoal = _CLASSES["LatentGoal"]
+RewardTerms = _CLASSES["RewardTerms"]
+PrivilegedState = _CLASSES["PrivilegedState"]
+Step = _CLASSES["Step"]
+Column = _CLASSES["Column"]
+EpisodeColumns = _CLASSES["EpisodeColumns"]
+
+# topic -> protobuf class of its messages
+TOPIC_TYPES = {
+    TOPIC_POINTS: PointCloud,
+    TOPIC_TOOL_POSE: PoseInFrame,
+    TOPIC_TF: FrameTransform,
+    TOPIC_JOINTS: JointStates,
+    TOPIC_LATENT: ToolLatent,
+    TOPIC_ACTION: Action,
+    TOPIC_GOAL: LatentGoal,
+    TOPIC_REWARD: RewardTerms,
+    TOPIC_OBJECT: Point3InFrame,
+    TOPIC_TARGET: Point3InFrame,
+    TOPIC_PRIVILEGED: PrivilegedState,
+    TOPIC_STEP: Step,
+    TOPIC_COLUMNS: EpisodeColumns,
+}
+
+# Schema names a hingelab episode may carry; anything else is a foreign schema.
+KNOWN_SCHEMA_NAMES = frozenset(cls.DESCRIPTOR.full_name for cls in TOPIC_TYPES.values())
+
+__all__ = [name for name in dir() if name.isupper()] + [
+    "ToolLatent", "Action", "LatentGoal", "RewardTerms", "PrivilegedState", "Step", "Column",
+    "EpisodeColumns", "PointCloud", "PoseInFrame", "FrameTransform", "JointStates",
+    "Point3InFrame", "PackedElementField",
+]

@@ -1,0 +1,92 @@
+"""``verify``: find every cut-off, corrupt, foreign or schema-less episode file.
+
+A file passes when: it opens as MCAP with a summary (not cut off), every channel
+uses the contract's protobuf schema for its topic, it has an ``episode`` record
+with the required keys, every chunk passes its CRC, every message decodes, and
+the ``/step`` count matches ``length``. ``.partial`` files are unfinished writes
+(a writer still running, or killed): they are reported, and ``recover`` salvages them.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+
+from mcap.reader import SeekingReader
+from tqdm import tqdm
+
+from hingelab.episodes import schemas as S
+from hingelab.episodes.card import EPISODES_DIR, load_card
+from hingelab.episodes.errors import DatasetError
+from hingelab.episodes.reader import EpisodeFile
+from hingelab.episodes.writer import PARTIAL_SUFFIX
+
+
+@dataclass
+class Problem:
+    path: Path
+    kind: str  # "cut-off", "partial", "corrupt", "foreign", "not-mcap", "metadata", "unexpected"
+    message: str
+
+    def __str__(self) -> str:
+        return f"{self.path}: {self.kind}: {self.message}"
+
+
+def verify_episode(path: Path) -> Problem | None:
+    """None if the episode file is sound, else the first problem found."""
+    path = Path(path)
+    try:
+        with EpisodeFile(path) as episode_file:
+            meta = episode_file.metadata()
+            raw = episode_file.raw_metadata().get(S.METADATA_EPISODE, {})
+            missing = [k for k in S.REQUIRED_EPISODE_KEYS if k not in raw]
+            if missing:
+                return Problem(path, "metadata", f"episode record lacks {', '.join(missing)}; "
+                                                  "rewrite it with EpisodeWriter")
+    except DatasetError as exc:
+        text = str(exc)
+        kind = "cut-off" if "cut off" in text else "foreign" if "foreign schema" in text else (
+            "not-mcap" if "not a valid MCAP" in text else "metadata")
+        if text.startswith(str(path)):
+            text = text[len(str(path)):].lstrip(": ")
+        return Problem(path, kind, text)
+    steps = 0
+    try:
+        with open(path, "rb") as stream:
+            reader = SeekingReader(stream, validate_crcs=True)
+            for _, channel, message in reader.iter_messages(log_time_order=False):
+                decoded = S.TOPIC_TYPES[channel.topic].FromString(message.data)
+                if channel.topic == S.TOPIC_STEP and not decoded.final:
+                    steps += 1
+    except Exception as exc:  # noqa: BLE001 - any failure to read a message is corruption
+        return Problem(path, "corrupt", f"{type(exc).__name__}: {exc}; restore it, or salvage with "
+                                        f"hingelab datasets recover {path} --out NEWFILE")
+    if S.KEY_LENGTH in meta and steps and steps != meta[S.KEY_LENGTH]:
+        return Problem(path, "corrupt", f"{steps} /step messages but length={meta[S.KEY_LENGTH]}")
+    return None
+
+
+def verify_dataset(root, progress: bool = False) -> tuple[list[Path], list[Problem]]:
+    """(sound episode files, problems) of a dataset folder."""
+    root = Path(root)
+    load_card(root)
+    episodes_dir = root / EPISODES_DIR
+    if not episodes_dir.is_dir():
+        raise DatasetError(f"{episodes_dir} is missing; a dataset keeps its episodes there")
+    good, problems = [], []
+    for path in tqdm(sorted(episodes_dir.iterdir()), desc=f"verify {root.name}", unit="file",
+                     disable=not progress):
+        if path.name.startswith("."):
+            continue  # hidden temporaries of atomic writes (index, card)
+        if path.name.endswith(PARTIAL_SUFFIX):
+            problems.append(Problem(path, "partial", "unfinished write (writer running or killed); "
+                                                     f"salvage with hingelab datasets recover {path} --out NEWFILE"))
+        elif path.suffix != ".mcap":
+            problems.append(Problem(path, "unexpected", "not an episode file (*.mcap); move it out of episodes/"))
+        else:
+            problem = verify_episode(path)
+            (problems.append(problem) if problem else good.append(path))
+    return good, problems
+
+
+__all__ = ["Problem", "verify_episode", "verify_dataset"]
