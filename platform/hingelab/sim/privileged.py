@@ -56,6 +56,7 @@ class PrivilegedReader:
         self.hinge_qpos = model.jnt_qposadr[model.joint(names.TOOL_HINGE).id]
         self.object_body = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_BODY, names.OBJECT_BODY)
         self.geom_category = self._categorize(model)
+        self._table_codes = np.array([8 * ARM + TABLE, 8 * HAND + TABLE, 8 * TOOL + TABLE])
 
     def _categorize(self, model: mujoco.MjModel) -> np.ndarray:
         category = np.full(model.ngeom, OTHER, dtype=np.int8)
@@ -78,13 +79,11 @@ class PrivilegedReader:
         n = data.ncon
         if n == 0:
             return 0, 0, 0, False
-        g1 = self.geom_category[data.contact.geom1[:n]]
-        g2 = self.geom_category[data.contact.geom2[:n]]
-        pair = {frozenset((a, b)) for a, b in zip(g1.tolist(), g2.tolist())}
-        hand_tool = int(np.sum(((g1 == HAND) & (g2 == TOOL)) | ((g1 == TOOL) & (g2 == HAND))))
-        tool_obj = int(np.sum(((g1 == TOOL) & (g2 == OBJECT)) | ((g1 == OBJECT) & (g2 == TOOL))))
-        table = any(p in pair for p in (frozenset((ARM, TABLE)), frozenset((HAND, TABLE)), frozenset((TOOL, TABLE))))
-        return n, hand_tool, tool_obj, table
+        # one code per unordered category pair: 8 * low + high
+        pairs = self.geom_category[data.contact.geom[:n]]  # (n, 2) categories
+        codes = np.bincount(8 * pairs.min(axis=1) + pairs.max(axis=1), minlength=64)
+        table = bool(codes[self._table_codes].any())
+        return n, int(codes[8 * HAND + TOOL]), int(codes[8 * TOOL + OBJECT]), table
 
     def read(self, data: mujoco.MjData) -> PrivilegedState:
         rot_h = data.xmat[self.hand_body].reshape(3, 3)

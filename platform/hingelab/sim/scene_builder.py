@@ -24,7 +24,7 @@ from hingelab.paths import ASSETS_DIR, SCENES_DIR
 from hingelab.provenance import code_version
 from hingelab.sim import names
 from hingelab.sim.arm_control import solve_hand_pose
-from hingelab.sim.finger_synergy import SynergyFitter
+from hingelab.sim.finger_synergy import FingerSynergy, SynergyFitter
 from hingelab.sim.hand import HandCoupling
 from hingelab.sim.objects import TRAINING_OBJECT, ObjectSpec, add_object_geom
 
@@ -39,6 +39,7 @@ TOOL_POS_HAND = np.array([0.035, 0.032, 0.122])
 TOOL_ROT_HAND = np.diag([-1.0, 1.0, -1.0])
 GRASP_THETA = 0.15  # rad: hinge angle the grasp is set up at (mid-range)
 SETTLE_S = 1.5
+CALIBRATE_S = 1.0
 SYNERGY_THETAS = np.round(np.arange(0.0, 0.3001, 0.02), 4)
 
 # Pick scene layout (metres, world frame; the table top is z = 0).
@@ -142,7 +143,7 @@ def _place_tool_in_hand(model, data, theta: float) -> None:
 def _set_hand(model, data, targets: np.ndarray) -> None:
     for name, value in zip(names.HAND_ACTUATORS, targets):
         data.joint(name).qpos = value
-        data.actuator(name).ctrl = value
+    _set_hand_ctrl(data, targets)
     HandCoupling(model).apply_to_qpos(data)
 
 
@@ -167,6 +168,35 @@ def settle_grasp(model: mujoco.MjModel, data: mujoco.MjData, synergy=None):
     _set_hand(model, data, synergy.targets(GRASP_THETA))
     _settle(model, data, SETTLE_S)
     return synergy
+
+
+def calibrate_synergy(model: mujoco.MjModel, grasp_qpos: np.ndarray, synergy: FingerSynergy) -> FingerSynergy:
+    """Re-key the synergy by the hinge angle its targets really reach.
+
+    The fitted table is kinematic; under contact the leg settles a little closed of its
+    row's angle. Each row is run from the settled grasp for CALIBRATE_S and the measured
+    hinge angle becomes its key, so that ``targets(theta)`` means "reach theta".
+    """
+    data = mujoco.MjData(model)
+    measured = []
+    for row in synergy.targets_table:
+        data.qpos[:] = grasp_qpos
+        data.qvel[:] = 0
+        data.time = 0
+        _set_hand_ctrl(data, row)
+        _settle(model, data, CALIBRATE_S)
+        measured.append(float(data.joint(names.TOOL_HINGE).qpos[0]))
+    measured = np.asarray(measured)
+    keep = [0]
+    for k in range(1, len(measured)):  # keep a strictly increasing key
+        if measured[k] > measured[keep[-1]] + 1e-3:
+            keep.append(k)
+    return FingerSynergy(measured[keep], synergy.targets_table[keep])
+
+
+def _set_hand_ctrl(data, targets: np.ndarray) -> None:
+    for name, value in zip(names.HAND_ACTUATORS, targets):
+        data.actuator(name).ctrl = value
 
 
 def _add_keyframe(spec: mujoco.MjSpec, model, data) -> None:
@@ -194,8 +224,9 @@ def build(out_dir: Path = SCENES_DIR) -> dict:
     spec = tool_shape_spec()
     model = spec.compile()
     data = mujoco.MjData(model)
-    synergy = settle_grasp(model, data)
+    fitted = settle_grasp(model, data)
     _add_keyframe(spec, model, data)
+    synergy = calibrate_synergy(model, data.qpos.copy(), fitted)
     (out_dir / "tool_shape.xml").write_text(_header("tool_shape") + spec.to_xml())
     summary["tool_shape_hinge"] = float(data.joint(names.TOOL_HINGE).qpos[0])
 
@@ -206,11 +237,12 @@ def build(out_dir: Path = SCENES_DIR) -> dict:
     for joint, value in zip(names.ARM_JOINTS, q_home):
         data.joint(joint).qpos = value
         data.actuator(joint).ctrl = value
-    settle_grasp(model, data, synergy)
+    settle_grasp(model, data, fitted)
     _add_keyframe(spec, model, data)
     (out_dir / "tool_pick.xml").write_text(_header("tool_pick") + spec.to_xml())
     summary["tool_pick_hinge"] = float(data.joint(names.TOOL_HINGE).qpos[0])
     summary["arm_home"] = q_home.round(4).tolist()
+    summary["synergy_hinge_range"] = list(synergy.theta_range)
 
     payload = {**synergy.to_json(), "made_by": "python -m hingelab.sim.scene_builder", **code_version()}
     (out_dir / "grasp_synergy.json").write_text(json.dumps(payload, indent=1) + "\n")
