@@ -33,6 +33,8 @@ from hingelab.sim.scene import load_scene
 CONTROL_HZ = 20.0
 HINGE_SERVO_KP = 2.0  # N m / rad when the privileged hinge command is on
 MAX_HAND_SPEED = 0.5  # m/s: commanded hand velocities beyond this are refused as invalid
+_INSTABILITY_WARNINGS = (mujoco.mjtWarning.mjWARN_BADQPOS, mujoco.mjtWarning.mjWARN_BADQVEL,
+                         mujoco.mjtWarning.mjWARN_BADQACC)
 
 
 @dataclass(frozen=True)
@@ -88,7 +90,7 @@ class SimCore:
         if self.arm is not None:
             self.arm.reset(d)
         self.diverged = False
-        self._warnings_at_reset = int(d.warning[mujoco.mjtWarning.mjWARN_BADQACC].number)
+        self._warnings_at_reset = self._instability_warnings()
         self.hand_delay.reset(self._hand_sample())
         return self.reader.read(d)
 
@@ -171,10 +173,15 @@ class SimCore:
     def privileged(self) -> PrivilegedState:
         return self.reader.read(self.data)
 
+    def _instability_warnings(self) -> int:
+        w = self.data.warning
+        return sum(int(w[k].number) for k in _INSTABILITY_WARNINGS)
+
     def _divergence(self) -> str:
         d = self.data
-        if int(d.warning[mujoco.mjtWarning.mjWARN_BADQACC].number) > self._warnings_at_reset:
-            return "MuJoCo reported a NaN/Inf/huge acceleration"
+        if self._instability_warnings() > self._warnings_at_reset:
+            # MuJoCo has already reset the state to the model's defaults: the episode is void
+            return "MuJoCo found a NaN, Inf or huge position, velocity or acceleration"
         if not (np.isfinite(d.qpos).all() and np.isfinite(d.qvel).all()):
             return "NaN or Inf in the simulation state"
         return ""

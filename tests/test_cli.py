@@ -1,0 +1,47 @@
+"""The ``hingelab`` command as a user runs it: a real subprocess, checked output."""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+
+import pytest
+
+
+def hingelab(*args, check=True):
+    return subprocess.run([sys.executable, "-m", "hingelab.cli.main", *args], capture_output=True, text=True,
+                          check=check, timeout=300)
+
+
+def test_help_lists_the_commands():
+    out = hingelab("--help").stdout
+    for verb in ("demo", "bench", "datasets"):
+        assert verb in out
+
+
+def test_demo_runs_and_measures_the_platform(tmp_path):
+    out_file = tmp_path / "demo.json"
+    result = hingelab("demo", "--out", str(out_file))
+    assert "lifted it" in result.stdout and "demo finished" in result.stdout
+    measured = json.loads(out_file.read_text())["step_platform"]
+    assert measured["hold_drift_mm"] < 5
+    assert measured["finger_hinge_range_rad"][1] - measured["finger_hinge_range_rad"][0] > 0.15
+    assert measured["reach_worst_error_mm"] < 2 and not measured["reach_table_collision"]
+    assert measured["lift_cm"] > 4.5
+
+
+def test_bench_sim_writes_its_table(tmp_path):
+    result = hingelab("bench", "sim", "--quick", "--out", str(tmp_path))
+    assert "SimCore / raw mj_step" in result.stdout
+    table = json.loads((tmp_path / "sim.json").read_text())
+    assert {row["scene"] for row in table["rows"]} == {"tool_shape", "tool_pick"}
+    for ratio in table["ratios"].values():
+        assert 0 < ratio < 5
+    assert table["code"]["git_commit"]
+
+
+def test_unknown_benchmark_is_a_one_line_error():
+    result = hingelab("bench", "nope", check=False)
+    assert result.returncode == 1
+    assert result.stderr.strip().count("\n") == 0 and "unknown benchmark 'nope'" in result.stderr
