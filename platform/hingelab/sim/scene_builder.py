@@ -13,6 +13,7 @@ after ``SETTLE_S`` seconds is stored. Run it again after changing a part.
 from __future__ import annotations
 
 import argparse
+import contextlib
 import json
 import warnings
 from pathlib import Path
@@ -60,12 +61,28 @@ def _load_part(name: str, file: str) -> mujoco.MjSpec:
     return mujoco.MjSpec.from_file(str(path))
 
 
-def _attach(frame: mujoco.MjsFrame, part: mujoco.MjSpec) -> None:
+@contextlib.contextmanager
+def _empty_prefix_attach_allowed():
     # An empty prefix keeps the public names (svh_*, tool_*); MuJoCo warns that such a
-    # spec may not save, which is why every scene is re-loaded and checked after saving.
+    # spec may not save, which is why the saved scenes are re-loaded and checked by tests.
     with warnings.catch_warnings():
-        warnings.simplefilter("ignore")
+        warnings.filterwarnings("ignore", message="Attaching a spec with an empty prefix")
+        yield
+
+
+def _attach(frame: mujoco.MjsFrame, part: mujoco.MjSpec) -> None:
+    with _empty_prefix_attach_allowed():
         frame.attach_body(part.worldbody.first_body(), "", "")
+
+
+def _compile(spec: mujoco.MjSpec) -> mujoco.MjModel:
+    with _empty_prefix_attach_allowed():
+        return spec.compile()
+
+
+def _to_xml(spec: mujoco.MjSpec) -> str:
+    with _empty_prefix_attach_allowed():
+        return spec.to_xml()
 
 
 def _base_spec(model_name: str) -> mujoco.MjSpec:
@@ -222,16 +239,16 @@ def build(out_dir: Path = SCENES_DIR) -> dict:
     summary = {}
 
     spec = tool_shape_spec()
-    model = spec.compile()
+    model = _compile(spec)
     data = mujoco.MjData(model)
     fitted = settle_grasp(model, data)
     _add_keyframe(spec, model, data)
     synergy = calibrate_synergy(model, data.qpos.copy(), fitted)
-    (out_dir / "tool_shape.xml").write_text(_header("tool_shape") + spec.to_xml())
+    (out_dir / "tool_shape.xml").write_text(_header("tool_shape") + _to_xml(spec))
     summary["tool_shape_hinge"] = float(data.joint(names.TOOL_HINGE).qpos[0])
 
     spec = tool_pick_spec()
-    model = spec.compile()
+    model = _compile(spec)
     data = mujoco.MjData(model)
     q_home = _home_arm(model, data)
     for joint, value in zip(names.ARM_JOINTS, q_home):
@@ -239,7 +256,7 @@ def build(out_dir: Path = SCENES_DIR) -> dict:
         data.actuator(joint).ctrl = value
     settle_grasp(model, data, fitted)
     _add_keyframe(spec, model, data)
-    (out_dir / "tool_pick.xml").write_text(_header("tool_pick") + spec.to_xml())
+    (out_dir / "tool_pick.xml").write_text(_header("tool_pick") + _to_xml(spec))
     summary["tool_pick_hinge"] = float(data.joint(names.TOOL_HINGE).qpos[0])
     summary["arm_home"] = q_home.round(4).tolist()
     summary["synergy_hinge_range"] = list(synergy.theta_range)
