@@ -48,6 +48,22 @@ class ObjectSpec:
             )
 
     @property
+    def height(self) -> float:
+        """Height when resting (a tetrahedron stands on a face), metres."""
+        return self.size * np.sqrt(2.0 / 3.0) if self.shape == "tetrahedron" else self.size
+
+    def width_at(self, height: float) -> float:
+        """Extent along the world y axis (the tips' closing direction) at ``height`` above the
+        resting surface, for the object placed unrotated, metres."""
+        z = float(np.clip(height, 0.0, self.height))
+        if self.shape == "sphere":
+            r = self.size / 2
+            return 2 * float(np.sqrt(max(r * r - (z - r) ** 2, 0.0)))
+        if self.shape == "tetrahedron":
+            return self.size * (1.0 - z / self.height)  # an edge lies along y at the base
+        return self.size
+
+    @property
     def rest_height(self) -> float:
         """Height of the body origin above the surface it rests on, metres."""
         if self.shape == "tetrahedron":

@@ -1,0 +1,1 @@
+"""The privileged heuristic controller that fills the high-level replay buffer (paper)."""
