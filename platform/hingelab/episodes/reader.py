@@ -6,7 +6,8 @@ numpy array with one row per message of that topic (per step), plus
 
 - fast (files from ``EpisodeWriter``): every field except clouds comes from the one
   ``/episode/columns`` message; clouds are sliced out of cloud-only chunks
-  (``mcap_raw.py``) without decoding a message;
+  (``mcap_raw.py``: read with their message indexes, decompressed in parallel, any
+  per-chunk compression) without decoding a message;
 - generic (any file whose messages use the contract's schemas, e.g. written by
   another tool): every message is decoded with protobuf and stacked.
 Both give identical arrays (tested).
@@ -158,13 +159,21 @@ class EpisodeFile:
         for chunk_index in chunk_indexes:
             records = mcap_raw.read_chunk_records(self._stream, chunk_index)
             for _, start, end in mcap_raw.message_spans(records, channel_id):
-                message = S.EpisodeColumns.FromString(records[start:end])
+                message = S.EpisodeColumns.FromString(bytes(records[start:end]))
                 return {c.name: np.frombuffer(c.data, dtype=c.dtype).reshape(tuple(c.shape))
                         for c in message.columns}
         return None
 
     def clouds(self) -> tuple[np.ndarray, np.ndarray]:
-        """(log_time_ns (T,), points (T, N, 3) float32) of every ``/tool/points`` message."""
+        """(log_time_ns (T,), points (T, N, 3) float32) of every ``/tool/points`` message.
+
+        Fast path (cloud-only chunks with message indexes, as ``EpisodeWriter`` writes
+        them): the chunks are decompressed in parallel (``mcap_raw.ChunkBatch``),
+        each message's end is found from the chunk's MessageIndex and its record length,
+        and the last 12 N bytes of each payload (after the ``data`` field's tag and length,
+        checked) are the points: no message is decoded. A message laid out differently is
+        decoded with protobuf.
+        """
         shapes = self.channel_info(S.TOPIC_POINTS, S.CHANNEL_SHAPES_KEY)
         chunk_indexes, cloud_only = self.chunks_of(S.TOPIC_POINTS)
         if not shapes or not cloud_only:
@@ -174,24 +183,52 @@ class EpisodeFile:
         n_bytes = 12 * n_points
         prefix = codec.cloud_data_prefix(n_points)
         channel_id = self.channels[S.TOPIC_POINTS].id
-        times, pieces = [], []
-        for chunk_index in chunk_indexes:
-            records = mcap_raw.read_chunk_records(self._stream, chunk_index)
-            view = memoryview(records)
-            for log_time, start, end in mcap_raw.message_spans(records, channel_id):
-                data_start = end - n_bytes
-                if records[data_start - len(prefix):data_start] == prefix:
-                    pieces.append(view[data_start:end])
-                else:  # not laid out as EpisodeWriter writes it: decode this one message
-                    message = S.PointCloud.FromString(records[start:end])
-                    pieces.append(codec.decode_point_cloud(message).astype("<f4").tobytes())
-                times.append(log_time)
-        points = np.frombuffer(b"".join(pieces), dtype="<f4").reshape(len(times), n_points, 3)
-        times = np.asarray(times, dtype=np.int64)
+        with mcap_raw.ChunkBatch(self._stream, chunk_indexes, index_of=channel_id) as batch:
+            if any(index is None for index in batch.indexes):  # no message indexes: walk the records
+                return self._walk_clouds(batch, channel_id, n_points)
+            times = (np.concatenate([index["log_time"] for index in batch.indexes]).astype(np.int64)
+                     if batch.indexes else np.zeros(0, dtype=np.int64))
+            points = np.empty((len(times), n_points, 3), dtype="<f4")
+            out = memoryview(points.reshape(-1).view(np.uint8))
+            row = 0
+            for records, index in zip(batch, batch.indexes):
+                starts = index["offset"].astype(np.int64)
+                ends = mcap_raw.record_ends(records, starts)
+                data_starts = ends - n_bytes
+                if not (mcap_raw.all_preceded_by(records, data_starts, prefix)
+                        and np.all(data_starts >= starts + 9 + 22)):
+                    self._copy_clouds_decoding(records, starts + 9 + 22, ends, n_points, points[row:])
+                else:
+                    view = memoryview(records)
+                    for d in data_starts.tolist():
+                        out[row * n_bytes:(row + 1) * n_bytes] = view[d:d + n_bytes]
+                        row += 1
+                    continue
+                row += len(index)
         if len(times) > 1 and np.any(np.diff(times) < 0):
             order = np.argsort(times, kind="stable")
             times, points = times[order], points[order]
         return times, points
+
+    @staticmethod
+    def _copy_clouds_decoding(records, starts, ends, n_points: int, out: np.ndarray) -> None:
+        """Clouds of a chunk not laid out as EpisodeWriter writes it: decode each message."""
+        view = memoryview(records)
+        for i, (start, end) in enumerate(zip(starts.tolist(), ends.tolist())):
+            message = S.PointCloud.FromString(bytes(view[start:end]))
+            out[i] = codec.decode_point_cloud(message).reshape(n_points, 3)
+
+    def _walk_clouds(self, batch, channel_id: int, n_points: int) -> tuple[np.ndarray, np.ndarray]:
+        times, clouds = [], []
+        for records in batch:
+            for log_time, start, end in mcap_raw.message_spans(records, channel_id):
+                message = S.PointCloud.FromString(bytes(records[start:end]))
+                clouds.append(codec.decode_point_cloud(message).astype("<f4").reshape(n_points, 3))
+                times.append(log_time)
+        times = np.asarray(times, dtype=np.int64)
+        points = np.stack(clouds) if clouds else np.zeros((0, n_points, 3), dtype="<f4")
+        order = np.argsort(times, kind="stable")
+        return times[order], points[order]
 
     def iter_messages(self, topics: Iterable[str] | None = None) -> Iterator[tuple[str, int, object]]:
         """(topic, log_time_ns, decoded protobuf message) in log-time order (mcap's reader)."""
