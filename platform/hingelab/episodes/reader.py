@@ -189,7 +189,7 @@ class EpisodeFile:
             times = (np.concatenate([index["log_time"] for index in batch.indexes]).astype(np.int64)
                      if batch.indexes else np.zeros(0, dtype=np.int64))
             points = np.empty((len(times), n_points, 3), dtype="<f4")
-            out = memoryview(points.reshape(-1).view(np.uint8))
+            rows = points.reshape(len(times), -1).view(np.uint8)  # (T, 12 N) bytes
             row = 0
             for records, index in zip(batch, batch.indexes):
                 starts = index["offset"].astype(np.int64)
@@ -199,11 +199,7 @@ class EpisodeFile:
                         and np.all(data_starts >= starts + 9 + 22)):
                     self._copy_clouds_decoding(records, starts + 9 + 22, ends, n_points, points[row:])
                 else:
-                    view = memoryview(records)
-                    for d in data_starts.tolist():
-                        out[row * n_bytes:(row + 1) * n_bytes] = view[d:d + n_bytes]
-                        row += 1
-                    continue
+                    _gather_rows(records, data_starts, n_bytes, rows[row:row + len(data_starts)])
                 row += len(index)
         if len(times) > 1 and np.any(np.diff(times) < 0):
             order = np.argsort(times, kind="stable")
@@ -321,3 +317,24 @@ def read_episode(path, topics: Iterable[str] | None = None, generic: bool = Fals
 
 __all__ = ["Episode", "EpisodeFile", "read_episode", "stack_messages", "columns_to_topics",
            "SUPPORTED_SCHEMA_VERSIONS"]
+
+
+def _gather_rows(records, starts: np.ndarray, n_bytes: int, out: np.ndarray) -> None:
+    """Copy ``n_bytes`` from each of ``starts`` in ``records`` into the rows of ``out``.
+
+    Evenly spaced starts are copied by one strided assignment of ``n_bytes``-wide void
+    items (a memcpy per row); otherwise by memoryview slices (a byte-wise numpy gather is
+    ten times slower).
+    """
+    if len(starts) == 0:
+        return
+    row = np.dtype((np.void, n_bytes))
+    target = out.reshape(len(starts), n_bytes).view(row).reshape(len(starts))
+    gaps = np.diff(starts)
+    if len(gaps) == 0 or np.all(gaps == gaps[0]):
+        stride = int(gaps[0]) if len(gaps) else n_bytes
+        target[:] = np.ndarray((len(starts),), dtype=row, buffer=records, offset=int(starts[0]), strides=(stride,))
+    else:  # record sizes differ by a few bytes (varint timestamps): slice copies, ~50 us/episode
+        source, rows = memoryview(records), memoryview(out.reshape(-1))
+        for k, start in enumerate(starts.tolist()):
+            rows[k * n_bytes:(k + 1) * n_bytes] = source[start:start + n_bytes]
