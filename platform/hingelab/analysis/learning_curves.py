@@ -1,0 +1,89 @@
+"""Learning curves from training run folders: success rate and return against environment steps.
+
+The run-folder metrics format (what ``hingelab train`` writes, one row per evaluation):
+
+    RUNDIR/metrics.csv          columns (header required, more columns allowed):
+        env_steps     int    environment steps taken by the learner so far
+        seed          int    the training seed of this row's run
+        success_rate  float  share of evaluation episodes that succeeded, 0..1
+        return        float  mean evaluation return
+    RUNDIR/run.json             optional: {"name": "..."}; the curve's label (default: RUNDIR's name)
+
+A run trained with several seeds either writes all of them into one ``metrics.csv``
+(the ``seed`` column tells them apart) or one subfolder per seed, each with its own
+``metrics.csv`` (``RUNDIR/*/metrics.csv``; a missing ``seed`` column is then taken from
+the subfolder's position). Curves: per run and env_steps, the mean over seeds and a band
+of +- one standard deviation (``*_std``; 0 with one seed), and the seed count. Seeds
+are expected to evaluate at the same env_steps (a fixed evaluation interval).
+"""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import pandas as pd
+
+from hingelab.analysis.episode_table import ReportInputError
+
+METRICS_FILE = "metrics.csv"
+RUN_FILE = "run.json"
+REQUIRED_COLUMNS = ("env_steps", "seed", "success_rate", "return")
+CURVE_METRICS = ("success_rate", "return")
+
+
+def run_name(run_dir: Path) -> str:
+    run_file = run_dir / RUN_FILE
+    if run_file.exists():
+        try:
+            return str(json.loads(run_file.read_text()).get("name") or run_dir.name)
+        except (OSError, ValueError):
+            pass
+    return run_dir.name
+
+
+def load_run_metrics(run_dir) -> pd.DataFrame:
+    """All metrics rows of one run folder, with a ``run`` column (see the module docstring)."""
+    run_dir = Path(run_dir)
+    if not run_dir.is_dir():
+        raise ReportInputError(f"run folder {run_dir} does not exist; give a training run folder "
+                               f"(it holds {METRICS_FILE})")
+    files = [run_dir / METRICS_FILE] if (run_dir / METRICS_FILE).exists() else sorted(run_dir.glob(f"*/{METRICS_FILE}"))
+    if not files:
+        raise ReportInputError(f"{run_dir} has no {METRICS_FILE} (nor */{METRICS_FILE}); "
+                               f"a run folder records columns {', '.join(REQUIRED_COLUMNS)}")
+    frames = []
+    for position, path in enumerate(files):
+        frame = pd.read_csv(path)
+        if "seed" not in frame.columns and path.parent != run_dir:
+            frame["seed"] = position
+        missing = [c for c in REQUIRED_COLUMNS if c not in frame.columns]
+        if missing:
+            raise ReportInputError(f"{path} lacks the column(s) {', '.join(missing)}; "
+                                   f"{METRICS_FILE} needs {', '.join(REQUIRED_COLUMNS)}")
+        frames.append(frame)
+    metrics = pd.concat(frames, ignore_index=True)
+    metrics.insert(0, "run", run_name(run_dir))
+    return metrics
+
+
+def learning_curves(metrics: pd.DataFrame) -> pd.DataFrame:
+    """Per run and env_steps: seeds, and mean and std over seeds of success_rate and return."""
+    grouped = metrics.groupby(["run", "env_steps"], sort=True)
+    table = grouped["seed"].nunique().rename("seeds").to_frame()
+    for metric in CURVE_METRICS:
+        table[f"{metric}_mean"] = grouped[metric].mean()
+        table[f"{metric}_std"] = grouped[metric].std(ddof=1).fillna(0.0)
+    return table.reset_index()
+
+
+def load_learning_curves(run_dirs) -> pd.DataFrame:
+    """Curves of several run folders (empty frame for no runs)."""
+    run_dirs = list(run_dirs or [])
+    if not run_dirs:
+        return pd.DataFrame(columns=["run", "env_steps", "seeds"]
+                            + [f"{m}_{s}" for m in CURVE_METRICS for s in ("mean", "std")])
+    return learning_curves(pd.concat([load_run_metrics(d) for d in run_dirs], ignore_index=True))
+
+
+__all__ = ["load_run_metrics", "learning_curves", "load_learning_curves", "METRICS_FILE", "REQUIRED_COLUMNS"]

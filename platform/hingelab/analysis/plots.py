@@ -1,0 +1,112 @@
+"""The report's PNG plots (matplotlib, no display needed): each function writes one file.
+
+Error bars on success rates are the Wilson 95% intervals of the tables; bands on the
+learning curves are +- one standard deviation over seeds.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import matplotlib
+
+matplotlib.use("Agg")  # files only: works on machines without a display
+import matplotlib.pyplot as plt  # noqa: E402
+import numpy as np  # noqa: E402
+import pandas as pd  # noqa: E402
+
+DPI = 110
+PALETTE = ["#3b7dd8", "#e8833a", "#3aa76d", "#c8473f", "#8a63c7", "#8c6d4f", "#d26fb5", "#7f7f7f"]
+
+
+def _save(fig, path: Path) -> Path:
+    fig.tight_layout()
+    fig.savefig(path, dpi=DPI)
+    plt.close(fig)
+    return path
+
+
+def _error(table: pd.DataFrame, prefix: str) -> np.ndarray:
+    rate = table[f"{prefix}rate"].to_numpy(float)
+    below = rate - table[f"{prefix}ci_low"].to_numpy(float)
+    above = table[f"{prefix}ci_high"].to_numpy(float) - rate
+    return np.clip(np.nan_to_num(np.vstack([below, above])), 0.0, None)  # rounding can leave -1e-17
+
+
+def grouped_rate_bars(table: pd.DataFrame, group: str, hue: str | None, path: Path, title: str,
+                      prefix: str = "success_") -> Path:
+    """Bars of ``{prefix}rate`` per ``group`` (x axis), one color per ``hue`` value, Wilson error bars."""
+    hues = sorted(table[hue].astype(str).unique()) if hue else [None]
+    groups = list(dict.fromkeys(table[group].astype(str)))
+    width = 0.8 / len(hues)
+    fig, ax = plt.subplots(figsize=(max(5.0, 1.1 * len(groups) * max(1, len(hues)) + 1.5), 3.6))
+    for j, value in enumerate(hues):
+        part = table if value is None else table[table[hue].astype(str) == value]
+        x = np.array([groups.index(g) for g in part[group].astype(str)]) + (j - (len(hues) - 1) / 2) * width
+        ax.bar(x, part[f"{prefix}rate"], width, yerr=_error(part, prefix), capsize=3,
+               color=PALETTE[j % len(PALETTE)], label=value)
+        for xi, rate in zip(x, part[f"{prefix}rate"]):
+            ax.text(xi, 0.02, f"{rate:.0%}", ha="center", va="bottom", fontsize=7, color="white")
+    ax.set_xticks(range(len(groups)), groups)
+    ax.set_ylim(0, 1.05)
+    ax.set_ylabel("success rate (Wilson 95%)")
+    ax.set_title(title)
+    if hue and len(hues) > 1:
+        ax.legend(title=hue, fontsize=8, loc="upper left", bbox_to_anchor=(1.0, 1.0))
+    return _save(fig, path)
+
+
+def attempt_bars(table: pd.DataFrame, path: Path) -> Path:
+    """First-attempt and any-attempt success per object (the paper's real-robot figure)."""
+    labels = (table["source"].astype(str) + "\n" + table["object"].astype(str)).tolist()
+    x = np.arange(len(labels))
+    fig, ax = plt.subplots(figsize=(max(5.0, 1.2 * len(labels) + 1.5), 3.6))
+    for j, (prefix, name) in enumerate((("first_attempt_", "first attempt"), ("any_attempt_", "any attempt"))):
+        ax.bar(x + (j - 0.5) * 0.38, table[f"{prefix}rate"], 0.38, yerr=_error(table, prefix), capsize=3,
+               color=PALETTE[j], label=name)
+    ax.set_xticks(x, labels, fontsize=8)
+    ax.set_ylim(0, 1.05)
+    ax.set_ylabel("share of trials (Wilson 95%)")
+    ax.set_title("success at the first attempt and after several")
+    ax.legend(fontsize=8)
+    return _save(fig, path)
+
+
+def histograms(episodes: pd.DataFrame, column: str, path: Path, xlabel: str) -> Path:
+    """Histogram of ``column`` per source (overlaid)."""
+    fig, ax = plt.subplots(figsize=(5.5, 3.4))
+    values = episodes[column].astype("float64")
+    finite = values[np.isfinite(values)]
+    bins = np.histogram_bin_edges(finite, bins=min(30, max(5, int(np.sqrt(len(finite)))))) if len(finite) else 10
+    for j, (source, part) in enumerate(episodes.groupby("source", sort=True)):
+        ax.hist(part[column].astype("float64").dropna(), bins=bins, alpha=0.6, color=PALETTE[j % len(PALETTE)],
+                label=f"{source} (n={len(part)})")
+    ax.set_xlabel(xlabel)
+    ax.set_ylabel("episodes")
+    ax.set_title(f"episode {column}")
+    ax.legend(fontsize=8)
+    return _save(fig, path)
+
+
+def learning_curve_plot(curves: pd.DataFrame, path: Path) -> Path:
+    """Success rate and return against env steps: mean over seeds, band +- one std."""
+    fig, axes = plt.subplots(1, 2, figsize=(10, 3.6))
+    for j, (run, part) in enumerate(curves.groupby("run", sort=True)):
+        part = part.sort_values("env_steps")
+        color = PALETTE[j % len(PALETTE)]
+        for ax, metric in zip(axes, ("success_rate", "return")):
+            mean, std = part[f"{metric}_mean"].to_numpy(float), part[f"{metric}_std"].to_numpy(float)
+            steps = part["env_steps"].to_numpy(float)
+            ax.plot(steps, mean, color=color, label=f"{run} ({int(part['seeds'].max())} seeds)")
+            ax.fill_between(steps, mean - std, mean + std, color=color, alpha=0.2)
+    for ax, label in zip(axes, ("success rate", "return")):
+        ax.set_xlabel("environment steps")
+        ax.set_ylabel(label)
+        ax.grid(alpha=0.3)
+    axes[0].set_ylim(-0.02, 1.02)
+    axes[0].legend(fontsize=8)
+    fig.suptitle("learning curves (mean over seeds, band: +- 1 std)")
+    return _save(fig, path)
+
+
+__all__ = ["grouped_rate_bars", "attempt_bars", "histograms", "learning_curve_plot"]

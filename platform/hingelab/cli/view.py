@@ -1,0 +1,61 @@
+"""``hingelab view PATH``: an episode file or a dataset folder in Rerun."""
+
+from __future__ import annotations
+
+import argparse
+import time
+import urllib.parse
+from pathlib import Path
+
+
+def add_parser(subparsers) -> None:
+    p = subparsers.add_parser(
+        "view",
+        help="open an episode file or a dataset folder in Rerun (or save an .rrd)",
+        description=(
+            "Log an episode (tool cloud, tool frame, tips, object and target in hand_base; hand joints; "
+            "latent z and z_goal; reward terms; success and attempt markers, on the simulated timeline) "
+            "or a dataset (success per object and source, returns, lengths, all latents, every episode "
+            "on an 'episode' timeline) to Rerun, laid out by the blueprints in viewers/. Without a "
+            "display the recording is saved as ./NAME.rrd (open it later with `rerun NAME.rrd`)."
+        ),
+    )
+    p.add_argument("path", type=Path, help="an episode file (.mcap) or a dataset folder")
+    p.add_argument("--save", type=Path, default=None, metavar="FILE.rrd",
+                   help="write the recording to this .rrd file instead of opening a viewer")
+    p.add_argument("--web", action="store_true",
+                   help="serve Rerun's web viewer (prints its address; Ctrl-C stops serving)")
+    p.add_argument("--cloud-every", type=int, default=10, metavar="K",
+                   help="dataset view: keep every K-th tool cloud of each episode (1 = all; default 10)")
+    p.add_argument("--max-episodes", type=int, default=None, metavar="N",
+                   help="dataset view: only the first N episodes (default: all)")
+    p.set_defaults(func=run)
+
+
+def run(args: argparse.Namespace) -> int:
+    from hingelab.errors import ConfigError
+    from hingelab.viewers import view
+
+    if args.cloud_every < 1:
+        raise ConfigError(f"--cloud-every must be at least 1, not {args.cloud_every}")
+    if args.save is not None and args.web:
+        raise ConfigError("give either --save FILE.rrd or --web, not both")
+    result, rec = view(args.path, save=args.save, web=args.web, cloud_every=args.cloud_every,
+                       max_episodes=args.max_episodes)
+    what = (f"{result.episodes} episode{'s' if result.episodes != 1 else ''} "
+            f"({result.steps} steps) of {result.kind} {result.name!r}")
+    if result.saved_to is not None:
+        print(f"Logged {what} in {result.seconds:.2f} s and saved the recording to {result.saved_to}; "
+              f"open it with `rerun {result.saved_to}` (the layout is inside; viewers/ keeps it as .rbl).")
+    elif result.url is not None:
+        address = "http://localhost:9090/?url=" + urllib.parse.quote(result.url, safe=":/")
+        print(f"Logged {what} in {result.seconds:.2f} s; Rerun's web viewer is serving it at {address} "
+              "(Ctrl-C stops).")
+        try:
+            while True:
+                time.sleep(1.0)
+        except KeyboardInterrupt:
+            rec.disconnect()
+    else:
+        print(f"Logged {what} in {result.seconds:.2f} s to a spawned Rerun viewer.")
+    return 0

@@ -1,0 +1,118 @@
+"""``view(path, ...)``: an episode file or a dataset folder -> a Rerun recording.
+
+Where the recording goes:
+
+- ``save=FILE.rrd``: written to that file (with the blueprint inside, so ``rerun FILE.rrd``
+  opens the layout); also the default on a machine without a display, as ``./<name>.rrd``;
+- ``web=True``: served to Rerun's web viewer (gRPC + a local web server; the CLI keeps
+  serving until Ctrl-C);
+- otherwise (a display is present): a native viewer is spawned.
+"""
+
+from __future__ import annotations
+
+import os
+import sys
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import rerun as rr
+
+from hingelab.episodes import read_episode
+from hingelab.episodes.dataset import Dataset, open_dataset
+from hingelab.errors import HingelabError
+from hingelab.viewers import entities as E
+from hingelab.viewers.blueprints import dataset_blueprint, episode_blueprint
+from hingelab.viewers.dataset_log import DatasetLogStats, log_dataset
+from hingelab.viewers.episode_log import log_episode
+
+
+class ViewError(HingelabError):
+    """A path that cannot be viewed (missing, not an episode or dataset, empty)."""
+
+
+@dataclass
+class ViewResult:
+    """What ``view`` produced: the kind of path, where it went, counts and wall time (s)."""
+
+    kind: str  # "episode" or "dataset"
+    name: str
+    saved_to: Path | None
+    url: str | None
+    episodes: int
+    steps: int
+    seconds: float
+    stats: DatasetLogStats | None = field(default=None)
+
+
+def has_display() -> bool:
+    """True where a native viewer window can open (an X11/Wayland display, or macOS/Windows)."""
+    if sys.platform in ("darwin", "win32"):
+        return True
+    return bool(os.environ.get("DISPLAY") or os.environ.get("WAYLAND_DISPLAY"))
+
+
+def _target(path: Path) -> tuple[str, Dataset | Path]:
+    if not path.exists():
+        raise ViewError(f"{path} does not exist; give an episode file (.mcap) or a dataset folder")
+    if path.is_file():
+        if path.suffix != ".mcap":
+            raise ViewError(f"{path} is not an episode file (.mcap) or a dataset folder")
+        return "episode", path
+    dataset = open_dataset(path)
+    if len(dataset) == 0:
+        raise ViewError(f"{path} has no episodes in {dataset.episodes_dir}; generate some first")
+    if dataset.index["success"].isna().all():
+        raise ViewError(f"no episode of {path} records 'success' in its metadata; the dataset view counts "
+                        "outcomes: rewrite the episodes with EpisodeWriter.set_outcome")
+    return "dataset", dataset
+
+
+def _open_recording(name: str, blueprint, save: Path | None, web: bool) -> tuple[rr.RecordingStream, str | None]:
+    rec = rr.RecordingStream(E.APPLICATION_ID, recording_id=E.RECORDING_ID_PREFIX + name)
+    url = None
+    if save is not None:
+        save.parent.mkdir(parents=True, exist_ok=True)
+        rec.save(save, default_blueprint=blueprint)
+    elif web:
+        url = rec.serve_grpc(default_blueprint=blueprint)
+        rr.serve_web_viewer(connect_to=url, open_browser=False)
+    else:
+        rec.spawn(default_blueprint=blueprint)
+    return rec, url
+
+
+def view(path, save=None, web: bool = False, cloud_every: int = 10, max_episodes: int | None = None,
+         progress: bool = True) -> tuple[ViewResult, rr.RecordingStream]:
+    """Log ``path`` (episode file or dataset folder) to Rerun; see the module docstring.
+
+    Returns the result and the recording stream (still open when serving ``web``; the
+    caller keeps the process alive, then calls ``rec.disconnect()``).
+    """
+    started = time.perf_counter()
+    path = Path(path)
+    kind, target = _target(path)
+    name = path.stem if kind == "episode" else target.card.name
+    if save is None and not web and not has_display():
+        save = Path.cwd() / f"{name}.rrd"
+    save = Path(save) if save is not None else None
+    if save is not None and save.suffix != ".rrd":
+        raise ViewError(f"--save {save}: a Rerun recording file must end in .rrd")
+    if kind == "episode":
+        episode = read_episode(target)  # before opening the sink: a bad file leaves no .rrd behind
+        rec, url = _open_recording(name, episode_blueprint(), save, web)
+        log_episode(rec, episode)
+        result = ViewResult(kind, name, save, url, 1, episode.length, 0.0)
+    else:
+        rec, url = _open_recording(name, dataset_blueprint(), save, web)
+        stats = log_dataset(rec, target, cloud_every=cloud_every, max_episodes=max_episodes, progress=progress)
+        result = ViewResult(kind, name, save, url, stats.episodes, stats.steps, 0.0, stats)
+    if not web:
+        rec.flush()
+        rec.disconnect()  # writes the .rrd footer
+    result.seconds = time.perf_counter() - started
+    return result, rec
+
+
+__all__ = ["view", "ViewResult", "ViewError", "has_display"]

@@ -1,0 +1,149 @@
+"""``hingelab view DATASET``: the overview and every episode in one .rrd, read back with Rerun's
+reader; bad input gives one line."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from mcap.writer import Writer
+from test_view_episode import rrd_tables, sorted_by
+
+from hingelab.cli.main import main
+from hingelab.episodes import create_dataset
+from hingelab.episodes.dataset import Dataset
+from hingelab.episodes.synthetic import write_synthetic_episode
+from hingelab.viewers import entities as E
+from hingelab.viewers import view
+from hingelab.viewers.blueprints import DATASET_BLUEPRINT_FILE, EPISODE_BLUEPRINT_FILE, save_blueprints
+
+OBJECTS = ("sphere", "sphere", "cube", "cube", "cube", "cylinder")  # success rates 1/2, 2/3, 0
+LENGTHS = (12, 7, 20, 9, 15, 11)
+
+
+@pytest.fixture(scope="module")
+def dataset(tmp_path_factory):
+    root = tmp_path_factory.mktemp("data") / "mixed"
+    create_dataset(root, name="mixed", source="synthetic", config={"n": len(LENGTHS)}, seed=0)
+    for seed, n_steps in enumerate(LENGTHS):  # even seeds succeed
+        write_synthetic_episode(root, seed=seed, n_steps=n_steps, object=OBJECTS[seed])
+    return root
+
+
+@pytest.fixture(scope="module")
+def recording(dataset, tmp_path_factory):
+    rrd = tmp_path_factory.mktemp("rrd") / "mixed.rrd"
+    result, _ = view(dataset, save=rrd, cloud_every=5, progress=False)
+    assert result.kind == "dataset" and result.episodes == len(LENGTHS) and result.steps == sum(LENGTHS)
+    return rrd_tables(rrd), Dataset(dataset).index
+
+
+def test_overview_bar_charts_are_the_success_rates(recording):
+    tables, index = recording
+    expected = index.assign(success=index["success"].astype(float)).groupby("object")["success"].mean()
+    bars = tables["/" + E.SUCCESS_BY_OBJECT].column("BarChart:values").to_pylist()[0][0]  # a tensor
+    assert bars["shape"] == [3]
+    np.testing.assert_allclose(bars["buffer"], expected.sort_index().to_numpy())
+    np.testing.assert_allclose(bars["buffer"], [2 / 3, 0.0, 0.5])  # cube, cylinder, sphere
+    summary = tables["/" + E.SUMMARY].column("TextDocument:text").to_pylist()[0][0]
+    assert "| 0 | cube | 3 | 2 | 0.667 |" in summary  # cubes: seeds 2, 4 succeed, 3 fails
+
+
+def test_per_episode_series_and_latent_plane(recording):
+    tables, index = recording
+    returns = sorted_by(tables["/" + E.EPISODE_RETURN], E.TIMELINE_EPISODE)
+    assert returns.column(E.TIMELINE_EPISODE).to_pylist() == list(range(len(LENGTHS)))
+    np.testing.assert_allclose(np.ravel(returns.column("Scalars:scalars").to_pylist()), index["return"])
+    lengths = sorted_by(tables["/" + E.EPISODE_LENGTH], E.TIMELINE_EPISODE)
+    assert np.ravel(lengths.column("Scalars:scalars").to_pylist()).tolist() == index["length"].astype(float).tolist()
+    plane = tables["/" + E.ALL_LATENTS].column("Points2D:positions").to_pylist()
+    assert sum(len(row) for row in plane if row) == sum(LENGTHS)  # every step's z of every episode
+
+
+def test_every_episode_back_to_back(recording):
+    tables, index = recording
+    latent = sorted_by(tables["/" + E.LATENT_Z], E.TIMELINE_DATASET_STEP)
+    assert latent.num_rows == sum(LENGTHS)
+    assert latent.column(E.TIMELINE_DATASET_STEP).to_pylist() == list(range(sum(LENGTHS)))
+    per_episode = np.bincount(latent.column(E.TIMELINE_EPISODE).to_numpy())
+    assert per_episode.tolist() == index["length"].tolist()
+    clouds = sorted_by(tables["/" + E.TOOL_CLOUD], E.TIMELINE_DATASET_STEP)
+    kept = sum(len({*range(0, n, 5), n - 1}) for n in index["length"])  # every 5th step and the last
+    assert clouds.num_rows == kept
+    assert {len(row) for row in clouds.column("Points3D:positions").to_pylist()} == {256}
+    facts = sorted_by(tables["/" + E.FACTS], E.TIMELINE_EPISODE)
+    assert facts.num_rows == len(LENGTHS)
+    events = sorted_by(tables["/" + E.EVENTS], E.TIMELINE_DATASET_STEP).column("TextLog:text").to_pylist()
+    outcomes = [text[0] for text in events]
+    assert outcomes == ["success" if s else "failure: timeout" for s in index["success"]]
+
+
+def test_blueprint_files_are_saved(tmp_path):
+    written = save_blueprints(tmp_path)
+    assert [p.name for p in written] == [EPISODE_BLUEPRINT_FILE, DATASET_BLUEPRINT_FILE]
+    assert all(p.stat().st_size > 1000 for p in written)
+
+
+def one_line_error(capsys) -> str:
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and err[0].startswith("hingelab: error: "), err
+    return err[0]
+
+
+def test_bad_input_is_one_line(tmp_path, capsys):
+    save = str(tmp_path / "out.rrd")
+    assert main(["view", str(tmp_path / "missing"), "--save", save]) == 1
+    assert "does not exist" in one_line_error(capsys)
+
+    empty = tmp_path / "empty"
+    create_dataset(empty, name="empty", source="synthetic", config={}, seed=0)
+    (empty / "episodes").mkdir(exist_ok=True)
+    assert main(["view", str(empty), "--save", save]) == 1
+    assert "has no episodes" in one_line_error(capsys)
+
+    bare = tmp_path / "bare"
+    bare.mkdir()
+    assert main(["view", str(bare), "--save", save]) == 1
+    assert "empty folder" in one_line_error(capsys)
+
+    no_outcomes = tmp_path / "no_outcomes"
+    create_dataset(no_outcomes, name="no_outcomes", source="foreign", config={}, seed=0)
+    (no_outcomes / "episodes").mkdir(exist_ok=True)
+    with open(no_outcomes / "episodes" / "foreign-1.mcap", "wb") as stream:
+        writer = Writer(stream)
+        writer.start()
+        writer.add_metadata("episode", {"source": "foreign", "seed": "1", "schema_version": "1"})
+        writer.finish()
+    assert main(["view", str(no_outcomes), "--save", save]) == 1
+    assert "records 'success'" in one_line_error(capsys)
+
+    not_mcap = tmp_path / "notes.txt"
+    not_mcap.write_text("x")
+    assert main(["view", str(not_mcap), "--save", save]) == 1
+    assert "not an episode file" in one_line_error(capsys)
+
+    broken = tmp_path / "broken.mcap"
+    broken.write_bytes(b"\x89MCAP0\r\n" + b"\0" * 20)
+    assert main(["view", str(broken), "--save", save]) == 1
+    assert "broken.mcap" in one_line_error(capsys)
+    assert not (tmp_path / "out.rrd").exists()
+
+
+def test_foxglove_layout_names_contract_topics():
+    import json
+
+    from hingelab.episodes import schemas as S
+    from hingelab.paths import REPO_ROOT
+
+    layout = json.loads((REPO_ROOT / "viewers" / "foxglove_layout.json").read_text())
+    panels = set(layout["configById"])
+
+    def leaves(node):
+        return [node] if isinstance(node, str) else leaves(node["first"]) + leaves(node["second"])
+
+    assert sorted(leaves(layout["layout"])) == sorted(panels)  # every panel placed, none dangling
+    three_d = layout["configById"]["3D!hingelab_tool"]
+    assert three_d["followTf"] == "hand_base" and {S.TOPIC_POINTS, S.TOPIC_TF} <= set(three_d["topics"])
+    paths = [p["value"] for c in layout["configById"].values() for p in c.get("paths", [])]
+    assert {"/tool/latent.z[0]", "/tool/latent.z_smoothed[1]", "/sim/privileged.hinge_angle",
+            "/reward/terms.total"} <= set(paths)
+    assert {path.split(".")[0] for path in paths} <= set(S.TOPIC_TYPES)
