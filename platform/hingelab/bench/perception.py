@@ -1,0 +1,235 @@
+"""``hingelab bench perception``: registration vs Open3D ICP, encoder quality, tool-state speed.
+
+Held-out clouds (seeds the training data never used), all in ``hand_base``:
+
+* registration: the tool around its in-hand pose (+-30 degrees per Euler angle, +-2 cm:
+  the paper's perturbation range), openings uniform over the hinge range, 3 mm noise,
+  20% removal. Ours and Open3D's point-to-point ICP start from the same nominal in-hand
+  pose and match against the same canonical cloud (1024 points at the reference opening);
+  Open3D gets 30 iterations and a 3 cm correspondence distance. Errors are of the tool
+  (leg a) frame; time per cloud is wall time (ours batched and one at a time).
+* encoder: clouds like its training data (5 mm noise, 20% removal) and like the sim's
+  (3 mm), registered by the same pipeline: Chamfer of the reconstruction, R^2 of the calibration (fitted on the
+  training set, stored in the checkpoint) and the spread of z at fixed openings (pose,
+  noise and occlusion vary) against the extent of z over the opening range.
+* speed: tool-state updates per second (cloud synthesis + registration + encoder) with
+  1 and 64 clouds per update.
+"""
+
+from __future__ import annotations
+
+import time
+
+import numpy as np
+
+from hingelab.bench.table import BenchTable
+from hingelab.errors import ConfigError
+from hingelab.paths import ANALYSIS_DIR
+
+PLOT_PATH = ANALYSIS_DIR / "perception" / "latent_space.png"
+SEED = 2026  # held-out: datasets and training use small seeds
+
+
+def _require_open3d():
+    try:
+        import open3d
+    except ImportError as exc:
+        raise ConfigError("the perception bench compares with Open3D's ICP, which is not installed; "
+                          "pip install 'hingelab[bench]' (the open3d-cpu package)") from exc
+    return open3d
+
+
+def _in_hand_clouds(n: int, seed: int, noise_m: float):
+    from hingelab.perception.clouds import CloudRealism, ToolGeometry
+    from hingelab.perception.synthetic_dataset import sample_clouds
+
+    geometry = ToolGeometry.default()
+    realism = CloudRealism(noise_m, 0.2, 0.0, 0.0)
+    return sample_clouds(np.random.default_rng(seed), n, geometry, realism, np.deg2rad(30.0), 0.02)
+
+
+def _errors(rot_est, pos_est, rot_true, pos_true):
+    from hingelab.perception.registration import rotation_error_rad
+
+    return np.rad2deg(rotation_error_rad(rot_est, rot_true)), 1000 * np.linalg.norm(pos_est - pos_true, axis=1)
+
+
+def _row(method: str, rot_err, pos_err, ms_per_cloud: float) -> dict:
+    return {"method": method, "rot median (deg)": float(np.median(rot_err)),
+            "rot p95 (deg)": float(np.percentile(rot_err, 95)), "trans median (mm)": float(np.median(pos_err)),
+            "trans p95 (mm)": float(np.percentile(pos_err, 95)), "ms per cloud": ms_per_cloud}
+
+
+def bench_registration(n: int, rows: list, notes: list) -> dict:
+    o3d = _require_open3d()
+    from hingelab.perception.registration import CanonicalRegistration
+    from hingelab.perception.synthetic_dataset import nominal_tool_pose
+
+    data = _in_hand_clouds(n, SEED, 0.003)
+    clouds, rot_true, pos_true, theta = data["points"], data["rotation"], data["position"], data["hinge_angle"]
+    registration = CanonicalRegistration()
+    prior = nominal_tool_pose()
+    registration.register(clouds[:2], prior=prior)  # warm up
+    start = time.perf_counter()
+    ours = registration.register(clouds, prior=prior)
+    ours_ms = 1000 * (time.perf_counter() - start) / n
+    start = time.perf_counter()
+    for cloud in clouds[: min(n, 100)]:
+        registration.register(cloud, prior=prior)
+    ours_single_ms = 1000 * (time.perf_counter() - start) / min(n, 100)
+    start = time.perf_counter()
+    ours_global = registration.register(clouds)
+    global_ms = 1000 * (time.perf_counter() - start) / n
+
+    target = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(registration.canonical))
+    init = np.eye(4)
+    init[:3, :3], init[:3, 3] = prior
+    init_inverse = np.linalg.inv(init)
+    method = o3d.pipelines.registration.TransformationEstimationPointToPoint()
+    criteria = o3d.pipelines.registration.ICPConvergenceCriteria(max_iteration=30)
+    rot_o3d, pos_o3d = np.empty_like(rot_true), np.empty_like(pos_true)
+    start = time.perf_counter()
+    for k, cloud in enumerate(clouds):
+        source = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(cloud.astype(np.float64)))
+        result = o3d.pipelines.registration.registration_icp(source, target, 0.03, init_inverse, method, criteria)
+        pose = np.linalg.inv(result.transformation)  # cloud -> canonical, inverted: the tool pose
+        rot_o3d[k], pos_o3d[k] = pose[:3, :3], pose[:3, 3]
+    o3d_ms = 1000 * (time.perf_counter() - start) / n
+
+    err_ours = _errors(ours.rotation, ours.translation, rot_true, pos_true)
+    err_global = _errors(ours_global.rotation, ours_global.translation, rot_true, pos_true)
+    err_o3d = _errors(rot_o3d, pos_o3d, rot_true, pos_true)
+    rows.append(_row("ours: SVD ICP, articulated, batched (prior: in-hand pose)", *err_ours, ours_ms))
+    rows.append(_row("ours: same, one cloud at a time", *err_ours, ours_single_ms))
+    rows.append(_row("ours: no prior (global hypotheses), batched", *err_global, global_ms))
+    rows.append(_row("Open3D point-to-point ICP (prior: in-hand pose)", *err_o3d, o3d_ms))
+    thirds = np.array_split(np.argsort(theta), 3)
+    for name, (rot_err, pos_err) in (("ours", err_ours), ("Open3D", err_o3d)):
+        notes.append(f"{name}, rotation median (deg) by opening third (low to high): " + ", ".join(
+            f"{np.median(rot_err[i]):.2f}" for i in thirds) + "; translation median (mm): " + ", ".join(
+            f"{np.median(pos_err[i]):.2f}" for i in thirds))
+    notes.append(f"ours also estimates the opening: mean |error| {np.rad2deg(np.abs(ours.hinge_angle - theta).mean()):.2f} "
+                 f"deg over {n} clouds")
+    gross = lambda e: int((e[0] > 45).sum())  # noqa: E731
+    notes.append(f"gross failures (rotation error > 45 deg): ours {gross(err_ours)}, ours without prior "
+                 f"{gross(err_global)}, Open3D {gross(err_o3d)} of {n}")
+    return {"rot_median": (np.median(err_ours[0]), np.median(err_o3d[0])),
+            "rot_p95": (np.percentile(err_ours[0], 95), np.percentile(err_o3d[0], 95)),
+            "trans_median": (np.median(err_ours[1]), np.median(err_o3d[1])),
+            "trans_p95": (np.percentile(err_ours[1], 95), np.percentile(err_o3d[1], 95)),
+            "ms_batched": (ours_ms, o3d_ms), "ms_single": (ours_single_ms, o3d_ms)}
+
+
+def bench_encoder(n: int, per_opening: int, noise_m: float, rows: list, notes: list, plot: bool) -> dict:
+    from hingelab.perception.clouds import CloudRealism, CloudSynthesizer, ToolGeometry
+    from hingelab.perception.encoder import load_encoder
+    from hingelab.perception.registration import CanonicalRegistration, RegistrationConfig
+    from hingelab.perception.train_encoder import mean_chamfer_mm2, register_to_tool_frame, surface_targets
+
+    encoder = load_encoder()
+    if encoder.calibration is None:
+        raise ConfigError("the shipped encoder has no calibration; retrain it with `hingelab train encoder`")
+    geometry = ToolGeometry.default()
+    registration = CanonicalRegistration(geometry, RegistrationConfig(**encoder.registration_config))
+    data = _in_hand_clouds(n, SEED + 1, noise_m)
+    clouds, _ = register_to_tool_frame(data["points"], registration)
+    targets = surface_targets(geometry, data["hinge_angle"], encoder.model.config.target_points)
+    chamfer = mean_chamfer_mm2(encoder.model, clouds, targets)
+    z = encoder.encode(clouds)
+    gap = geometry.tip_gap_m(data["hinge_angle"])
+    held_out = encoder.calibration.evaluate(z, data["hinge_angle"], gap)
+    # spread at fixed openings (pose, noise, occlusion vary) vs the extent over the range
+    openings = np.linspace(*geometry.hinge_range, 7)
+    rng = np.random.default_rng(SEED + 2)
+    realism = CloudRealism(noise_m, 0.2, 0.0, 0.0)
+    within, means = [], []
+    for theta in openings:
+        poses = _in_hand_clouds(per_opening, int(rng.integers(1 << 30)), noise_m)
+        synth = CloudSynthesizer(geometry, realism, seed=int(rng.integers(1 << 30)))
+        points = synth.from_tool_pose(poses["rotation"], poses["position"], np.full(per_opening, theta))
+        s = encoder.calibration.coordinate(encoder.encode(register_to_tool_frame(points, registration)[0]))
+        within.append(s.std())
+        means.append(s.mean())
+    extent = float(np.ptp(means))
+    spread_ratio = float(np.mean(within) / max(extent, 1e-12))
+    rows.append({"method": f"encoder, held-out clouds, {noise_m * 1000:g} mm noise, 20% removal",
+                 "chamfer (mm^2)": chamfer, "R^2 opening": held_out["r2_opening"], "R^2 tip gap": held_out["r2_gap"],
+                 "opening MAE (deg)": float(np.rad2deg(held_out["mae_opening_rad"])),
+                 "gap MAE (mm)": held_out["mae_gap_mm"], "z spread / extent": spread_ratio})
+    notes.append(f"{noise_m * 1000:g} mm noise: z along its principal axis at openings "
+                 f"{', '.join(f'{t:.2f}' for t in openings)} rad: means {', '.join(f'{m:+.3f}' for m in means)}; "
+                 f"std at one opening {np.mean(within):.4f} (mean over openings, {per_opening} clouds each: pose, "
+                 f"noise, occlusion vary), extent over the range {extent:.3f}")
+    if plot:
+        _plot_latents(z, data["hinge_angle"], encoder.calibration)
+    return {"chamfer": chamfer, "r2": held_out["r2_opening"], "spread_ratio": spread_ratio}
+
+
+def _plot_latents(z, opening, calibration) -> None:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    PLOT_PATH.parent.mkdir(parents=True, exist_ok=True)
+    fig, ax = plt.subplots(figsize=(6, 5))
+    points = ax.scatter(z[:, 0], z[:, 1], c=np.rad2deg(opening), cmap="viridis", s=6)
+    curve = calibration.z_for_opening(np.linspace(*calibration.opening_range, 100))
+    ax.plot(curve[:, 0], curve[:, 1], "r-", lw=1.5, label="calibration z(opening)")
+    fig.colorbar(points, label="opening (deg)")
+    ax.set_xlabel("z[0]")
+    ax.set_ylabel("z[1]")
+    ax.set_title("Tool latent space, held-out clouds")
+    ax.legend(loc="best")
+    fig.tight_layout()
+    fig.savefig(PLOT_PATH, dpi=120)
+    plt.close(fig)
+
+
+def bench_tool_state(steps: int, rows: list) -> dict:
+    from hingelab.perception.clouds import CloudRealism, CloudSynthesizer, ToolGeometry
+    from hingelab.perception.synthetic_dataset import nominal_tool_pose
+    from hingelab.perception.tool_state import ToolState
+
+    rot0, pos0 = nominal_tool_pose()
+    out = {}
+    for n_tools in (1, 64):
+        state = ToolState(n_tools=n_tools)
+        synth = CloudSynthesizer(ToolGeometry.default(), CloudRealism(), seed=SEED)
+        synth.new_episode()
+        rot, pos = np.repeat(rot0[None], n_tools, 0), np.repeat(pos0[None], n_tools, 0)
+        state.update(synth.from_tool_pose(rot, pos, np.full(n_tools, 0.1)))  # warm up
+        start = time.perf_counter()
+        for k in range(steps):
+            theta = np.full(n_tools, 0.15 + 0.1 * np.sin(0.2 * k))
+            state.update(synth.from_tool_pose(rot, pos, theta))
+        seconds = time.perf_counter() - start
+        out[n_tools] = steps * n_tools / seconds
+        rows.append({"method": f"tool state, {n_tools} cloud{'s' if n_tools > 1 else ''} per update",
+                     "updates/s": out[n_tools], "ms per update": 1000 * seconds / steps})
+    return out
+
+
+def run(quick: bool = False) -> BenchTable:
+    n = 64 if quick else 400
+    rows: list[dict] = []
+    notes: list[str] = []
+    reg = bench_registration(n, rows, notes)
+    enc = bench_encoder(200 if quick else 1000, 8 if quick else 32, 0.005, rows, notes, plot=True)
+    runtime = bench_encoder(200 if quick else 1000, 8 if quick else 32, 0.003, rows, notes, plot=False)
+    speed = bench_tool_state(5 if quick else 40, rows)
+    notes.append(f"latent-space plot: {PLOT_PATH.relative_to(ANALYSIS_DIR.parent)}")
+    notes.append("ratios are ours / Open3D (below 1: ours better or faster); the clouds are held out "
+                 f"(seed {SEED}), {n} for registration")
+    columns = ["method", "rot median (deg)", "rot p95 (deg)", "trans median (mm)", "trans p95 (mm)", "ms per cloud",
+               "chamfer (mm^2)", "R^2 opening", "R^2 tip gap", "opening MAE (deg)", "gap MAE (mm)",
+               "z spread / extent", "updates/s", "ms per update"]
+    ratios = {f"{k} ours/open3d": float(a / b) for k, (a, b) in reg.items()}
+    ratios.update({"encoder calibration R^2, 5 mm noise (goal >= 0.95)": float(enc["r2"]),
+                   "encoder calibration R^2, 3 mm noise (the sim's)": float(runtime["r2"]),
+                   "z spread at one opening / extent over the range, 5 mm (goal < 0.10)": enc["spread_ratio"],
+                   "z spread at one opening / extent over the range, 3 mm": runtime["spread_ratio"],
+                   "tool-state updates/s, 64 vs 1 cloud per update": speed[64] / speed[1]})
+    return BenchTable(name="perception", title="Tool perception: registration vs Open3D ICP, encoder, tool state",
+                      columns=columns, rows=rows, ratios=ratios, notes=notes,
+                      config={"quick": quick, "registration_clouds": n, "seed": SEED})

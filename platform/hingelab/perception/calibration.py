@@ -1,0 +1,123 @@
+"""Calibration between the latent z and the tweezer's opening, both ways.
+
+The opening is one number, so the encoder's 2-D latents of clouds across the hinge
+range lie near a curve. The calibration fits that curve, z(opening), as a polynomial
+per latent dimension (least squares), and reads an opening off a latent by projecting
+it onto the curve (the nearest point of the curve, searched on a fine grid of openings),
+which works whether the curve is straight or bent. The tip gap (m) is a polynomial of
+the opening fitted on the same data, so users and the heuristic can speak in
+millimetres: ``z_for_tip_gap_mm(12.0)`` is a latent goal.
+
+The principal axis u of the latents (oriented so the opening grows along +u) gives a
+coordinate s = u . (z - mean) for plots and for the monotonicity check.
+
+``r2_opening``, ``r2_gap``: coefficients of determination of the readings on the data the
+calibration was fitted on; ``evaluate`` gives them on other data (the bench: held-out clouds).
+"""
+
+from __future__ import annotations
+
+from dataclasses import asdict, dataclass
+
+import numpy as np
+
+from hingelab.errors import ConfigError
+
+DEGREE = 5  # of the latent curve z(opening)
+GAP_DEGREE = 3  # of the tip gap as a function of the opening
+GRID = 1024  # openings searched when projecting a latent onto the curve
+
+
+def r_squared(truth: np.ndarray, predicted: np.ndarray) -> float:
+    """1 - SS_res / SS_tot."""
+    truth = np.asarray(truth, float)
+    ss_tot = float(((truth - truth.mean()) ** 2).sum())
+    return 1.0 - float(((truth - predicted) ** 2).sum()) / max(ss_tot, 1e-300)
+
+
+@dataclass(frozen=True)
+class OpeningCalibration:
+    """Fitted maps z <-> opening. Latents are (..., D); openings rad; tip gaps metres (or mm where named)."""
+
+    z_coef: tuple[tuple[float, ...], ...]  # per latent dim: polynomial opening (rad) -> z (numpy.polyval order)
+    gap_coef: tuple[float, ...]  # polynomial opening (rad) -> tip gap (m)
+    opening_range: tuple[float, float]  # rad, of the fitting data
+    mean: tuple[float, ...]  # latent mean
+    axis: tuple[float, ...]  # unit principal axis of the latents, the opening grows along it
+    r2_opening: float
+    r2_gap: float
+
+    @classmethod
+    def fit(cls, z: np.ndarray, opening_rad: np.ndarray, tip_gap_m: np.ndarray) -> "OpeningCalibration":
+        z = np.asarray(z, float)
+        opening = np.asarray(opening_rad, float)
+        gap = np.asarray(tip_gap_m, float)
+        if z.ndim != 2 or len(z) != len(opening) or len(gap) != len(opening):
+            raise ConfigError(f"calibration needs z (M, D) and M openings and gaps, got {z.shape}, "
+                              f"{opening.shape}, {gap.shape}")
+        if len(z) < 4 * (DEGREE + 1) or np.ptp(opening) <= 0:
+            raise ConfigError(f"calibration needs at least {4 * (DEGREE + 1)} latents over a range of openings, "
+                              f"got {len(z)}")
+        mean = z.mean(axis=0)
+        _, _, vt = np.linalg.svd(z - mean, full_matrices=False)
+        axis = vt[0] if np.corrcoef((z - mean) @ vt[0], opening)[0, 1] >= 0 else -vt[0]
+        partial = cls(z_coef=tuple(tuple(np.polyfit(opening, z[:, d], DEGREE)) for d in range(z.shape[1])),
+                      gap_coef=tuple(np.polyfit(opening, gap, GAP_DEGREE)),
+                      opening_range=(float(opening.min()), float(opening.max())),
+                      mean=tuple(mean), axis=tuple(axis), r2_opening=float("nan"), r2_gap=float("nan"))
+        fitted = partial.evaluate(z, opening, gap)
+        return cls(**{**partial.to_dict(), "r2_opening": fitted["r2_opening"], "r2_gap": fitted["r2_gap"]})
+
+    # ------------------------------------------------------------------ z -> opening
+    def coordinate(self, z) -> np.ndarray:
+        """s: the latent's coordinate along the principal axis (grows with the opening)."""
+        return (np.asarray(z, float) - np.asarray(self.mean)) @ np.asarray(self.axis)
+
+    def opening_rad(self, z) -> np.ndarray:
+        """Opening (hinge angle, rad) read from latents (..., D): the nearest point of the curve."""
+        z = np.asarray(z, float)
+        grid = np.linspace(*self.opening_range, GRID)
+        curve = self.z_for_opening(grid)  # (GRID, D)
+        dist = ((z[..., None, :] - curve) ** 2).sum(axis=-1)
+        return grid[np.argmin(dist, axis=-1)]
+
+    def tip_gap_mm(self, z) -> np.ndarray:
+        """Tip gap (mm) read from latents (..., D)."""
+        return 1000.0 * np.polyval(self.gap_coef, self.opening_rad(z))
+
+    # ------------------------------------------------------------------ opening -> z
+    def z_for_opening(self, opening_rad) -> np.ndarray:
+        """Latent (..., D) for an opening in rad (clipped to the fitted range)."""
+        opening = np.clip(np.asarray(opening_rad, float), *self.opening_range)
+        return np.stack([np.polyval(c, opening) for c in self.z_coef], axis=-1)
+
+    def z_for_tip_gap_mm(self, gap_mm) -> np.ndarray:
+        """Latent (..., D) for a tip gap in mm: the opening with that gap, then ``z_for_opening``."""
+        grid = np.linspace(*self.opening_range, GRID)
+        # the gap grows with the opening except right at the closed end; take the monotone part
+        gaps = np.maximum.accumulate(np.polyval(self.gap_coef, grid))
+        return self.z_for_opening(np.interp(np.asarray(gap_mm, float) / 1000.0, gaps, grid))
+
+    # ------------------------------------------------------------------ checks
+    def evaluate(self, z, opening_rad, tip_gap_m) -> dict[str, float]:
+        """R^2 and mean absolute errors on other data."""
+        pred_open = self.opening_rad(z)
+        pred_gap = np.polyval(self.gap_coef, pred_open)
+        return {"r2_opening": r_squared(opening_rad, pred_open), "r2_gap": r_squared(tip_gap_m, pred_gap),
+                "mae_opening_rad": float(np.abs(pred_open - opening_rad).mean()),
+                "mae_gap_mm": float(1000 * np.abs(pred_gap - tip_gap_m).mean())}
+
+    def to_dict(self) -> dict:
+        return asdict(self)
+
+    @classmethod
+    def from_dict(cls, raw: dict) -> "OpeningCalibration":
+        try:
+            return cls(**{k: (tuple(tuple(x) for x in v) if k == "z_coef" else
+                              tuple(v) if isinstance(v, (list, tuple)) else v) for k, v in raw.items()})
+        except TypeError as exc:
+            raise ConfigError(f"calibration record does not match this hingelab version ({exc}); retrain the "
+                              "encoder with `hingelab train encoder`") from exc
+
+
+__all__ = ["OpeningCalibration", "r_squared"]

@@ -1,0 +1,213 @@
+"""The tool encoder: a PointNet VAE from a cloud in the canonical (tool) frame to a 2-D latent z.
+
+PointNet (Qi et al. 2017): a shared per-point MLP (``widths``), max pooling over the points
+(order invariant), an MLP head to the mean and log-variance of a diagonal Gaussian over z.
+The decoder maps z to a cloud of ``decoder_points`` points; the loss is the Chamfer
+distance to the clean surface cloud at the same opening plus ``beta`` times the KL
+divergence to N(0, I) (so the low level's goals, drawn from N(0, I), land in the used range).
+
+Frames and units: inputs are (B, N, 3) float32 metres in the tool frame (registered
+clouds: ``Registration.to_tool_frame``); internally they are shifted by ``input_offset_m``
+(the middle of the tool) and divided by ``scale_m``; decoder outputs are metres again.
+
+Checkpoints (``save_checkpoint`` / ``load_encoder``) carry the format version, the config,
+the registration config, the tool geometry's hash, the weights, the calibration, the
+training data, seed, code version and metrics; a checkpoint that does not fit this code
+or this tweezer is refused with one line saying why.
+"""
+
+from __future__ import annotations
+
+from dataclasses import asdict, dataclass, fields
+from pathlib import Path
+
+import numpy as np
+import torch
+from torch import nn
+
+from hingelab.errors import ConfigError
+from hingelab.paths import ASSETS_DIR
+
+CHECKPOINT_FORMAT = "hingelab.tool_encoder"
+CHECKPOINT_VERSION = 1
+SHIPPED_CHECKPOINT = ASSETS_DIR / "checkpoints" / "encoder.pt"
+
+
+@dataclass(frozen=True)
+class EncoderConfig:
+    """Architecture and loss of the PointNet VAE (a checkpoint must match it exactly)."""
+
+    latent_dim: int = 2
+    widths: tuple[int, ...] = (64, 128, 256)  # shared per-point MLP
+    head_width: int = 128  # MLP after max pooling
+    decoder_widths: tuple[int, ...] = (128, 256)
+    decoder_points: int = 256
+    input_offset_m: tuple[float, float, float] = (0.06, 0.0, 0.0)  # middle of the tool, tool frame
+    scale_m: float = 0.05  # coordinates are divided by this
+    beta: float = 0.0001  # KL weight (Chamfer is in scaled units squared; 1e-3 collapsed the latent)
+    target_points: int = 512  # clean surface points the reconstruction is compared with
+    initial_logvar: float = -6.0  # offset of the encoder's log-variance output
+
+    @classmethod
+    def from_dict(cls, raw: dict, source: str = "checkpoint") -> "EncoderConfig":
+        names = {f.name for f in fields(cls)}
+        unknown, missing = set(raw) - names, names - set(raw)
+        if unknown or missing:
+            raise ConfigError(f"{source}: encoder config does not match this hingelab version "
+                              f"(unknown {sorted(unknown)}, missing {sorted(missing)}); retrain with "
+                              "`hingelab train encoder`")
+        return cls(**{k: tuple(v) if isinstance(v, list) else v for k, v in raw.items()})
+
+
+def _mlp(widths: list[int]) -> nn.Sequential:
+    layers: list[nn.Module] = []
+    for i, (a, b) in enumerate(zip(widths[:-1], widths[1:])):
+        layers.append(nn.Linear(a, b))
+        if i < len(widths) - 2:
+            layers.append(nn.ReLU())
+    return nn.Sequential(*layers)
+
+
+class PointNetVAE(nn.Module):
+    """encode: (B, N, 3) metres tool frame -> mu, logvar (B, latent); decode: z -> (B, M, 3) metres."""
+
+    def __init__(self, config: EncoderConfig = EncoderConfig()):
+        super().__init__()
+        self.config = config
+        c = config
+        # shared per-point MLP: Linear layers on the last axis of (B, N, 3) (one GEMM per layer);
+        # ReLU after the last layer too, before the max pool
+        self.point_mlp = nn.Sequential(_mlp([3, *c.widths]), nn.ReLU())
+        self.head = nn.Sequential(nn.Linear(c.widths[-1], c.head_width), nn.ReLU(),
+                                  nn.Linear(c.head_width, 2 * c.latent_dim))
+        self.decoder = nn.Sequential(_mlp([c.latent_dim, *c.decoder_widths]), nn.ReLU(),
+                                     nn.Linear(c.decoder_widths[-1], 3 * c.decoder_points))
+        self.register_buffer("offset", torch.tensor(c.input_offset_m, dtype=torch.float32))
+
+    def encode(self, points: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        x = (points - self.offset) / self.config.scale_m  # (B, N, 3)
+        feature = self.point_mlp(x).amax(dim=1)  # max pool over the points
+        mu, logvar = self.head(feature).chunk(2, dim=1)
+        # start nearly deterministic (sigma ~ 0.05): a decoder fed mostly noise at the start
+        # learns to ignore z (posterior collapse); the KL term grows sigma as far as it pays
+        return mu, (logvar + self.config.initial_logvar).clamp(-12.0, 6.0)
+
+    def decode(self, z: torch.Tensor) -> torch.Tensor:
+        out = self.decoder(z).view(len(z), self.config.decoder_points, 3)
+        return out * self.config.scale_m + self.offset
+
+    def forward(self, points: torch.Tensor, sample: bool = True, noise_scale: float = 1.0):
+        mu, logvar = self.encode(points)
+        z = mu + noise_scale * torch.randn_like(mu) * (0.5 * logvar).exp() if sample else mu
+        return self.decode(z), mu, logvar
+
+
+def chamfer(a: torch.Tensor, b: torch.Tensor) -> torch.Tensor:
+    """Symmetric Chamfer distance per cloud: mean squared nearest distance a->b plus b->a. (B,)"""
+    d = torch.cdist(a, b).square()
+    return d.min(dim=2).values.mean(dim=1) + d.min(dim=1).values.mean(dim=1)
+
+
+def vae_loss(model: PointNetVAE, points: torch.Tensor, target: torch.Tensor, beta_scale: float = 1.0):
+    """(loss, chamfer in scaled units^2, KL) averaged over the batch; the KL weight is
+    ``beta * beta_scale`` (training ramps beta_scale up from 0 so the latent is used)."""
+    # the sampling noise ramps up with beta: an autoencoder first, so the decoder learns to
+    # listen to z before the noise could teach it to ignore z (posterior collapse)
+    recon, mu, logvar = model(points, noise_scale=beta_scale)
+    scale = model.config.scale_m
+    rec = chamfer(recon / scale, target / scale).mean()
+    kl = (-0.5 * (1 + logvar - mu.square() - logvar.exp()).sum(dim=1)).mean()
+    return rec + model.config.beta * beta_scale * kl, rec, kl
+
+
+class ToolEncoder:
+    """A trained encoder ready to use: ``encode(points_tool) -> z`` (numpy in, numpy out).
+
+    Attributes: model (PointNetVAE, eval mode), calibration (OpeningCalibration or None),
+    registration_config (dict, what the training clouds were registered with), info (the
+    checkpoint's provenance: data, seed, code version, metrics).
+    """
+
+    def __init__(self, model: PointNetVAE, calibration=None, registration_config: dict | None = None,
+                 info: dict | None = None):
+        self.model = model.eval()
+        self.calibration = calibration
+        self.registration_config = registration_config or {}
+        self.info = info or {}
+
+    @torch.no_grad()
+    def encode(self, points_tool: np.ndarray) -> np.ndarray:
+        """(B, N, 3) or (N, 3) metres, tool frame -> latent means z (B, 2) or (2,) float64."""
+        arr = np.asarray(points_tool, dtype=np.float32)
+        single = arr.ndim == 2
+        if arr.ndim not in (2, 3) or arr.shape[-1] != 3:
+            raise ConfigError(f"the encoder takes clouds of shape (N, 3) or (B, N, 3), got {arr.shape}")
+        if not np.isfinite(arr).all():
+            raise ConfigError("a cloud given to the encoder has NaN or Inf coordinates")
+        mu, _ = self.model.encode(torch.from_numpy(arr[None] if single else arr))
+        z = mu.double().numpy()
+        return z[0] if single else z
+
+    @torch.no_grad()
+    def decode(self, z: np.ndarray) -> np.ndarray:
+        """Latents (B, 2) -> decoded clouds (B, M, 3) metres, tool frame."""
+        return self.model.decode(torch.as_tensor(np.atleast_2d(z), dtype=torch.float32)).numpy()
+
+
+def save_checkpoint(path, model: PointNetVAE, *, geometry_hash: str, registration_config: dict,
+                    calibration: dict | None, info: dict) -> Path:
+    """Write a checkpoint (atomically: a temporary name, then a rename)."""
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    payload = {
+        "format": CHECKPOINT_FORMAT, "format_version": CHECKPOINT_VERSION,
+        "config": asdict(model.config), "geometry_hash": geometry_hash,
+        "registration_config": registration_config, "calibration": calibration,
+        "state_dict": model.state_dict(), **info,
+    }
+    tmp = path.with_name(path.name + ".tmp")
+    torch.save(payload, tmp)
+    tmp.replace(path)
+    return path
+
+
+def load_encoder(path=None, geometry=None) -> ToolEncoder:
+    """Load a checkpoint (default: the shipped ``assets/checkpoints/encoder.pt``) and check it fits.
+
+    Refused with a one-line ``ConfigError``: a missing or unreadable file, another format or
+    format version, an encoder config this code does not know, weights that do not fit the
+    config, or a tweezer geometry other than the current model's.
+    """
+    from hingelab.perception.calibration import OpeningCalibration
+    from hingelab.perception.clouds import ToolGeometry
+
+    path = Path(path or SHIPPED_CHECKPOINT)
+    if not path.exists():
+        raise ConfigError(f"encoder checkpoint {path} does not exist; train one with `hingelab train encoder`")
+    try:
+        raw = torch.load(path, map_location="cpu", weights_only=False)
+    except Exception as exc:  # torch raises many kinds on a bad file
+        raise ConfigError(f"{path} is not a readable torch checkpoint ({type(exc).__name__}: {exc})") from exc
+    if not isinstance(raw, dict) or raw.get("format") != CHECKPOINT_FORMAT:
+        raise ConfigError(f"{path} is not a hingelab tool-encoder checkpoint (format "
+                          f"{raw.get('format') if isinstance(raw, dict) else type(raw).__name__!r})")
+    if raw.get("format_version") != CHECKPOINT_VERSION:
+        raise ConfigError(f"{path} has encoder checkpoint format {raw.get('format_version')}, this hingelab reads "
+                          f"{CHECKPOINT_VERSION}; retrain with `hingelab train encoder` or use a matching hingelab")
+    config = EncoderConfig.from_dict(raw.get("config") or {}, source=str(path))
+    geometry = geometry or ToolGeometry.default()
+    if raw.get("geometry_hash") != geometry.geometry_hash:
+        raise ConfigError(f"{path} was trained on another tweezer geometry ({raw.get('geometry_hash')}, now "
+                          f"{geometry.geometry_hash}); regenerate the clouds and retrain the encoder")
+    model = PointNetVAE(config)
+    try:
+        model.load_state_dict(raw["state_dict"])
+    except (RuntimeError, KeyError) as exc:
+        raise ConfigError(f"{path}: weights do not fit the encoder config ({str(exc).splitlines()[0]})") from exc
+    calibration = OpeningCalibration.from_dict(raw["calibration"]) if raw.get("calibration") else None
+    info = {k: v for k, v in raw.items() if k not in ("state_dict", "config", "calibration")}
+    return ToolEncoder(model, calibration, raw.get("registration_config"), info)
+
+
+__all__ = ["CHECKPOINT_FORMAT", "CHECKPOINT_VERSION", "EncoderConfig", "PointNetVAE", "SHIPPED_CHECKPOINT",
+           "ToolEncoder", "chamfer", "load_encoder", "save_checkpoint", "vae_loss"]

@@ -1,0 +1,409 @@
+"""SVD registration of tool clouds to the canonical cloud: the tool pose in ``hand_base``.
+
+No correspondences are given, so registration alternates nearest neighbours and the
+SVD (Kabsch) solution for the best rigid motion (ICP, point to point), batched over
+many clouds at once. What makes it reliable and fast on the tweezer:
+
+* **Initialization** (no prior pose): the tweezer is long and thin, so the cloud's
+  principal axis is the leg direction; the remaining freedom is the sign of that axis
+  and the roll about it. ``2 * n_roll`` hypotheses (both signs, rolls every 360/n_roll
+  degrees) each get a few coarse iterations on a subsample; the ``keep_hypotheses`` with
+  the smallest trimmed residual go on, and the best after the fine iterations wins.
+  With a prior (the previous frame's pose, or the nominal in-hand pose) the hypotheses
+  are the prior turned about the tool's long axis by up to ``prior_roll_rad`` either way:
+  the roll about the long axis of this flat tool is where point-to-point ICP is weakest
+  (a wrong roll is a deep local minimum; a flip of the nearly mirror-symmetric tweezer
+  fits almost as well as the truth under 3-5 mm noise, so no global search can tell
+  them apart reliably: a prior within ~60 degrees is what makes registration robust).
+* **Articulation**: the canonical cloud is the tool at a reference opening, but the
+  opening varies and leg b's points would pull a rigid fit half-way towards leg b.
+  After the coarse stage each point is matched to the nearer of leg a (tool frame)
+  and leg b (leg b's frame at the current hinge estimate); the hinge angle gets its
+  own closed-form update (2-D Procrustes about the hinge axis). The pose returned is
+  leg a's frame, the tool frame, whatever the opening. ``articulated=False`` gives
+  the plain rigid registration against the reference-opening cloud.
+* **Nearest neighbours**: the canonical parts are fixed, so their nearest-point maps
+  are precomputed once on a voxel grid (an O(1) lookup per point); the last
+  iterations use exact k-d tree queries (scipy ``cKDTree``).
+* Trimmed: the worst ``trim_fraction`` of pairs are left out of each SVD.
+
+Frames and units: clouds (N, 3) or (B, N, 3) metres in ``hand_base``; the result's
+``rotation`` R and ``translation`` t map tool-frame points into hand_base
+(``p_hand = R @ p_tool + t``); Euler angles are extrinsic x-y-z (roll, pitch, yaw), rad.
+"""
+
+from __future__ import annotations
+
+import copy
+from dataclasses import asdict, dataclass, replace
+
+import numpy as np
+from scipy.spatial import cKDTree
+from scipy.spatial.transform import Rotation
+
+from hingelab.errors import ConfigError
+from hingelab.perception.clouds import ToolGeometry, _even_subset
+
+MIN_POINTS = 32  # fewer points than this cannot pin down a 6-DoF pose of a long thin tool
+EULER_SEQUENCE = "xyz"  # scipy's lower case: extrinsic axes
+
+
+@dataclass(frozen=True)
+class RegistrationConfig:
+    """Registration settings; the defaults are what the bench reports."""
+
+    reference_opening_rad: float = 0.15  # the canonical cloud's opening (mid-range)
+    canonical_points: int = 1024  # model points, cloud -> model direction
+    reverse_points: int = 128  # model points matched to the cloud (model -> cloud direction)
+    articulated: bool = True  # estimate the hinge too; pose = leg a's frame
+    n_roll: int = 4  # roll hypotheses about the principal axis (x2 signs), without a prior
+    prior_roll_rad: float = 0.6  # with a prior: hypotheses turned up to this far either way about x
+    prior_hypotheses: int = 3  # rolls of the prior, evenly spread over +-prior_roll_rad
+    keep_hypotheses: int = 1  # best hypotheses per cloud carried through the fine iterations
+    coarse_points: int = 64  # cloud (and reverse model) subsample for the hypotheses
+    coarse_iterations: int = 6
+    fine_iterations: int = 8  # voxel-grid nearest neighbours
+    exact_iterations: int = 2  # k-d tree nearest neighbours, last
+    trim_fraction: float = 0.0  # worst cloud -> model pairs left out of each SVD (0.1 biased the
+    # closed tweezer by millimetres and doubled the median rotation error on the bench clouds)
+    reverse_trim_fraction: float = 0.25  # worst model -> cloud pairs left out (occluded model parts)
+    reverse_weight: float = 0.0  # weight of the model -> cloud pairs relative to the cloud -> model ones
+    grid_resolution_m: float = 0.0015
+    grid_margin_m: float = 0.03
+
+    def __post_init__(self):
+        if self.n_roll < 1 or self.coarse_points < 8 or self.reverse_points < 8 or min(
+                self.coarse_iterations, self.fine_iterations, self.exact_iterations) < 0:
+            raise ConfigError(f"registration config out of range: {asdict(self)}")
+        if not (0.0 <= self.trim_fraction < 0.5 and 0.0 <= self.reverse_trim_fraction < 0.8):
+            raise ConfigError(f"trim fractions out of range: {self.trim_fraction}, {self.reverse_trim_fraction}")
+
+
+@dataclass
+class Registration:
+    """Result for B clouds (leading axis dropped for a single cloud).
+
+    rotation (B, 3, 3), translation (B, 3) m: tool frame -> hand_base; euler_xyz (B, 3) rad;
+    hinge_angle (B,) rad, the opening estimated by articulated registration (NaN if rigid);
+    rmse_m (B,): root mean square of the kept nearest-neighbour distances, metres.
+    """
+
+    rotation: np.ndarray
+    translation: np.ndarray
+    euler_xyz: np.ndarray
+    hinge_angle: np.ndarray
+    rmse_m: np.ndarray
+
+    def to_tool_frame(self, clouds: np.ndarray) -> np.ndarray:
+        """Clouds (B, N, 3) or (N, 3) in hand_base -> the tool frame: q = R^T (p - t)."""
+        return (clouds - self.translation[..., None, :]) @ self.rotation
+
+
+def check_clouds(clouds, min_points: int = MIN_POINTS) -> tuple[np.ndarray, bool]:
+    """Validate clouds: (N, 3) or (B, N, 3), finite, N >= min_points. Returns ((B, N, 3) float64, single)."""
+    arr = np.asarray(clouds)
+    if arr.ndim not in (2, 3) or arr.shape[-1] != 3:
+        raise ConfigError(f"a tool cloud must have shape (N, 3) or (B, N, 3), got {arr.shape}")
+    if arr.shape[-2] < min_points:
+        raise ConfigError(f"a tool cloud has {arr.shape[-2]} points; at least {min_points} are needed "
+                          "to register it (check the segmentation or the occlusion setting)")
+    if not np.issubdtype(arr.dtype, np.number):
+        raise ConfigError(f"a tool cloud must be numeric, got dtype {arr.dtype}")
+    arr = arr.astype(np.float64)
+    if not np.isfinite(arr).all():
+        bad = int((~np.isfinite(arr)).any(axis=-1).sum())
+        raise ConfigError(f"a tool cloud has {bad} points with NaN or Inf coordinates; drop them before "
+                          "registering (the camera pipeline's outlier removal does)")
+    return (arr[None] if arr.ndim == 2 else arr), arr.ndim == 2
+
+
+class _GridNearest:
+    """Nearest model point by a precomputed voxel map: O(1) per query, approximate by <= one voxel."""
+
+    def __init__(self, points: np.ndarray, resolution: float, margin: float):
+        self.points = points
+        self.origin = points.min(axis=0) - margin
+        self.resolution = resolution
+        self.shape = np.ceil((points.max(axis=0) + margin - self.origin) / resolution).astype(int) + 1
+        centres = (np.stack(np.meshgrid(*[np.arange(s) for s in self.shape], indexing="ij"), -1)
+                   .reshape(-1, 3) + 0.5) * resolution + self.origin
+        _, index = cKDTree(points).query(centres)
+        self.index = index.astype(np.int32).reshape(self.shape)
+
+    def query(self, q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        cell = np.floor((q - self.origin) / self.resolution).astype(np.int64)
+        np.clip(cell, 0, self.shape - 1, out=cell)
+        idx = self.index[cell[..., 0], cell[..., 1], cell[..., 2]]
+        return np.linalg.norm(q - self.points[idx], axis=-1), idx
+
+
+class _TreeNearest:
+    def __init__(self, points: np.ndarray):
+        self.points = points
+        self.tree = cKDTree(points)
+
+    def query(self, q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        flat = q.reshape(-1, 3)
+        # threads pay off only on big batches (starting them costs more than a small query)
+        dist, idx = self.tree.query(flat, workers=-1 if len(flat) > 20_000 else 1)
+        return dist.reshape(q.shape[:-1]), idx.reshape(q.shape[:-1])
+
+
+def kabsch(model: np.ndarray, observed: np.ndarray, weights: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Best rigid motion with observed ~ R @ model + t, weighted, batched: (B, K, 3) x2, (B, K) -> R, t."""
+    w = (weights / np.maximum(weights.sum(axis=1, keepdims=True), 1e-12))[:, None, :]  # (B, 1, K)
+    mu_m = (w @ model)[:, 0]
+    mu_o = (w @ observed)[:, 0]
+    cov = np.swapaxes((model - mu_m[:, None]) * w[:, 0, :, None], 1, 2) @ (observed - mu_o[:, None])
+    u, _, vt = np.linalg.svd(cov)
+    d = np.sign(np.linalg.det(np.swapaxes(vt, 1, 2) @ np.swapaxes(u, 1, 2)))
+    fix = np.ones((len(d), 3))
+    fix[:, 2] = d
+    rot = np.swapaxes(vt, 1, 2) @ (fix[:, :, None] * np.swapaxes(u, 1, 2))
+    return rot, mu_o - np.einsum("bij,bj->bi", rot, mu_m)
+
+
+def _trim_weights(dist: np.ndarray, trim_fraction: float) -> np.ndarray:
+    if trim_fraction <= 0:
+        return np.ones_like(dist)
+    k = int(np.floor((1 - trim_fraction) * dist.shape[1])) - 1
+    cutoff = np.partition(dist, k, axis=1)[:, k:k + 1]
+    return (dist <= cutoff).astype(float)
+
+
+def _principal_frames(points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Centroids (B, 3) and right-handed principal frames (B, 3, 3), columns by decreasing variance."""
+    centre = points.mean(axis=1)
+    x = points - centre[:, None]
+    _, vecs = np.linalg.eigh(np.einsum("bni,bnj->bij", x, x))
+    frames = vecs[:, :, ::-1].copy()
+    frames[:, :, 2] = np.cross(frames[:, :, 0], frames[:, :, 1])
+    return centre, frames
+
+
+class CanonicalRegistration:
+    """Registers tool clouds to the canonical cloud of a ``ToolGeometry`` (see the module docstring).
+
+    ``register(clouds, prior=None)``: clouds (N, 3) or (B, N, 3) in hand_base; ``prior``
+    an optional (R, t) (batched like the clouds) to start from (tracking) instead of the
+    global hypotheses. Returns a ``Registration``.
+
+    Each iteration pairs every cloud point with its nearest model point. With
+    ``reverse_weight > 0`` a fixed subset of model points is also paired with its nearest
+    cloud points (bidirectional ICP); measured on the bench clouds it did not help
+    (more flips chosen, larger median error), so it is off by default.
+    """
+
+    def __init__(self, geometry: ToolGeometry | None = None, config: RegistrationConfig = RegistrationConfig()):
+        self.geometry = geometry = geometry or ToolGeometry.default()
+        self.config = c = config
+        index = _even_subset(geometry.bank_part, c.canonical_points)
+        self.canonical = geometry.surface_in_tool_frame(c.reference_opening_rad, index)
+        part = geometry.bank_part[index]
+        self.leg_a = self.canonical[part == 0]
+        self.leg_b_local = geometry.bank_points[index][part == 1]  # leg b's own frame
+        res, margin = c.grid_resolution_m, c.grid_margin_m
+        self._grid_all = _GridNearest(self.canonical, res, margin)
+        self._grid_a = _GridNearest(self.leg_a, res, margin)
+        self._grid_b = _GridNearest(self.leg_b_local, res, margin)
+        self._tree_all = _TreeNearest(self.canonical)
+        self._tree_a, self._tree_b = _TreeNearest(self.leg_a), _TreeNearest(self.leg_b_local)
+        self._canon_centre, self._canon_frame = _principal_frames(self.canonical[None])
+        # the model subsets matched model -> cloud (fine and coarse), in part frames
+        self._reverse = self._model_subset(c.reverse_points)
+        self._reverse_coarse = self._model_subset(min(c.coarse_points, c.reverse_points))
+        low, high = geometry.hinge_range
+        self._hinge_bounds = (low - 0.05, high + 0.05)
+        # the hinge axis and a point on it in the tool frame (leg b's pose at opening 0)
+        rot0, pos0 = geometry.leg_b_pose(0.0)
+        self._leg_b_zero = (rot0, pos0)
+        self._axis = rot0 @ geometry._axis
+        self._anchor = rot0 @ geometry._anchor + pos0
+
+    def with_search(self, **changes) -> "CanonicalRegistration":
+        """A copy sharing the precomputed model and maps, with other search settings
+        (hypotheses, iterations, trimming; not the canonical cloud or the grids)."""
+        fixed = {"reference_opening_rad", "canonical_points", "reverse_points", "coarse_points",
+                 "grid_resolution_m", "grid_margin_m"}
+        if fixed & set(changes):
+            raise ConfigError(f"with_search cannot change {sorted(fixed & set(changes))}; make a new registration")
+        other = copy.copy(self)
+        other.config = replace(self.config, **changes)
+        return other
+
+    def _model_subset(self, n: int) -> tuple[np.ndarray, np.ndarray]:
+        """(points (n, 3) in their part frames, is_leg_b (n,)) spread evenly over both parts."""
+        index = _even_subset(self.geometry.bank_part, n)
+        return self.geometry.bank_points[index], self.geometry.bank_part[index] == 1
+
+    # ------------------------------------------------------------------ public
+    def register(self, clouds, prior: tuple[np.ndarray, np.ndarray] | None = None,
+                 hinge_prior=None) -> Registration:
+        """Register clouds; ``prior`` (R, t) a pose to start from, ``hinge_prior`` (rad, scalar
+        or (B,)) an opening to start from (default: the reference opening). Tracking passes
+        the previous frame's pose and opening."""
+        points, single = check_clouds(clouds)
+        c = self.config
+        n_batch = len(points)
+        if prior is not None:
+            prior = (np.broadcast_to(np.asarray(prior[0], float), (n_batch, 3, 3)).copy(),
+                     np.broadcast_to(np.asarray(prior[1], float), (n_batch, 3)).copy())
+            _check_prior(*prior)
+        start = np.broadcast_to(np.asarray(c.reference_opening_rad if hinge_prior is None else hinge_prior,
+                                           float), (n_batch,))
+        if not np.isfinite(start).all():
+            raise ConfigError("the hinge prior for registration has NaN or Inf; pass hinge_prior=None")
+        rot, pos, theta, n_keep = self._hypotheses(points, prior, np.clip(start, *self._hinge_bounds))
+        candidates = np.repeat(points, n_keep, axis=0)
+        for _ in range(c.fine_iterations):
+            rot, pos, theta, score = self._step(candidates, rot, pos, theta, self._reverse, exact=False)
+        if n_keep > 1:  # each cloud's best surviving hypothesis
+            best = np.argmin(score.reshape(n_batch, n_keep), axis=1) + np.arange(n_batch) * n_keep
+            rot, pos, theta = rot[best], pos[best], theta[best]
+        for _ in range(c.exact_iterations):
+            rot, pos, theta, score = self._step(points, rot, pos, theta, self._reverse, exact=True)
+        # the residual of the last iteration's pairs (before its small final update)
+        rmse = np.sqrt(score) if c.exact_iterations and c.reverse_weight == 0 else self._forward_rmse(
+            points, rot, pos, theta)
+        euler = Rotation.from_matrix(rot).as_euler(EULER_SEQUENCE)
+        result = Registration(rot, pos, euler, theta if c.articulated else np.full(n_batch, np.nan), rmse)
+        if single:
+            result = Registration(*(getattr(result, f)[0] for f in result.__dataclass_fields__))
+        return result
+
+    # ------------------------------------------------------------------ stages
+    def _hypotheses(self, points: np.ndarray, prior, hinge_start: np.ndarray):
+        """Start poses, a few coarse iterations each on a subsample; returns the best
+        ``keep_hypotheses`` per cloud: (rot, pos, theta, k).
+
+        Without a prior: 2 * n_roll principal-axis hypotheses (both signs of the long axis,
+        rolls about it). With a prior (R, t): the prior turned by -prior_roll, 0, +prior_roll
+        about the tool's long axis (x), the axis along which point-to-point ICP turns slowest.
+        The cloud's centroid places every hypothesis (a prior's translation may be centimetres off).
+        """
+        c = self.config
+        n_batch, n_points = points.shape[:2]
+        centre, frames = _principal_frames(points)
+        if prior is None:
+            hypotheses = []
+            for sign in (1.0, -1.0):
+                flip = np.diag([sign, sign, 1.0])  # 180 degrees about the third axis: stays right-handed
+                for k in range(c.n_roll):
+                    hypotheses.append(flip @ Rotation.from_rotvec([2 * np.pi * k / c.n_roll, 0, 0]).as_matrix())
+            hyp = np.stack(hypotheses)  # (H, 3, 3), in principal-frame coordinates
+            # R maps the canonical principal frame onto the cloud's: R = E H F^T
+            rot = np.einsum("bij,hjk,kl->bhil", frames, hyp, self._canon_frame[0].T).reshape(-1, 3, 3)
+        else:
+            rolls = Rotation.from_rotvec(np.outer(np.linspace(-1.0, 1.0, c.prior_hypotheses) * c.prior_roll_rad, [1, 0, 0]))
+            hyp = rolls.as_matrix()
+            rot = (prior[0][:, None] @ hyp[None]).reshape(-1, 3, 3)
+        n_hyp = len(hyp)
+        pos = np.repeat(centre, n_hyp, axis=0) - rot @ self._canon_centre[0]
+        theta = np.repeat(hinge_start, n_hyp)
+        if n_hyp == 1:  # tracking: nothing to choose between
+            return rot, pos, theta, 1
+        sub = points[:, np.linspace(0, n_points - 1, min(c.coarse_points, n_points)).astype(int)]
+        sub = np.repeat(sub, n_hyp, axis=0)
+        for _ in range(max(c.coarse_iterations, 1)):
+            rot, pos, theta, score = self._step(sub, rot, pos, theta, self._reverse_coarse, exact=False)
+        n_keep = min(c.keep_hypotheses, n_hyp)
+        keep = (np.argsort(score.reshape(n_batch, n_hyp), axis=1)[:, :n_keep]
+                + np.arange(n_batch)[:, None] * n_hyp).ravel()
+        return rot[keep], pos[keep], theta[keep], n_keep
+
+    def _leg_b(self, theta):
+        if self.config.articulated:
+            return self.geometry.leg_b_pose(theta)
+        rot, pos = self.geometry.leg_b_pose(np.full(len(theta), self.config.reference_opening_rad))
+        return rot, pos
+
+    def _forward(self, local, rot_b, pos_b, exact: bool):
+        """Cloud (tool frame, (C, N, 3)) -> nearest model point: (model (C, N, 3), dist, on_b, leg-b index)."""
+        local_b = (local - pos_b[:, None]) @ rot_b  # leg b's frame
+        near_a, near_b = (self._tree_a, self._tree_b) if exact else (self._grid_a, self._grid_b)
+        da, ia = near_a.query(local)
+        db, ib = near_b.query(local_b)
+        on_b = db < da
+        model_b = self.leg_b_local[ib] @ np.swapaxes(rot_b, 1, 2) + pos_b[:, None]
+        return np.where(on_b[..., None], model_b, self.leg_a[ia]), np.where(on_b, db, da), on_b, ib
+
+    def _forward_rmse(self, points, rot, pos, theta) -> np.ndarray:
+        local = (points - pos[:, None]) @ rot
+        _, dist, _, _ = self._forward(local, *self._leg_b(theta), exact=True)
+        w = _trim_weights(dist, self.config.trim_fraction)
+        return np.sqrt((w * dist ** 2).sum(axis=1) / np.maximum(w.sum(axis=1), 1))
+
+    def _step(self, points, rot, pos, theta, reverse, exact: bool):
+        """One ICP iteration on C candidates: (rot, pos, theta, score (C,)).
+
+        score: mean squared distance of the kept pairs (both directions if reverse_weight > 0),
+        before the update.
+        """
+        c = self.config
+        rot_b, pos_b = self._leg_b(theta)
+        local = (points - pos[:, None]) @ rot  # tool frame
+        model_f, dist_f, on_b_f, ib = self._forward(local, rot_b, pos_b, exact)
+        w_f = _trim_weights(dist_f, c.trim_fraction)
+        score = (w_f * dist_f ** 2).sum(1) / w_f.sum(1)
+        model, observed, weights = model_f, points, w_f
+        leg_b_local, leg_b_weights = self.leg_b_local[ib], w_f * on_b_f
+        if c.reverse_weight > 0:
+            model_r, observed_r, w_r, rev_score = self._reverse_pairs(points, local, rot_b, pos_b, reverse)
+            score = score + rev_score
+            # the two directions weigh reverse_weight : 1 in the SVD, whatever their point counts
+            scale = c.reverse_weight * points.shape[1] / len(reverse[0])
+            model = np.concatenate([model_f, model_r], 1)
+            observed = np.concatenate([points, observed_r], 1)
+            weights = np.concatenate([w_f, scale * w_r], 1)
+            leg_b_local = np.concatenate([leg_b_local, reverse[0][None].repeat(len(points), 0)], 1)
+            leg_b_weights = np.concatenate([leg_b_weights, scale * w_r * reverse[1]], 1)
+        rot, pos = kabsch(model, observed, weights)
+        if c.articulated:
+            theta = self._update_hinge(rot, pos, theta, leg_b_local,
+                                       observed if c.reverse_weight > 0 else points, leg_b_weights)
+        return rot, pos, theta, score
+
+    def _reverse_pairs(self, points, local, rot_b, pos_b, reverse):
+        """Model subset -> nearest cloud point, brute force (C x M x N is small): model, observed, w, score."""
+        rev_local, rev_on_b = reverse
+        model_r = np.where(rev_on_b[:, None], rev_local @ np.swapaxes(rot_b, 1, 2) + pos_b[:, None],
+                           rev_local)
+        d2 = (np.einsum("bmi,bmi->bm", model_r, model_r)[:, :, None]
+              + np.einsum("bni,bni->bn", local, local)[:, None, :]
+              - 2 * (model_r @ np.swapaxes(local, 1, 2)))
+        nearest = np.argmin(d2, axis=2)
+        dist_r = np.sqrt(np.maximum(np.take_along_axis(d2, nearest[..., None], 2)[..., 0], 0))
+        w_r = _trim_weights(dist_r, self.config.reverse_trim_fraction)
+        observed_r = np.take_along_axis(points, nearest[..., None], 1)
+        return model_r, observed_r, w_r, (w_r * dist_r ** 2).sum(1) / w_r.sum(1)
+
+    def _update_hinge(self, rot, pos, theta, leg_b_local, observed, weights):
+        """Hinge angle that turns leg b's matched points (at opening 0) about the hinge axis
+        onto the observed points, both in the new tool frame (2-D Procrustes), clipped."""
+        rot0, pos0 = self._leg_b_zero
+        m0 = leg_b_local @ rot0.T + pos0 - self._anchor
+        q = (observed - pos[:, None]) @ rot - self._anchor
+        axis = self._axis
+        cross = (weights * (np.cross(m0, q) @ axis)).sum(axis=1)
+        # dot product of the components perpendicular to the axis
+        dot = (weights * ((m0 * q).sum(axis=2) - (m0 @ axis) * (q @ axis))).sum(axis=1)
+        has_b = (weights > 0).sum(axis=1) >= 3
+        return np.where(has_b, np.clip(np.arctan2(cross, dot), *self._hinge_bounds), theta)
+
+
+def _check_prior(rot: np.ndarray, pos: np.ndarray) -> None:
+    if not (np.isfinite(rot).all() and np.isfinite(pos).all()):
+        raise ConfigError("the prior pose for registration has NaN or Inf; pass prior=None for a global start")
+    if np.abs(np.einsum("bij,bkj->bik", rot, rot) - np.eye(3)).max() > 1e-3:
+        raise ConfigError("the prior rotation for registration is not a rotation matrix (R R^T != I)")
+
+
+def rotation_error_rad(rot_est: np.ndarray, rot_true: np.ndarray) -> np.ndarray:
+    """Angle of R_est^T R_true, radians: (..., 3, 3) x2 -> (...)."""
+    rel = np.einsum("...ji,...jk->...ik", rot_est, rot_true)
+    cos = (np.trace(rel, axis1=-2, axis2=-1) - 1) / 2
+    return np.arccos(np.clip(cos, -1.0, 1.0))
+
+
+__all__ = ["CanonicalRegistration", "MIN_POINTS", "Registration", "RegistrationConfig", "check_clouds",
+           "kabsch", "rotation_error_rad"]

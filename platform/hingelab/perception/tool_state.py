@@ -1,0 +1,165 @@
+"""``ToolState``: a stream of tool clouds -> the paper's tool state, for B tools at once.
+
+Per control step and per cloud (hand_base, metres):
+
+1. register the cloud to the canonical cloud: after a reset from the nominal in-hand pose
+   (with the registration's roll hypotheses), then tracking from the previous pose (one
+   hypothesis; a tool whose residual exceeds ``lost_rmse_m`` is registered afresh):
+   tool pose t (3,), R (3, 3), Euler angles theta (3,);
+2. velocities by differencing consecutive poses over ``dt``: v (3,) m/s, omega (3,) rad/s,
+   both in hand_base (omega from R_k R_{k-1}^T); zero on the first step after a reset;
+3. move the cloud into the tool frame and encode it: the latent z (2,);
+4. exponential moving averages s_bar <- alpha s + (1 - alpha) s_bar (alpha 0.9) of v,
+   omega and z (the first step after a reset starts the average at s).
+
+The low level's tool state is ``[v_bar, omega_bar, z_bar]`` (8), the high level's
+``[t, theta, z_bar]`` (8). With a calibrated encoder the sample also carries the opening
+(rad) and tip gap (mm) read from z_bar.
+
+Usage::
+
+    state = ToolState(n_tools=64)              # the shipped encoder; 64 envs
+    state.reset()                              # or reset(mask) for the envs that restarted
+    sample = state.update(clouds)              # clouds (64, 256, 3) -> ToolStateSample
+    obs_low = sample.low_level()               # (64, 8)
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from scipy.spatial.transform import Rotation
+
+from hingelab.errors import ConfigError
+from hingelab.perception.encoder import ToolEncoder, load_encoder
+from hingelab.perception.registration import CanonicalRegistration, Registration, RegistrationConfig, check_clouds
+
+ALPHA = 0.9  # the paper's smoothing
+CONTROL_DT_S = 0.05  # 20 Hz
+
+
+@dataclass
+class ToolStateSample:
+    """One update for B tools (arrays have a leading B axis). Units: m, rad, m/s, rad/s; hand_base."""
+
+    position: np.ndarray  # t (B, 3)
+    rotation: np.ndarray  # R (B, 3, 3), tool frame -> hand_base
+    euler_xyz: np.ndarray  # theta (B, 3)
+    velocity: np.ndarray  # v (B, 3)
+    angular_velocity: np.ndarray  # omega (B, 3)
+    z: np.ndarray  # (B, 2)
+    velocity_smoothed: np.ndarray  # v_bar (B, 3)
+    angular_velocity_smoothed: np.ndarray  # omega_bar (B, 3)
+    z_smoothed: np.ndarray  # z_bar (B, 2)
+    registration_rmse_m: np.ndarray  # (B,)
+    opening_rad: np.ndarray | None = None  # (B,) from z_bar, if the encoder is calibrated
+    tip_gap_mm: np.ndarray | None = None  # (B,)
+
+    def low_level(self) -> np.ndarray:
+        """(B, 8): [v_bar, omega_bar, z_bar], the low-level policy's tool state."""
+        return np.concatenate([self.velocity_smoothed, self.angular_velocity_smoothed, self.z_smoothed], axis=1)
+
+    def high_level(self) -> np.ndarray:
+        """(B, 8): [t, theta, z_bar], the high-level policy's tool state."""
+        return np.concatenate([self.position, self.euler_xyz, self.z_smoothed], axis=1)
+
+
+class ToolState:
+    """Turns streams of clouds from ``n_tools`` tools into tool states (see the module docstring).
+
+    Args:
+        encoder: a ``ToolEncoder`` (default: the shipped checkpoint, ``load_encoder()``).
+        registration: default: a ``CanonicalRegistration`` with the encoder's training config.
+        n_tools: how many clouds each ``update`` takes (B).
+        alpha: EMA weight of the newest value.
+        dt: seconds between updates (the control period).
+        prior: (R, t) pose to start registration from after a reset (default: the nominal
+            in-hand pose of the ``tool_shape`` grasp); None starts from the global hypotheses.
+    """
+
+    def __init__(self, encoder: ToolEncoder | None = None, registration: CanonicalRegistration | None = None,
+                 n_tools: int = 1, alpha: float = ALPHA, dt: float = CONTROL_DT_S, prior="nominal",
+                 lost_rmse_m: float = 0.006):
+        if not 0.0 < alpha <= 1.0 or dt <= 0 or n_tools < 1:
+            raise ConfigError(f"ToolState needs 0 < alpha <= 1, dt > 0, n_tools >= 1 (got {alpha}, {dt}, {n_tools})")
+        self.encoder = encoder or load_encoder()
+        if registration is None:
+            config = RegistrationConfig(**(self.encoder.registration_config or {}))
+            registration = CanonicalRegistration(config=config)
+        self.registration = registration
+        # tracking: the previous pose is close, one hypothesis is enough
+        self.tracking = registration.with_search(prior_hypotheses=1, keep_hypotheses=1)
+        self.lost_rmse_m = lost_rmse_m
+        if isinstance(prior, str) and prior == "nominal":
+            from hingelab.perception.synthetic_dataset import nominal_tool_pose
+
+            prior = nominal_tool_pose()
+        self.prior = prior
+        self.n_tools, self.alpha, self.dt = n_tools, alpha, dt
+        self._rot = np.zeros((n_tools, 3, 3))
+        self._pos = np.zeros((n_tools, 3))
+        self._smoothed = np.zeros((n_tools, 8))  # v_bar, omega_bar, z_bar
+        self._fresh = np.ones(n_tools, bool)  # no previous pose since the reset
+        self._hinge = np.full(n_tools, registration.config.reference_opening_rad)  # last opening estimate
+
+    def reset(self, mask=None) -> None:
+        """Forget the history of all tools, or of those where ``mask`` (B,) bool is True."""
+        mask = np.ones(self.n_tools, bool) if mask is None else np.asarray(mask, bool)
+        if mask.shape != (self.n_tools,):
+            raise ConfigError(f"reset mask must have shape ({self.n_tools},), got {mask.shape}")
+        self._fresh |= mask
+
+    def _register(self, points: np.ndarray, fresh: np.ndarray) -> Registration:
+        """Fresh tools from the reset prior (or globally), the others tracked from their last pose."""
+        rot, pos = self._rot.copy(), self._pos.copy()
+        if not fresh.any():
+            return self.tracking.register(points, prior=(rot, pos), hinge_prior=self._hinge)
+        if self.prior is None:
+            start = self.registration.register(points[fresh])
+        else:
+            start = self.registration.register(points[fresh], prior=self.prior)
+        if fresh.all():
+            return start
+        tracked = self.tracking.register(points[~fresh], prior=(rot[~fresh], pos[~fresh]),
+                                         hinge_prior=self._hinge[~fresh])
+        out = Registration(*(np.empty((len(points),) + getattr(start, f).shape[1:])
+                             for f in Registration.__dataclass_fields__))
+        for name in Registration.__dataclass_fields__:
+            getattr(out, name)[fresh] = getattr(start, name)
+            getattr(out, name)[~fresh] = getattr(tracked, name)
+        return out
+
+    def update(self, clouds) -> ToolStateSample:
+        """Clouds (B, N, 3) (or (N, 3) when n_tools is 1), hand_base metres -> ``ToolStateSample``."""
+        points, _ = check_clouds(clouds)
+        if len(points) != self.n_tools:
+            raise ConfigError(f"ToolState was made for {self.n_tools} tools, got {len(points)} clouds")
+        fresh = self._fresh
+        result = self._register(points, fresh)
+        lost = ~fresh & (result.rmse_m > self.lost_rmse_m)
+        if lost.any():  # tracking slipped: start those afresh
+            again = self._register(points[lost], np.ones(int(lost.sum()), bool))
+            for name in ("rotation", "translation", "euler_xyz", "hinge_angle", "rmse_m"):
+                getattr(result, name)[lost] = getattr(again, name)
+        rot, pos = result.rotation, result.translation
+        velocity = np.where(fresh[:, None], 0.0, (pos - self._pos) / self.dt)
+        previous = np.where(fresh[:, None, None], rot, self._rot)  # fresh tools: no motion yet
+        delta = Rotation.from_matrix(rot @ np.swapaxes(previous, 1, 2))
+        omega = np.where(fresh[:, None], 0.0, delta.as_rotvec() / self.dt)
+        z = self.encoder.encode(result.to_tool_frame(points).astype(np.float32))
+        raw = np.concatenate([velocity, omega, z], axis=1)
+        self._smoothed = np.where(fresh[:, None], raw, self.alpha * raw + (1 - self.alpha) * self._smoothed)
+        self._rot, self._pos, self._fresh = rot, pos, np.zeros(self.n_tools, bool)
+        if self.registration.config.articulated:
+            self._hinge = result.hinge_angle.copy()
+        s = self._smoothed
+        sample = ToolStateSample(pos, rot, result.euler_xyz, velocity, omega, z, s[:, :3].copy(), s[:, 3:6].copy(),
+                                 s[:, 6:].copy(), result.rmse_m)
+        if self.encoder.calibration is not None:
+            sample.opening_rad = self.encoder.calibration.opening_rad(sample.z_smoothed)
+            sample.tip_gap_mm = self.encoder.calibration.tip_gap_mm(sample.z_smoothed)
+        return sample
+
+
+__all__ = ["ALPHA", "ToolState", "ToolStateSample"]
