@@ -1,0 +1,78 @@
+"""The low level inside ToolPick-v0: it turns the high level's latent goal into finger motion.
+
+Two kinds, one interface (``reset``, ``act(z_goal) -> None`` acting on the sim):
+
+* ``PrivilegedLowLevel``: drives the hinge to the opening that z_goal calibrates to, with
+  the privileged hinge servo, the fingers following the grasp synergy so the tool stays
+  held. ToolPick-v0 works with it before any low-level policy is trained.
+* ``PolicyLowLevel``: a trained low-level SAC checkpoint (``hingelab train low``) observing
+  the hand and tool as in ToolShape-v0 and moving the 9 finger channels.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+
+from hingelab.errors import ConfigError
+from hingelab.sim.core import SimCore
+from hingelab.sim.finger_synergy import FingerSynergy
+
+FINGER_SQUEEZE = 0.03  # rad the fingers aim past the commanded opening (keeps leg b pressed)
+
+
+class PrivilegedLowLevel:
+    """z_goal -> opening (calibration) -> hinge servo target, fingers from the synergy."""
+
+    kind = "privileged"
+
+    def __init__(self, calibration, synergy: FingerSynergy | None = None):
+        self.calibration = calibration
+        self.synergy = synergy or FingerSynergy.load()
+
+    def reset(self) -> None:
+        pass
+
+    def opening_for(self, z_goal: np.ndarray) -> float:
+        low, high = self.synergy.theta_range
+        return float(np.clip(self.calibration.opening_rad(np.asarray(z_goal, float)), max(low, 0.0), high))
+
+    def act(self, sim: SimCore, z_goal: np.ndarray, low_obs: np.ndarray | None = None) -> dict:
+        """Set this step's hand and hinge commands; returns them for ``sim.step``."""
+        opening = self.opening_for(z_goal)
+        sim.set_hand_targets(self.synergy.targets(opening - FINGER_SQUEEZE))
+        return {"hinge_target": opening}
+
+
+class PolicyLowLevel:
+    """A trained low-level policy: observation (26,) + z_goal (2,) -> 9 finger changes."""
+
+    kind = "policy"
+
+    def __init__(self, checkpoint: str | Path, action_scale: float = 0.05):
+        path = Path(checkpoint)
+        if not path.exists():
+            raise ConfigError(f"low-level checkpoint {path} does not exist; train one with `hingelab train low`")
+        from stable_baselines3 import SAC
+
+        try:
+            self.model = SAC.load(str(path), device="cpu")
+        except Exception as exc:  # SB3 raises many kinds on a foreign file
+            raise ConfigError(f"{path} is not a stable-baselines3 SAC checkpoint ({type(exc).__name__})") from exc
+        space = self.model.observation_space
+        shapes = {k: tuple(v.shape) for k, v in getattr(space, "spaces", {}).items()}
+        if shapes != {"observation": (26,), "achieved_goal": (2,), "desired_goal": (2,)} or \
+                tuple(self.model.action_space.shape) != (9,):
+            raise ConfigError(f"{path} does not match ToolShape-v0 (observation {shapes or space}, action "
+                              f"{self.model.action_space.shape}); give a checkpoint from `hingelab train low`")
+        self.action_scale = action_scale
+
+    def reset(self) -> None:
+        pass
+
+    def act(self, sim: SimCore, z_goal: np.ndarray, low_obs: np.ndarray | None = None) -> dict:
+        obs = {"observation": low_obs[None], "achieved_goal": low_obs[None, -2:],
+               "desired_goal": np.asarray(z_goal, float)[None]}
+        action, _ = self.model.predict(obs, deterministic=True)
+        return {"hand_action": np.clip(action[0], -1, 1) * self.action_scale}

@@ -1,0 +1,140 @@
+"""``RecordingWrapper``: every episode of either env becomes one MCAP episode in a dataset.
+
+Per step it writes what ``env.unwrapped.last_record`` holds (the tool cloud, registered
+tool pose, hand joints, latents, goal, action, reward terms, object and target, and the
+privileged simulator state alongside) plus the learners' transition (observation before
+the action, the action executed, reward, terminated, truncated, info scalars). The
+episode file is finished when the episode ends; an episode cut short by ``reset`` or
+``close`` is discarded (a half episode is not data), and one whose step raised keeps its
+``.partial`` file for ``hingelab datasets recover``.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import gymnasium as gym
+import numpy as np
+
+from hingelab.episodes import EpisodeWriter
+from hingelab.episodes.card import load_card
+from hingelab.sim import names
+
+SVH_JOINTS = list(names.HAND_ACTUATORS)
+
+
+def _xyzw(quat_wxyz: np.ndarray) -> np.ndarray:
+    w, x, y, z = quat_wxyz
+    return np.array([x, y, z, w])
+
+
+def privileged_fields(state) -> dict:
+    """``PrivilegedState`` -> the ``/sim/privileged`` fields of the episode contract (hand_base frame)."""
+    return {
+        "hinge_angle": state.hinge_angle,
+        "tool_position": state.tool_pos_hand,
+        "tool_orientation": _xyzw(state.tool_quat_hand),
+        "tip_a": state.tip_a_hand,
+        "tip_b": state.tip_b_hand,
+        "object_position": np.nan_to_num(state.object_pos_hand, nan=0.0),
+        "object_orientation": _xyzw(np.nan_to_num(state.object_quat_world, nan=0.0)),
+        "contact_count": state.n_contacts,
+        "table_collision": state.table_collision,
+    }
+
+
+def _scalars(info: dict) -> dict[str, float]:
+    out = {}
+    for key, value in info.items():
+        if isinstance(value, (bool, int, float, np.floating, np.integer, np.bool_)):
+            out[key] = float(value)
+    return out
+
+
+class RecordingWrapper(gym.Wrapper):
+    """Writes each episode of ``env`` into ``dataset_dir`` (made by ``create_dataset``)."""
+
+    def __init__(self, env: gym.Env, dataset_dir, source: str, task: str | None = None,
+                 object_name: str = "", action_level: str = "", extra_metadata: dict | None = None):
+        super().__init__(env)
+        self.dataset_dir = Path(dataset_dir)
+        load_card(self.dataset_dir)  # a clear error now, not at the first episode's end
+        self.source = source
+        self.task = task or (env.spec.id if env.spec else type(env.unwrapped).__name__)
+        self.object_name = object_name
+        self.action_level = action_level
+        self.extra_metadata = extra_metadata or {}
+        self.writer: EpisodeWriter | None = None
+        self.episode_seed: int | None = None
+        self.last_obs = None
+        self.paths: list[Path] = []
+
+    def reset(self, *, seed: int | None = None, options: dict | None = None):
+        self._discard()
+        obs, info = self.env.reset(seed=seed, options=options)
+        self.episode_seed = seed
+        self.writer = EpisodeWriter(self.dataset_dir, source=self.source, task=self.task, object=self.object_name,
+                                    seed=seed, action_level=self.action_level, joint_names=SVH_JOINTS,
+                                    extra_metadata=self.extra_metadata)
+        self.writer.open()
+        self._write(obs_before=None, action=None, reward=0.0, terminated=False, truncated=False, info=info)
+        self.last_obs = obs
+        return obs, info
+
+    def step(self, action):
+        obs, reward, terminated, truncated, info = self.env.step(action)
+        executed = info.get("executed_action", action)
+        self._write(self.last_obs, executed, reward, terminated, truncated, info)
+        self.last_obs = obs
+        if terminated or truncated:
+            self._finish(obs, info)
+        return obs, reward, terminated, truncated, info
+
+    def close(self):
+        self._discard()
+        super().close()
+
+    # ------------------------------------------------------------------ parts
+    def _write(self, obs_before, action, reward, terminated, truncated, info) -> None:
+        unwrapped = self.env.unwrapped
+        record = unwrapped.last_record
+        sim = unwrapped.sim
+        rotation = record["tool_rotation"]
+        quat = _rotation_to_xyzw(rotation)
+        transition = None
+        if obs_before is not None:
+            transition = {"observation": obs_before, "action": np.asarray(action, float), "reward": float(reward),
+                          "terminated": bool(terminated), "truncated": bool(truncated), "info": _scalars(info)}
+        self.writer.write_step(
+            record["privileged"].time,
+            points_hand=record["cloud"],
+            tool_pose_hand=(record["tool_position"], quat),
+            joint_position=sim.hand.q(sim.data), joint_velocity=sim.hand.qdot(sim.data),
+            latent_z=record["latent_z"], latent_z_smoothed=record["latent_z_smoothed"],
+            action=None if action is None else np.asarray(action, float),
+            goal_z=record["goal_z"], reward_terms=record["reward_terms"],
+            object_position_hand=record["object_position_hand"], target_position_hand=record["target_position_hand"],
+            privileged=privileged_fields(record["privileged"]), transition=transition,
+        )
+
+    def _finish(self, final_obs, info: dict) -> None:
+        success = bool(info.get("is_success", 0.0))
+        reason = None if success else info.get("failure_reason", "timeout")
+        self.writer.write_final_observation(final_obs)
+        self.writer.set_outcome(success, failure_reason=reason, attempt=int(info.get("attempt", 1)),
+                                first_attempt_success=bool(info.get("first_attempt_success", success)))
+        self.paths.append(self.writer.close())
+        self.writer = None
+
+    def _discard(self) -> None:
+        if self.writer is not None and not self.writer.closed:
+            self.writer.abort()
+        self.writer = None
+
+
+def _rotation_to_xyzw(rotation: np.ndarray) -> np.ndarray:
+    import mujoco
+
+    quat = np.zeros(4)
+    mujoco.mju_mat2Quat(quat, np.asarray(rotation, float).ravel())
+    return _xyzw(quat)

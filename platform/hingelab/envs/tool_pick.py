@@ -1,0 +1,244 @@
+"""``hingelab/ToolPick-v0``: the high-level task, picking an object with the tweezer.
+
+## Description
+The Zu 7 arm carries the SVH hand holding the tweezer over a 20 cm platform. An object
+(by default the 1 cm radius, 10 g training sphere) lies at a random spot of a 10 x 10 cm
+area; the target is 5 cm above it. The high level sets the tool's latent goal for the
+low level and the hand's velocity (paper, "High-level Policy"); the low level inside is
+frozen: the privileged one (hinge driven to the opening the goal calibrates to) or a
+trained low-level policy checkpoint.
+
+## Action Space
+``Box(-1, 1, (5,))``: ``[z_goal (2) / z_scale, hand velocity (3) / max_speed]``; z_scale 3
+(latents are ~N(0, I)), max_speed 0.08 m/s; the velocity is in the hand frame and goes to
+the arm through the Jacobian pseudoinverse.
+
+## Observation Space
+``Box(14,)``: tool t_bar (3, m) and Euler theta_bar (3, rad, xyz) from registration,
+smoothed; z_bar (2); object position (3, m, with 2 mm Gaussian noise) and target position
+(3, m); all in the hand frame, through the episode's observation delay.
+
+## Rewards
+``c_h1 [success] + exp(-c_h2 ||tool - object||) + c_h3 exp(-c_h4 ||object - target||) - c_h5
+[a distance > 20 cm or a table collision]``, tool = the point between the tips
+(``hingelab.envs.rewards``); the terms are in ``info["reward_terms"]``.
+
+## Episode End
+Terminated on success (object within 1 cm of the target) or divergence; truncated after
+``max_episode_steps`` (200 = 10 s, the paper's limit). A failed grasp does not end the
+episode: the object stays where it fell and the next grasp is attempt 2
+(``info["attempt"]``; ``info["first_attempt_success"]``).
+
+## Arguments
+``object`` ("sphere"), ``size`` (0.02 m), ``mass`` (0.01 kg), ``low_level`` ("privileged" or a
+checkpoint path), ``randomize`` (True: object friction 1-5, finger friction, gains
+60-150% of hand and arm servos, observation delays up to 150 ms), ``placement_half_width``
+(0.05 m), ``max_episode_steps`` (200), ``encoder_path``.
+
+## Version History
+v0: first version.
+"""
+
+from __future__ import annotations
+
+import gymnasium as gym
+import numpy as np
+from gymnasium import spaces
+
+from hingelab.envs.low_level import PolicyLowLevel, PrivilegedLowLevel
+from hingelab.envs.rewards import HighLevelRewardConfig, high_level_terms
+from hingelab.envs.tool_perception import ToolPerception
+from hingelab.errors import ConfigError
+from hingelab.sim import scripted
+from hingelab.sim.core import SimCore
+from hingelab.sim.delay import DelayLine
+from hingelab.sim.objects import ObjectSpec
+from hingelab.sim.randomization import RandomizationConfig
+
+Z_SCALE = 3.0
+MAX_SPEED = 0.08  # m/s
+TARGET_HEIGHT = 0.05  # m above the object's start
+OBJECT_NOISE_M = 0.002
+ALPHA = 0.9  # smoothing of t and theta (the paper smooths the high-level tool state too)
+
+
+class ToolPickEnv(gym.Env):
+    metadata = {"render_modes": ["rgb_array"], "render_fps": 20}
+
+    def __init__(self, object: str = "sphere", size: float = 0.02, mass: float = 0.01,
+                 low_level: str = "privileged", randomize: bool = True, placement_half_width: float = 0.05,
+                 max_episode_steps: int = 200, encoder_path: str | None = None,
+                 reward: HighLevelRewardConfig | None = None, render_mode: str | None = None):
+        from hingelab.perception.encoder import load_encoder
+
+        self.object = ObjectSpec(object, size, mass)
+        if max_episode_steps < 1:
+            raise ConfigError(f"max_episode_steps must be positive, not {max_episode_steps}")
+        self.sim = SimCore("tool_pick", obj=self.object, randomization=RandomizationConfig(enabled=randomize))
+        self.perception = ToolPerception(load_encoder(encoder_path), dt=self.sim.control_dt)
+        calibration = self.perception.calibration
+        if calibration is None:
+            raise ConfigError("the encoder checkpoint has no latent-opening calibration; retrain it")
+        self.low_level = (PrivilegedLowLevel(calibration) if low_level == "privileged"
+                          else PolicyLowLevel(low_level))
+        self.reward_config = reward or HighLevelRewardConfig()
+        self.placement_half_width = placement_half_width
+        self.max_episode_steps = max_episode_steps
+        self.render_mode = render_mode
+        self._renderer = None
+        self.action_space = spaces.Box(-1.0, 1.0, (5,), np.float32)
+        self.observation_space = spaces.Box(-np.inf, np.inf, (14,), np.float64)
+        self.delay = DelayLine(self.sim.control_dt, 0.150)
+        self._privileged_command = None
+        self.steps = 0
+        self.last_record: dict = {}
+
+    # ------------------------------------------------------------------ gym API
+    def reset(self, *, seed: int | None = None, options: dict | None = None):
+        super().reset(seed=seed)
+        episode_seed = int(self.np_random.integers(2**31))
+        center = scripted.platform_center(self.sim.model)
+        xy = center + self.np_random.uniform(-self.placement_half_width, self.placement_half_width, 2)
+        if options and "object_xy" in options:
+            xy = np.asarray(options["object_xy"], float)
+        self.state = self.sim.reset(seed=episode_seed, object_xy=xy)
+        self.perception.reset(episode_seed)
+        self.low_level.reset()
+        self.object_start = self.state.object_pos_world.copy()
+        self.target = self.object_start + [0.0, 0.0, TARGET_HEIGHT]
+        self.steps, self.attempt, self.held, self.first_attempt_success = 0, 1, False, False
+        self._privileged_command = None
+        self.sample = self.perception.observe(self.sim)
+        self._tool_pose = np.concatenate([self.sample.position[0], self.sample.euler_xyz[0]])
+        self.z_goal = self.sample.z_smoothed[0].copy()
+        self.delay.reset(self._fresh_observation())
+        info = self._info(self._terms(), False)
+        self.last_record = self._record(None, info)
+        return self._observation(), info
+
+    def command_privileged(self, arm_velocity_world: np.ndarray, hinge_target: float | None,
+                           hand_targets: np.ndarray) -> None:
+        """Let the next ``step`` execute a privileged command (the heuristic) instead of its action.
+
+        The step then reports, in ``info["executed_action"]``, the high-level action the
+        paper records for it: the latent reached as z_goal and the commanded velocity.
+        """
+        self._privileged_command = (np.asarray(arm_velocity_world, float), hinge_target,
+                                    np.asarray(hand_targets, float))
+
+    def step(self, action):
+        action = np.asarray(action, dtype=float)
+        if action.shape != (5,) or not np.isfinite(action).all():
+            raise ConfigError(f"ToolPick-v0 takes 5 finite values in [-1, 1], got {action!r}")
+        rot_hand = self.sim.data.body("hand_base").xmat.reshape(3, 3)
+        if self._privileged_command is not None:
+            velocity_world, hinge_target, hand_targets = self._privileged_command
+            self._privileged_command = None
+            self.sim.set_hand_targets(hand_targets)
+            result = self.sim.step(arm_velocity=velocity_world, hinge_target=hinge_target)
+            velocity_hand = rot_hand.T @ velocity_world
+            executed = None  # filled below, once the reached latent is known
+        else:
+            action = np.clip(action, -1, 1)
+            self.z_goal = action[:2] * Z_SCALE
+            velocity_hand = action[2:] * MAX_SPEED
+            command = self.low_level.act(self.sim, self.z_goal, self._low_level_observation())
+            result = self.sim.step(arm_velocity=rot_hand @ velocity_hand, **command)
+            executed = action
+        self.steps += 1
+        self.state = result.state
+        self.sample = self.perception.observe(self.sim)
+        pose = np.concatenate([self.sample.position[0], self.sample.euler_xyz[0]])
+        self._tool_pose = ALPHA * pose + (1 - ALPHA) * self._tool_pose
+        if executed is None:  # paper: the current latent stands for the previous step's z_goal
+            self.z_goal = self.sample.z_smoothed[0].copy()
+            executed = np.clip(np.concatenate([self.z_goal / Z_SCALE, velocity_hand / MAX_SPEED]), -1, 1)
+        self.delay.push(self._fresh_observation())
+        terms = self._terms()
+        success = bool(np.linalg.norm(self.state.object_pos_world - self.target) < self.reward_config.success_radius)
+        self._count_attempts(success)
+        info = self._info(terms, success)
+        info["executed_action"] = np.asarray(executed, float)
+        terminated = success or result.diverged
+        truncated = (not terminated) and self.steps >= self.max_episode_steps
+        if result.diverged:
+            info["failure_reason"] = "divergence"
+        elif truncated:
+            info["failure_reason"] = "drop" if self.attempt > 1 else "timeout"
+        self.last_record = self._record(executed, info)
+        return self._observation(), float(sum(terms.values())), terminated, truncated, info
+
+    def render(self):
+        if self.render_mode != "rgb_array":
+            return None
+        import mujoco
+
+        if self._renderer is None:
+            self._renderer = mujoco.Renderer(self.sim.model, 240, 320)
+        camera = mujoco.MjvCamera()
+        camera.lookat[:] = self.object_start
+        camera.distance, camera.azimuth, camera.elevation = 0.5, 135, -25
+        self._renderer.update_scene(self.sim.data, camera)
+        return self._renderer.render()
+
+    def close(self):
+        if self._renderer is not None:
+            self._renderer.close()
+            self._renderer = None
+
+    # ------------------------------------------------------------------ parts
+    def _to_hand(self, p_world: np.ndarray) -> np.ndarray:
+        body = self.sim.data.body("hand_base")
+        return body.xmat.reshape(3, 3).T @ (p_world - body.xpos)
+
+    def _fresh_observation(self) -> np.ndarray:
+        noisy_object = self.state.object_pos_world + self.np_random.normal(0.0, OBJECT_NOISE_M, 3)
+        return np.concatenate([self._tool_pose, self.sample.z_smoothed[0], self._to_hand(noisy_object),
+                               self._to_hand(self.target)])
+
+    def _observation(self) -> np.ndarray:
+        delay = self.sim.episode.observation_delay_s if self.sim.episode else 0.0
+        return self.delay.read(delay)
+
+    def _low_level_observation(self) -> np.ndarray:
+        q, qdot = self.sim.hand_observation()
+        s = self.sample
+        return np.concatenate([q, qdot, s.velocity_smoothed[0], s.angular_velocity_smoothed[0], s.z_smoothed[0]])
+
+    def _terms(self) -> dict[str, float]:
+        return high_level_terms(scripted.grip_point(self.sim), self.state.object_pos_world, self.target,
+                                self.state.table_collision, self.reward_config)
+
+    def _count_attempts(self, success: bool) -> None:
+        """A grasp holds the object off the platform; losing it without success ends an attempt."""
+        lifted = self.state.object_pos_world[2] > self.object_start[2] + 0.005
+        holding = self.state.tool_object_contacts >= 2 and lifted
+        if holding:
+            self.held = True
+        elif self.held and not lifted and not success:
+            self.held = False
+            self.attempt += 1
+        if success and self.attempt == 1:
+            self.first_attempt_success = True
+
+    def _info(self, terms: dict, success: bool) -> dict:
+        return {
+            "is_success": float(success),
+            "reward_terms": terms,
+            "attempt": self.attempt,
+            "first_attempt_success": float(self.first_attempt_success),
+            "object_target_distance": float(np.linalg.norm(self.state.object_pos_world - self.target)),
+            "table_collision": bool(self.state.table_collision),
+            "hinge_angle": self.state.hinge_angle,
+            "z_goal": self.z_goal.copy(),
+        }
+
+    def _record(self, action, info: dict) -> dict:
+        s = self.sample
+        return {
+            "cloud": self.perception.cloud, "tool_rotation": s.rotation[0], "tool_position": s.position[0],
+            "latent_z": s.z[0], "latent_z_smoothed": s.z_smoothed[0], "goal_z": self.z_goal.copy(),
+            "action": None if action is None else np.asarray(action, float), "reward_terms": info["reward_terms"],
+            "privileged": self.state, "object_position_hand": self._to_hand(self.state.object_pos_world),
+            "target_position_hand": self._to_hand(self.target),
+        }

@@ -1,0 +1,234 @@
+"""``hingelab/ToolShape-v0``: the low-level task, shaping the tweezer to a latent goal.
+
+## Description
+The SVH hand (base fixed in space) holds the tweezer in its ``grasp`` keyframe. The
+policy moves the 9 finger channels so that the tool's smoothed latent z_bar (PointNet
+encoder of the synthesized, noisy, partly occluded cloud) reaches a goal latent, while
+the tool stays still in the hand (paper, "Low-level Policy").
+
+## Action Space
+``Box(-1, 1, (9,))``: relative joint-position changes of the 9 SVH channels, scaled by
+``action_scale`` (0.05 rad per 50 ms step, i.e. up to 1 rad/s), in the driver's channel
+order: thumb flexion, thumb opposition, index distal, index proximal, middle distal,
+middle proximal, ring, pinky, spread. Target = current position + change (clipped to
+the joint ranges).
+
+## Observation Space
+``Dict``: ``observation`` (26,) = hand q (9, rad) and q-dot (9, rad/s) through the
+episode's sensor delay, tool v_bar (3, m/s) and omega_bar (3, rad/s) in hand_base, z_bar
+(2); ``achieved_goal`` (2,) = z_bar; ``desired_goal`` (2,) = z_goal.
+
+## Rewards
+``exp(-c1 ||z_bar - z_goal||)`` (goal) plus the effort term ``-c2 mean ||T(v_bar, omega_bar)
+p - p|| - c3 ||qdot||`` over the canonical cloud's points (``use_effort=False`` drops it: the
+paper's ablation). See ``hingelab.envs.rewards``. ``compute_reward`` is vectorized over
+goals (HER relabels with it; the effort is goal-free and read back from ``info``).
+
+## Goals
+``goal_sampling="normal"``: z_goal ~ N(0, I), the paper's choice. ``"reachable"``: z_goal =
+the calibrated latent of an opening drawn uniformly over the hinge range the fingers can
+reach. Why it matters: the encoder's latents of real tweezer shapes lie near a 1-D curve
+in the 2-D plane; most N(0, I) goals are off that curve, so no finger motion achieves
+them and success (a small latent distance) is impossible for them: training spends most
+episodes on unreachable goals and success rates measure the goal sampler as much as the
+policy. HER relabels with achieved (hence reachable) latents either way.
+
+## Success
+``||z_bar - z_goal|| < success_threshold``. The default is the latent distance that 2 mm
+of tip gap spans along the calibration curve (mid-range), so success means "the tips are
+within about 2 mm of the opening asked for", a precision that matters for 1.5 to 2.5 cm
+objects; computed from the encoder's calibration at construction (``info["success_threshold"]``).
+
+## Episode End
+Truncated after ``max_episode_steps`` (50 = 2.5 s, the time limit wrapper); terminated
+early only if the simulation diverges (``info["diverged"]``) or the tool leaves the hand
+(more than 3 cm from its start: ``info["dropped"]``). Never on success (HER convention).
+
+## Arguments
+``use_effort`` (True), ``goal_sampling`` ("normal"), ``randomize`` (True: delays up to 150
+ms, gains 60-150%, friction 0.2-1 per finger segment), ``success_threshold`` (None:
+calibrated), ``action_scale`` (0.05), ``encoder_path`` (None: shipped), ``realistic_clouds``
+(True: 3 mm noise, 20% occlusion, per-episode pose error).
+
+## Version History
+v0: first version.
+"""
+
+from __future__ import annotations
+
+import gymnasium as gym
+import numpy as np
+from gymnasium import spaces
+
+from hingelab.envs.rewards import LowLevelRewardConfig, effort_penalty, goal_reward
+from hingelab.envs.tool_perception import ToolPerception
+from hingelab.errors import ConfigError
+from hingelab.perception.clouds import ToolGeometry
+from hingelab.sim.core import SimCore
+from hingelab.sim.finger_synergy import FingerSynergy
+from hingelab.sim.randomization import RandomizationConfig
+
+GOAL_SAMPLERS = ("normal", "reachable")
+DROP_DISTANCE_M = 0.03
+SUCCESS_GAP_MM = 2.0
+CANONICAL_OPENING = 0.15  # rad: the canonical cloud the effort term moves
+
+
+class ToolShapeEnv(gym.Env):
+    metadata = {"render_modes": ["rgb_array"], "render_fps": 20}
+
+    def __init__(self, use_effort: bool = True, goal_sampling: str = "normal", randomize: bool = True,
+                 success_threshold: float | None = None, action_scale: float = 0.05,
+                 encoder_path: str | None = None, realistic_clouds: bool = True,
+                 reward: LowLevelRewardConfig | None = None, render_mode: str | None = None):
+        if goal_sampling not in GOAL_SAMPLERS:
+            raise ConfigError(f"goal_sampling {goal_sampling!r} is unknown; choose one of {GOAL_SAMPLERS}")
+        if not 0 < action_scale <= 0.5:
+            raise ConfigError(f"action_scale {action_scale} rad per step is out of range (0, 0.5]")
+        from hingelab.perception.encoder import load_encoder
+
+        self.sim = SimCore("tool_shape", randomization=RandomizationConfig(enabled=randomize))
+        self.perception = ToolPerception(load_encoder(encoder_path), realistic=realistic_clouds,
+                                         dt=self.sim.control_dt)
+        self.calibration = self.perception.calibration
+        if self.calibration is None:
+            raise ConfigError("the encoder checkpoint has no latent-opening calibration; "
+                              "retrain it with `hingelab train encoder`")
+        self.reward_config = reward or LowLevelRewardConfig(use_effort=use_effort, control_dt=self.sim.control_dt)
+        if reward is not None and reward.use_effort != use_effort:
+            self.reward_config = LowLevelRewardConfig(**{**reward.__dict__, "use_effort": use_effort})
+        self.goal_sampling = goal_sampling
+        self.action_scale = action_scale
+        self.reachable_range = FingerSynergy.load().theta_range
+        self.success_threshold = (success_threshold if success_threshold is not None
+                                  else latent_distance_for_gap(self.calibration, SUCCESS_GAP_MM))
+        self.canonical_points = ToolGeometry.default().canonical_cloud(CANONICAL_OPENING, 256)
+        self.render_mode = render_mode
+        self._renderer = None
+        self.action_space = spaces.Box(-1.0, 1.0, (9,), np.float32)
+        self.observation_space = spaces.Dict({
+            "observation": spaces.Box(-np.inf, np.inf, (26,), np.float64),
+            "achieved_goal": spaces.Box(-np.inf, np.inf, (2,), np.float64),
+            "desired_goal": spaces.Box(-np.inf, np.inf, (2,), np.float64),
+        })
+        self.goal = np.zeros(2)
+        self.sample = None
+        self.start_state = None
+        self.state = None
+        self.last_record: dict = {}
+
+    # ------------------------------------------------------------------ gym API
+    def reset(self, *, seed: int | None = None, options: dict | None = None):
+        super().reset(seed=seed)
+        episode_seed = int(self.np_random.integers(2**31))
+        self.state = self.start_state = self.sim.reset(seed=episode_seed)
+        self.perception.reset(episode_seed)
+        self.goal = self._sample_goal() if not (options and "goal" in options) else np.asarray(options["goal"], float)
+        self.sample = self.perception.observe(self.sim)
+        obs = self._observation()
+        info = self._info(terms={"goal": 0.0, "effort_tool": 0.0, "effort_fingers": 0.0})
+        self.last_record = self._record(None, 0.0, info)
+        return obs, info
+
+    def step(self, action):
+        action = np.asarray(action, dtype=float)
+        if action.shape != (9,) or not np.isfinite(action).all():
+            raise ConfigError(f"ToolShape-v0 takes 9 finite values in [-1, 1], got {action!r}")
+        result = self.sim.step(hand_action=np.clip(action, -1, 1) * self.action_scale)
+        self.state = result.state
+        self.sample = self.perception.observe(self.sim)
+        obs = self._observation()
+        qdot = self.sim.hand.qdot(self.sim.data)
+        goal = float(goal_reward(obs["achieved_goal"], self.goal, self.reward_config.c1))
+        if self.reward_config.use_effort:
+            tool_term, finger_term = effort_penalty(self.sample.velocity_smoothed[0],
+                                                    self.sample.angular_velocity_smoothed[0], qdot,
+                                                    self.canonical_points, self.reward_config)
+        else:
+            tool_term = finger_term = 0.0
+        terms = {"goal": goal, "effort_tool": tool_term, "effort_fingers": finger_term}
+        info = self._info(terms)
+        info["diverged"] = result.diverged
+        reward = goal + tool_term + finger_term
+        terminated = bool(result.diverged or info["dropped"])
+        if result.diverged:
+            info["failure_reason"] = "divergence"
+        elif info["dropped"]:
+            info["failure_reason"] = "drop"
+        self.last_record = self._record(action, reward, info)
+        return obs, reward, terminated, False, info
+
+    def compute_reward(self, achieved_goal, desired_goal, info):
+        """Vectorized: (B, 2) goals and a list/array of info dicts (or one dict) -> (B,) rewards."""
+        goal = goal_reward(achieved_goal, desired_goal, self.reward_config.c1)
+        if isinstance(info, dict):
+            effort = info.get("effort", 0.0)
+        else:
+            effort = np.array([i.get("effort", 0.0) for i in info], dtype=float)
+        return goal + (effort if self.reward_config.use_effort else 0.0)
+
+    def render(self):
+        if self.render_mode != "rgb_array":
+            return None
+        import mujoco
+
+        if self._renderer is None:
+            self._renderer = mujoco.Renderer(self.sim.model, 240, 320)
+        camera = mujoco.MjvCamera()
+        camera.lookat[:] = self.sim.data.body("hand_base").xpos
+        camera.distance, camera.azimuth, camera.elevation = 0.45, 120, -20
+        self._renderer.update_scene(self.sim.data, camera)
+        return self._renderer.render()
+
+    def close(self):
+        if self._renderer is not None:
+            self._renderer.close()
+            self._renderer = None
+
+    # ------------------------------------------------------------------ parts
+    def _sample_goal(self) -> np.ndarray:
+        if self.goal_sampling == "normal":
+            return self.np_random.normal(size=2)
+        opening = self.np_random.uniform(*self.reachable_range)
+        return np.asarray(self.calibration.z_for_opening(opening), float)
+
+    def _observation(self) -> dict:
+        q, qdot = self.sim.hand_observation()
+        s = self.sample
+        z_bar = s.z_smoothed[0]
+        obs = np.concatenate([q, qdot, s.velocity_smoothed[0], s.angular_velocity_smoothed[0], z_bar])
+        return {"observation": obs, "achieved_goal": z_bar.copy(), "desired_goal": self.goal.copy()}
+
+    def _info(self, terms: dict) -> dict:
+        drift = float(np.linalg.norm(self.state.tool_pos_hand - self.start_state.tool_pos_hand))
+        distance = float(np.linalg.norm(self.sample.z_smoothed[0] - self.goal))
+        return {
+            "is_success": float(distance < self.success_threshold),
+            "latent_distance": distance,
+            "success_threshold": self.success_threshold,
+            "effort": terms["effort_tool"] + terms["effort_fingers"],
+            "reward_terms": terms,
+            "hinge_angle": self.state.hinge_angle,
+            "tool_drift_m": drift,
+            "dropped": drift > DROP_DISTANCE_M,
+        }
+
+    def _record(self, action, reward: float, info: dict) -> dict:
+        """What the recording wrapper writes for this step (see ``hingelab.envs.recording``)."""
+        s = self.sample
+        return {
+            "cloud": self.perception.cloud, "tool_rotation": s.rotation[0], "tool_position": s.position[0],
+            "latent_z": s.z[0], "latent_z_smoothed": s.z_smoothed[0], "goal_z": self.goal,
+            "action": None if action is None else np.asarray(action, float), "reward_terms": info["reward_terms"],
+            "privileged": self.state, "object_position_hand": None, "target_position_hand": None,
+        }
+
+
+def latent_distance_for_gap(calibration, gap_mm: float) -> float:
+    """Latent distance along the calibration curve that spans ``gap_mm`` of tip gap, mid-range."""
+    low, high = calibration.opening_range
+    mid = 0.5 * (low + high)
+    z_a, z_b = calibration.z_for_opening(mid - 0.01), calibration.z_for_opening(mid + 0.01)
+    gap_a, gap_b = calibration.tip_gap_mm(z_a), calibration.tip_gap_mm(z_b)
+    per_mm = float(np.linalg.norm(np.asarray(z_b) - np.asarray(z_a))) / max(abs(float(gap_b - gap_a)), 1e-9)
+    return per_mm * gap_mm

@@ -1,0 +1,163 @@
+"""Heuristic demos: run the privileged heuristic on ToolPick-v0 and record every episode.
+
+``generate_heuristic_dataset`` is what ``hingelab generate heuristic`` runs. Episode k of a
+dataset made with seed S is reset with seed ``S * 100_003 + k``, so the same seed gives the
+same episodes whatever the number of worker processes (each worker writes its episodes
+into the one dataset folder; the writer's unique names and atomic renames make that safe).
+"""
+
+from __future__ import annotations
+
+import multiprocessing as mp
+import time
+from dataclasses import asdict, dataclass
+from pathlib import Path
+
+import numpy as np
+
+from hingelab.episodes import create_dataset
+from hingelab.errors import ConfigError
+
+SEED_STRIDE = 100_003
+
+
+@dataclass(frozen=True)
+class HeuristicRunConfig:
+    """What ``hingelab generate heuristic`` runs (saved in the dataset card)."""
+
+    episodes: int = 100
+    object: str = "sphere"
+    size: float = 0.02  # m, the object's width (sphere: diameter)
+    mass: float = 0.01  # kg
+    seed: int = 0
+    workers: int = 1
+    randomize: bool = True
+    max_episode_steps: int = 200
+
+
+@dataclass
+class EpisodeSummary:
+    seed: int
+    success: bool
+    first_attempt_success: bool
+    attempts: int
+    length: int
+    episode_return: float
+    failure_reason: str | None
+
+
+def episode_seed(base_seed: int, index: int) -> int:
+    return base_seed * SEED_STRIDE + index
+
+
+def make_env(config: HeuristicRunConfig, dataset_dir: Path | None = None):
+    """ToolPick-v0 for ``config`` (privileged low level), recorded into ``dataset_dir`` if given."""
+    import gymnasium as gym
+
+    from hingelab.envs import TOOL_PICK_ID
+    from hingelab.envs.recording import RecordingWrapper
+
+    env = gym.make(TOOL_PICK_ID, object=config.object, size=config.size, mass=config.mass,
+                   randomize=config.randomize, max_episode_steps=config.max_episode_steps)
+    if dataset_dir is not None:
+        env = RecordingWrapper(env, dataset_dir, source="heuristic", object_name=config.object,
+                               action_level="high", extra_metadata={"object_size": config.size})
+    return env
+
+
+def run_episode(env, seed: int) -> EpisodeSummary:
+    """One heuristic episode on a (recorded) ToolPick-v0 env."""
+    from hingelab.heuristic.controller import PrivilegedHeuristic
+    from hingelab.sim.finger_synergy import FingerSynergy
+
+    env.reset(seed=seed)
+    pick = env.unwrapped
+    heuristic = PrivilegedHeuristic(pick.sim, FingerSynergy.load(), pick.object)
+    heuristic.reset(pick.state, pick.target)
+    total, length, info = 0.0, 0, {}
+    while True:
+        command = heuristic.act(pick.state)
+        pick.command_privileged(command.arm_velocity, command.hinge_target, command.hand_targets)
+        _, reward, terminated, truncated, info = env.step(np.zeros(5))
+        total += reward
+        length += 1
+        if terminated or truncated:
+            break
+    success = bool(info.get("is_success", 0.0))
+    return EpisodeSummary(seed, success, bool(info.get("first_attempt_success", 0.0)), int(info.get("attempt", 1)),
+                          length, total, None if success else info.get("failure_reason", "timeout"))
+
+
+# --- worker processes ----------------------------------------------------------------------
+_WORKER: dict = {}
+
+
+def _init_worker(config: HeuristicRunConfig, dataset_dir: str) -> None:
+    import torch
+
+    torch.set_num_threads(1)  # one core per worker process
+    _WORKER["env"] = make_env(config, Path(dataset_dir))
+
+
+def _run_in_worker(seed: int) -> EpisodeSummary:
+    return run_episode(_WORKER["env"], seed)
+
+
+def generate_heuristic_dataset(out: Path, config: HeuristicRunConfig, progress: bool = True,
+                               name: str | None = None) -> list[EpisodeSummary]:
+    """Write ``config.episodes`` heuristic episodes into a new dataset at ``out``."""
+    from tqdm import tqdm
+
+    if config.episodes < 1:
+        raise ConfigError(f"--episodes must be at least 1, not {config.episodes}")
+    if config.workers < 1:
+        raise ConfigError(f"--workers must be at least 1, not {config.workers}")
+    make_env(config).close()  # bad object, size or mass: a clear error before any file is made
+    out = Path(out)
+    existing = list((out / "episodes").glob("*.mcap")) if (out / "episodes").is_dir() else []
+    if existing:
+        raise ConfigError(f"{out} already holds {len(existing)} episodes; write into a new --out folder "
+                          "(a dataset is the output of one run) or delete it")
+    create_dataset(out, name=name or out.name, source="heuristic", config=asdict(config), seed=config.seed,
+                   description=f"privileged heuristic demos on ToolPick-v0, {config.object} {config.size * 100:g} cm")
+    seeds = [episode_seed(config.seed, k) for k in range(config.episodes)]
+    bar = tqdm(total=len(seeds), desc=f"heuristic {config.object}", unit="episode", disable=not progress)
+    summaries: list[EpisodeSummary] = []
+    if config.workers == 1:
+        _init_worker(config, str(out))
+        try:
+            for seed in seeds:
+                summaries.append(_run_in_worker(seed))
+                bar.update()
+                bar.set_postfix(success=f"{np.mean([s.success for s in summaries]):.0%}")
+        finally:
+            _WORKER.pop("env").close()
+    else:
+        context = mp.get_context("spawn")  # a clean interpreter: no forked MuJoCo or torch state
+        with context.Pool(config.workers, initializer=_init_worker, initargs=(config, str(out))) as pool:
+            for summary in pool.imap_unordered(_run_in_worker, seeds):
+                summaries.append(summary)
+                bar.update()
+                bar.set_postfix(success=f"{np.mean([s.success for s in summaries]):.0%}")
+    bar.close()
+    return sorted(summaries, key=lambda s: s.seed)
+
+
+def summarize(summaries: list[EpisodeSummary], seconds: float) -> str:
+    n = len(summaries)
+    success = np.mean([s.success for s in summaries])
+    first = np.mean([s.first_attempt_success for s in summaries])
+    length = np.mean([s.length for s in summaries])
+    reasons = {}
+    for s in summaries:
+        if s.failure_reason:
+            reasons[s.failure_reason] = reasons.get(s.failure_reason, 0) + 1
+    failures = ", ".join(f"{k} {v}" for k, v in sorted(reasons.items())) or "none"
+    return (f"{n} episodes in {seconds:.0f} s: success {success:.1%} ({first:.1%} at the first attempt), "
+            f"mean length {length:.1f} steps; failures: {failures}.")
+
+
+def timed(fn, *args, **kwargs):
+    start = time.perf_counter()
+    result = fn(*args, **kwargs)
+    return result, time.perf_counter() - start

@@ -1,0 +1,133 @@
+"""The two Gymnasium environments: API, spaces, rewards, determinism, and SB3 on them."""
+
+from __future__ import annotations
+
+import gymnasium as gym
+import numpy as np
+import pytest
+from gymnasium.utils.env_checker import check_env
+
+import hingelab  # noqa: F401  (registers the envs)
+from hingelab.envs import TOOL_PICK_ID, TOOL_SHAPE_ID
+from hingelab.errors import ConfigError
+
+
+@pytest.fixture(scope="module")
+def shape_env():
+    env = gym.make(TOOL_SHAPE_ID)
+    yield env
+    env.close()
+
+
+@pytest.fixture(scope="module")
+def pick_env():
+    env = gym.make(TOOL_PICK_ID)
+    yield env
+    env.close()
+
+
+def test_check_env_passes_for_both(shape_env, pick_env):
+    check_env(shape_env.unwrapped, skip_render_check=True)
+    check_env(pick_env.unwrapped, skip_render_check=True)
+
+
+def test_tool_shape_spaces_and_goal_env_contract(shape_env):
+    obs, info = shape_env.reset(seed=0)
+    assert obs["observation"].shape == (26,)
+    np.testing.assert_array_equal(obs["achieved_goal"], obs["observation"][-2:])
+    assert "is_success" in info
+    obs, reward, terminated, truncated, info = shape_env.step(np.zeros(9))
+    env = shape_env.unwrapped
+    # vectorized compute_reward agrees with the step's reward
+    batch = env.compute_reward(np.stack([obs["achieved_goal"]] * 3), np.stack([obs["desired_goal"]] * 3),
+                               [info] * 3)
+    np.testing.assert_allclose(batch, reward)
+    assert set(info["reward_terms"]) == {"goal", "effort_tool", "effort_fingers"}
+
+
+def test_effort_term_switches_off():
+    env = gym.make(TOOL_SHAPE_ID, use_effort=False)
+    env.reset(seed=0)
+    _, reward, *_, info = env.step(np.ones(9))
+    assert info["reward_terms"]["effort_tool"] == 0.0 and info["reward_terms"]["effort_fingers"] == 0.0
+    assert reward == pytest.approx(info["reward_terms"]["goal"])
+    env.close()
+
+
+def test_reachable_goals_lie_on_the_calibration_curve():
+    env = gym.make(TOOL_SHAPE_ID, goal_sampling="reachable")
+    calibration = env.unwrapped.calibration
+    for seed in range(5):
+        obs, _ = env.reset(seed=seed)
+        opening = calibration.opening_rad(obs["desired_goal"])
+        back = calibration.z_for_opening(opening)
+        assert np.linalg.norm(back - obs["desired_goal"]) < 0.05 * max(1e-3, env.unwrapped.success_threshold) + 1e-3
+    env.close()
+
+
+def test_same_seed_same_episode():
+    def run():
+        env = gym.make(TOOL_SHAPE_ID)
+        obs, _ = env.reset(seed=7)
+        rng = np.random.default_rng(0)
+        rewards = [env.step(rng.uniform(-1, 1, 9))[1] for _ in range(5)]
+        env.close()
+        return obs["desired_goal"], rewards
+
+    goal_a, rewards_a = run()
+    goal_b, rewards_b = run()
+    np.testing.assert_array_equal(goal_a, goal_b)
+    np.testing.assert_array_equal(rewards_a, rewards_b)
+
+
+def test_tool_pick_observation_is_in_the_hand_frame(pick_env):
+    obs, info = pick_env.reset(seed=1)
+    env = pick_env.unwrapped
+    assert obs.shape == (14,)
+    # target 5 cm above the object: in the hand frame they differ by 5 cm too
+    assert np.linalg.norm(obs[11:14] - obs[8:11]) == pytest.approx(0.05, abs=0.01)
+    np.testing.assert_allclose(env.target - env.object_start, [0, 0, 0.05])
+    assert info["attempt"] == 1 and info["is_success"] == 0.0
+
+
+def test_tool_pick_privileged_low_level_opens_to_the_goal(pick_env):
+    env = pick_env.unwrapped
+    pick_env.reset(seed=2)
+    z_open = env.calibration_z(0.22) if hasattr(env, "calibration_z") else env.low_level.calibration.z_for_opening(0.22)
+    action = np.concatenate([np.asarray(z_open) / 3.0, np.zeros(3)])
+    for _ in range(15):
+        *_, info = pick_env.step(action)
+    assert info["hinge_angle"] == pytest.approx(0.22, abs=0.04)
+
+
+def test_bad_arguments_are_one_line_errors():
+    with pytest.raises(ConfigError, match="unknown object 'banana'"):
+        gym.make(TOOL_PICK_ID, object="banana")
+    with pytest.raises(ConfigError, match="out of range"):
+        gym.make(TOOL_PICK_ID, size=0.3)
+    with pytest.raises(ConfigError, match="does not exist"):
+        gym.make(TOOL_PICK_ID, low_level="/nonexistent/low.zip")
+    with pytest.raises(ConfigError, match="goal_sampling"):
+        gym.make(TOOL_SHAPE_ID, goal_sampling="uniform")
+
+
+def test_nan_action_is_refused(shape_env):
+    shape_env.reset(seed=0)
+    with pytest.raises(ConfigError, match="finite"):
+        shape_env.step(np.full(9, np.nan))
+
+
+def test_sb3_sac_and_her_run_on_the_envs(tmp_path):
+    from stable_baselines3 import SAC, HerReplayBuffer
+
+    shape = gym.make(TOOL_SHAPE_ID)
+    model = SAC("MultiInputPolicy", shape, replay_buffer_class=HerReplayBuffer,
+                replay_buffer_kwargs=dict(n_sampled_goal=4, goal_selection_strategy="future"),
+                learning_starts=60, batch_size=32, policy_kwargs=dict(net_arch=[16]), seed=0, verbose=0)
+    model.learn(total_timesteps=120)
+    assert model.num_timesteps == 120 and model.replay_buffer.size() > 0
+    pick = gym.make(TOOL_PICK_ID)
+    model = SAC("MlpPolicy", pick, learning_starts=30, batch_size=32, policy_kwargs=dict(net_arch=[16]),
+                seed=0, verbose=0)
+    model.learn(total_timesteps=60)
+    assert model.num_timesteps == 60
