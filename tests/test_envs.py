@@ -123,11 +123,18 @@ def test_sb3_sac_and_her_run_on_the_envs(tmp_path):
     shape = gym.make(TOOL_SHAPE_ID)
     model = SAC("MultiInputPolicy", shape, replay_buffer_class=HerReplayBuffer,
                 replay_buffer_kwargs=dict(n_sampled_goal=4, goal_selection_strategy="future"),
-                learning_starts=60, batch_size=32, policy_kwargs=dict(net_arch=[16]), seed=0, verbose=0)
-    model.learn(total_timesteps=120)
-    assert model.num_timesteps == 120 and model.replay_buffer.size() > 0
+                learning_starts=100, batch_size=32, policy_kwargs=dict(net_arch=[16]), seed=0, verbose=0)
+    model.learn(total_timesteps=2000)
+    assert model.num_timesteps == 2000 and model.replay_buffer.size() > 0
     pick = gym.make(TOOL_PICK_ID)
-    model = SAC("MlpPolicy", pick, learning_starts=30, batch_size=32, policy_kwargs=dict(net_arch=[16]),
+    model = SAC("MlpPolicy", pick, learning_starts=100, batch_size=32, policy_kwargs=dict(net_arch=[16]),
                 seed=0, verbose=0)
-    model.learn(total_timesteps=60)
-    assert model.num_timesteps == 60
+    model.learn(total_timesteps=2000)
+    assert model.num_timesteps == 2000
+
+
+def test_diverging_episode_is_truncated_with_its_reason(pick_env):
+    pick_env.reset(seed=3)
+    pick_env.unwrapped.sim.data.qvel[:] = 1e12
+    _, _, terminated, truncated, info = pick_env.step(np.zeros(5))
+    assert truncated and not terminated and info["failure_reason"] == "divergence"

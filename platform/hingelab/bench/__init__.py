@@ -9,5 +9,6 @@ BENCHMARKS = {
     "sim": "hingelab.bench.sim",
     "datasets": "hingelab.bench.datasets",
     "perception": "hingelab.bench.perception",
+    "envs": "hingelab.bench.envs",
     "train": "hingelab.bench.train",
 }

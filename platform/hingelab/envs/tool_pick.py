@@ -24,8 +24,9 @@ smoothed; z_bar (2); object position (3, m, with 2 mm Gaussian noise) and target
 (``hingelab.envs.rewards``); the terms are in ``info["reward_terms"]``.
 
 ## Episode End
-Terminated on success (object within 1 cm of the target) or divergence; truncated after
-``max_episode_steps`` (200 = 10 s, the paper's limit). A failed grasp does not end the
+Terminated on success (object within 1 cm of the target); truncated after
+``max_episode_steps`` (200 = 10 s, the paper's limit) or when the simulation diverges
+(failure reason "divergence"). A failed grasp does not end the
 episode: the object stays where it fell and the next grasp is attempt 2
 (``info["attempt"]``; ``info["first_attempt_success"]``).
 
@@ -159,8 +160,8 @@ class ToolPickEnv(gym.Env):
         self._count_attempts(success)
         info = self._info(terms, success)
         info["executed_action"] = np.asarray(executed, float)
-        terminated = success or result.diverged
-        truncated = (not terminated) and self.steps >= self.max_episode_steps
+        terminated = success
+        truncated = (not terminated) and (result.diverged or self.steps >= self.max_episode_steps)
         if result.diverged:
             info["failure_reason"] = "divergence"
         elif truncated:

@@ -40,9 +40,10 @@ within about 2 mm of the opening asked for", a precision that matters for 1.5 to
 objects; computed from the encoder's calibration at construction (``info["success_threshold"]``).
 
 ## Episode End
-Truncated after ``max_episode_steps`` (50 = 2.5 s, the time limit wrapper); terminated
-early only if the simulation diverges (``info["diverged"]``) or the tool leaves the hand
-(more than 3 cm from its start: ``info["dropped"]``). Never on success (HER convention).
+Truncated after ``max_episode_steps`` (50 = 2.5 s, the time limit wrapper) or when the
+simulation diverges (``info["diverged"]``, failure reason "divergence"); terminated early
+only if the tool leaves the hand (more than 3 cm from its start: ``info["dropped"]``).
+Never on success (HER convention).
 
 ## Arguments
 ``use_effort`` (True), ``goal_sampling`` ("normal"), ``randomize`` (True: delays up to 150
@@ -150,13 +151,14 @@ class ToolShapeEnv(gym.Env):
         info = self._info(terms)
         info["diverged"] = result.diverged
         reward = goal + tool_term + finger_term
-        terminated = bool(result.diverged or info["dropped"])
+        terminated = bool(info["dropped"]) and not result.diverged
+        truncated = bool(result.diverged)  # a void episode, not a task outcome
         if result.diverged:
             info["failure_reason"] = "divergence"
         elif info["dropped"]:
             info["failure_reason"] = "drop"
         self.last_record = self._record(action, reward, info)
-        return obs, reward, terminated, False, info
+        return obs, reward, terminated, truncated, info
 
     def compute_reward(self, achieved_goal, desired_goal, info):
         """Vectorized: (B, 2) goals and a list/array of info dicts (or one dict) -> (B,) rewards."""
