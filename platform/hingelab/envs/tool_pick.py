@@ -47,6 +47,7 @@ import numpy as np
 from gymnasium import spaces
 
 from hingelab.envs.low_level import PolicyLowLevel, PrivilegedLowLevel
+from hingelab.envs.rendering import SimRenderMixin
 from hingelab.envs.rewards import HighLevelRewardConfig, high_level_terms
 from hingelab.envs.tool_perception import ToolPerception
 from hingelab.errors import ConfigError
@@ -63,7 +64,7 @@ OBJECT_NOISE_M = 0.002
 ALPHA = 0.9  # smoothing of t and theta (the paper smooths the high-level tool state too)
 
 
-class ToolPickEnv(gym.Env):
+class ToolPickEnv(SimRenderMixin, gym.Env):
     metadata = {"render_modes": ["rgb_array"], "render_fps": 20}
 
     def __init__(self, object: str = "sphere", size: float = 0.02, mass: float = 0.01,
@@ -86,7 +87,6 @@ class ToolPickEnv(gym.Env):
         self.placement_half_width = placement_half_width
         self.max_episode_steps = max_episode_steps
         self.render_mode = render_mode
-        self._renderer = None
         self.action_space = spaces.Box(-1.0, 1.0, (5,), np.float32)
         self.observation_space = spaces.Box(-np.inf, np.inf, (14,), np.float64)
         self.delay = DelayLine(self.sim.control_dt, 0.150)
@@ -169,23 +169,8 @@ class ToolPickEnv(gym.Env):
         self.last_record = self._record(executed, info)
         return self._observation(), float(sum(terms.values())), terminated, truncated, info
 
-    def render(self):
-        if self.render_mode != "rgb_array":
-            return None
-        import mujoco
-
-        if self._renderer is None:
-            self._renderer = mujoco.Renderer(self.sim.model, 240, 320)
-        camera = mujoco.MjvCamera()
-        camera.lookat[:] = self.object_start
-        camera.distance, camera.azimuth, camera.elevation = 0.5, 135, -25
-        self._renderer.update_scene(self.sim.data, camera)
-        return self._renderer.render()
-
-    def close(self):
-        if self._renderer is not None:
-            self._renderer.close()
-            self._renderer = None
+    def _camera(self):
+        return self.object_start, 0.5, 135, -25
 
     # ------------------------------------------------------------------ parts
     def _to_hand(self, p_world: np.ndarray) -> np.ndarray:

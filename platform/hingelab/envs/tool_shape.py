@@ -61,6 +61,7 @@ import gymnasium as gym
 import numpy as np
 from gymnasium import spaces
 
+from hingelab.envs.rendering import SimRenderMixin
 from hingelab.envs.rewards import LowLevelRewardConfig, effort_penalty, goal_reward
 from hingelab.envs.tool_perception import ToolPerception
 from hingelab.errors import ConfigError
@@ -75,7 +76,7 @@ SUCCESS_GAP_MM = 2.0
 CANONICAL_OPENING = 0.15  # rad: the canonical cloud the effort term moves
 
 
-class ToolShapeEnv(gym.Env):
+class ToolShapeEnv(SimRenderMixin, gym.Env):
     metadata = {"render_modes": ["rgb_array"], "render_fps": 20}
 
     def __init__(self, use_effort: bool = True, goal_sampling: str = "normal", randomize: bool = True,
@@ -105,7 +106,6 @@ class ToolShapeEnv(gym.Env):
                                   else latent_distance_for_gap(self.calibration, SUCCESS_GAP_MM))
         self.canonical_points = ToolGeometry.default().canonical_cloud(CANONICAL_OPENING, 256)
         self.render_mode = render_mode
-        self._renderer = None
         self.action_space = spaces.Box(-1.0, 1.0, (9,), np.float32)
         self.observation_space = spaces.Dict({
             "observation": spaces.Box(-np.inf, np.inf, (26,), np.float64),
@@ -169,23 +169,8 @@ class ToolShapeEnv(gym.Env):
             effort = np.array([i.get("effort", 0.0) for i in info], dtype=float)
         return goal + (effort if self.reward_config.use_effort else 0.0)
 
-    def render(self):
-        if self.render_mode != "rgb_array":
-            return None
-        import mujoco
-
-        if self._renderer is None:
-            self._renderer = mujoco.Renderer(self.sim.model, 240, 320)
-        camera = mujoco.MjvCamera()
-        camera.lookat[:] = self.sim.data.body("hand_base").xpos
-        camera.distance, camera.azimuth, camera.elevation = 0.45, 120, -20
-        self._renderer.update_scene(self.sim.data, camera)
-        return self._renderer.render()
-
-    def close(self):
-        if self._renderer is not None:
-            self._renderer.close()
-            self._renderer = None
+    def _camera(self):
+        return self.sim.data.body("hand_base").xpos, 0.45, 120, -20
 
     # ------------------------------------------------------------------ parts
     def _sample_goal(self) -> np.ndarray:
