@@ -14,6 +14,8 @@ Held-out clouds (seeds the training data never used), all in ``hand_base``:
   noise and occlusion vary) against the extent of z over the opening range.
 * speed: tool-state updates per second (cloud synthesis + registration + encoder) with
   1 and 64 clouds per update.
+* tracking: a resting tool, sim-like clouds: the tracked pose's rotation change per step
+  (all of it noise) and omega_bar, with the motion prior and frame by frame (no prior).
 """
 
 from __future__ import annotations
@@ -212,6 +214,37 @@ def bench_tool_state(steps: int, rows: list) -> dict:
     return out
 
 
+def bench_tracking(episodes: int, steps: int, rows: list) -> dict:
+    """A resting tool through sim-like clouds (3 mm, 20%, a per-episode pose error): how much the
+    tracked pose moves per step (any of it is noise) with the motion prior and frame by frame."""
+    from hingelab.perception.clouds import CloudRealism, CloudSynthesizer, ToolGeometry
+    from hingelab.perception.registration import TrackingConfig, rotation_error_rad
+    from hingelab.perception.tool_state import ToolState
+
+    frame_by_frame = TrackingConfig(rotation_prior_m=0.0, translation_prior=0.0, predict_motion=0.0, max_iterations=8)
+    out = {}
+    for label, tracking in (("motion prior", TrackingConfig()), ("frame by frame", frame_by_frame)):
+        state = ToolState(tracking=tracking)
+        rot0, pos0 = state.prior
+        turns, omega_bar = [], []
+        for episode in range(episodes):
+            synth = CloudSynthesizer(ToolGeometry.default(), CloudRealism(), seed=SEED + episode)
+            synth.new_episode()
+            state.reset()
+            previous = None
+            for _ in range(steps):
+                sample = state.update(synth.from_tool_pose(rot0, pos0, 0.12))
+                if previous is not None:
+                    turns.append(np.rad2deg(rotation_error_rad(sample.rotation[0], previous)))
+                    omega_bar.append(np.abs(sample.angular_velocity_smoothed[0]).mean())
+                previous = sample.rotation[0]
+        out[label] = float(np.median(turns))
+        rows.append({"method": f"tracking at rest, {label}", "step rot median (deg)": out[label],
+                     "step rot p95 (deg)": float(np.percentile(turns, 95)), "mean |omega_bar| (rad/s)":
+                     float(np.mean(omega_bar))})
+    return out
+
+
 def run(quick: bool = False) -> BenchTable:
     n = 64 if quick else 400
     rows: list[dict] = []
@@ -222,18 +255,22 @@ def run(quick: bool = False) -> BenchTable:
     enc = bench_encoder(200 if quick else 1000, 8 if quick else 32, 0.005, rows, notes, plot=plot)
     runtime = bench_encoder(200 if quick else 1000, 8 if quick else 32, 0.003, rows, notes, plot=None)
     speed = bench_tool_state(5 if quick else 40, rows)
+    tracking = bench_tracking(2 if quick else 10, 20 if quick else 60, rows)
     notes.append(f"latent-space plot: {plot if quick else PLOT_PATH.relative_to(ANALYSIS_DIR.parent)}")
     notes.append("ratios are ours / Open3D (below 1: ours better or faster); the clouds are held out "
                  f"(seed {SEED}), {n} for registration")
     columns = ["method", "rot median (deg)", "rot p95 (deg)", "trans median (mm)", "trans p95 (mm)", "ms per cloud",
                "chamfer (mm^2)", "R^2 opening", "R^2 tip gap", "opening MAE (deg)", "gap MAE (mm)",
-               "z spread / extent", "updates/s", "ms per update"]
+               "z spread / extent", "updates/s", "ms per update", "step rot median (deg)", "step rot p95 (deg)",
+               "mean |omega_bar| (rad/s)"]
     ratios = {f"{k} ours/open3d": float(a / b) for k, (a, b) in reg.items()}
     ratios.update({"encoder calibration R^2, 5 mm noise (goal >= 0.95)": float(enc["r2"]),
                    "encoder calibration R^2, 3 mm noise (the sim's)": float(runtime["r2"]),
                    "z spread at one opening / extent over the range, 5 mm (goal < 0.10)": enc["spread_ratio"],
                    "z spread at one opening / extent over the range, 3 mm": runtime["spread_ratio"],
-                   "tool-state updates/s, 64 vs 1 cloud per update": speed[64] / speed[1]})
+                   "tool-state updates/s, 64 vs 1 cloud per update": speed[64] / speed[1],
+                   "rotation change per step at rest, motion prior / frame by frame":
+                       tracking["motion prior"] / tracking["frame by frame"]})
     return BenchTable(name="perception", title="Tool perception: registration vs Open3D ICP, encoder, tool state",
                       columns=columns, rows=rows, ratios=ratios, notes=notes,
                       config={"quick": quick, "registration_clouds": n, "seed": SEED})

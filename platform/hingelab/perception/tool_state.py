@@ -3,8 +3,11 @@
 Per control step and per cloud (hand_base, metres):
 
 1. register the cloud to the canonical cloud: after a reset from the nominal in-hand pose
-   (with the registration's roll hypotheses), then tracking from the previous pose (one
-   hypothesis; a tool whose residual exceeds ``lost_rmse_m`` is registered afresh):
+   (with the registration's roll hypotheses), then tracking (``CanonicalRegistration.track``):
+   one hypothesis, started at the previous pose moved by part of the last step's motion,
+   with a motion prior that holds the roll about the tool's long axis (a single noisy
+   frame fixes it only to ~3-4 degrees, and differencing would turn that into ~1 rad/s of
+   omega at rest); a tool whose residual exceeds ``lost_rmse_m`` is registered afresh:
    tool pose t (3,), R (3, 3), Euler angles theta (3,);
 2. velocities by differencing consecutive poses over ``dt``: v (3,) m/s, omega (3,) rad/s,
    both in hand_base (omega from R_k R_{k-1}^T); zero on the first step after a reset;
@@ -33,7 +36,8 @@ from scipy.spatial.transform import Rotation
 
 from hingelab.errors import ConfigError
 from hingelab.perception.encoder import ToolEncoder, load_encoder
-from hingelab.perception.registration import CanonicalRegistration, Registration, RegistrationConfig, check_clouds
+from hingelab.perception.registration import (CanonicalRegistration, Registration, RegistrationConfig, TrackingConfig,
+                                              check_clouds)
 
 ALPHA = 0.9  # the paper's smoothing
 CONTROL_DT_S = 0.05  # 20 Hz
@@ -76,11 +80,13 @@ class ToolState:
         dt: seconds between updates (the control period).
         prior: (R, t) pose to start registration from after a reset (default: the nominal
             in-hand pose of the ``tool_shape`` grasp); None starts from the global hypotheses.
+        lost_rmse_m: a tracked tool with a larger residual (m) is registered afresh.
+        tracking: the tracking's motion prior and iterations (``TrackingConfig``).
     """
 
     def __init__(self, encoder: ToolEncoder | None = None, registration: CanonicalRegistration | None = None,
                  n_tools: int = 1, alpha: float = ALPHA, dt: float = CONTROL_DT_S, prior="nominal",
-                 lost_rmse_m: float = 0.006):
+                 lost_rmse_m: float = 0.006, tracking: TrackingConfig = TrackingConfig()):
         if not 0.0 < alpha <= 1.0 or dt <= 0 or n_tools < 1:
             raise ConfigError(f"ToolState needs 0 < alpha <= 1, dt > 0, n_tools >= 1 (got {alpha}, {dt}, {n_tools})")
         self.encoder = encoder or load_encoder()
@@ -88,8 +94,7 @@ class ToolState:
             config = RegistrationConfig(**(self.encoder.registration_config or {}))
             registration = CanonicalRegistration(config=config)
         self.registration = registration
-        # tracking: the previous pose is close, one hypothesis is enough
-        self.tracking = registration.with_search(prior_hypotheses=1, keep_hypotheses=1)
+        self.tracking = tracking
         self.lost_rmse_m = lost_rmse_m
         if isinstance(prior, str) and prior == "nominal":
             from hingelab.perception.synthetic_dataset import nominal_tool_pose
@@ -99,6 +104,7 @@ class ToolState:
         self.n_tools, self.alpha, self.dt = n_tools, alpha, dt
         self._rot = np.zeros((n_tools, 3, 3))
         self._pos = np.zeros((n_tools, 3))
+        self._motion = np.zeros((n_tools, 6))  # the last step's v, omega: the tracking's prediction
         self._smoothed = np.zeros((n_tools, 8))  # v_bar, omega_bar, z_bar
         self._fresh = np.ones(n_tools, bool)  # no previous pose since the reset
         self._hinge = np.full(n_tools, registration.config.reference_opening_rad)  # last opening estimate
@@ -110,19 +116,23 @@ class ToolState:
             raise ConfigError(f"reset mask must have shape ({self.n_tools},), got {mask.shape}")
         self._fresh |= mask
 
+    def _predicted_pose(self) -> tuple[np.ndarray, np.ndarray]:
+        """The previous poses moved by ``predict_motion`` times the last step's motion: R (B, 3, 3), t (B, 3)."""
+        share = self.tracking.predict_motion * self.dt
+        turn = Rotation.from_rotvec(share * self._motion[:, 3:]).as_matrix()
+        return turn @ self._rot, self._pos + share * self._motion[:, :3]
+
     def _register(self, points: np.ndarray, fresh: np.ndarray) -> Registration:
-        """Fresh tools from the reset prior (or globally), the others tracked from their last pose."""
-        rot, pos = self._rot.copy(), self._pos.copy()
-        if not fresh.any():
-            return self.tracking.register(points, prior=(rot, pos), hinge_prior=self._hinge)
-        if self.prior is None:
-            start = self.registration.register(points[fresh])
-        else:
+        """Fresh tools from the reset prior (or globally), the others tracked from their predicted pose."""
+        if fresh.any():
             start = self.registration.register(points[fresh], prior=self.prior)
-        if fresh.all():
-            return start
-        tracked = self.tracking.register(points[~fresh], prior=(rot[~fresh], pos[~fresh]),
-                                         hinge_prior=self._hinge[~fresh])
+            if fresh.all():
+                return start
+        rot, pos = self._predicted_pose()
+        tracked = self.registration.track(points[~fresh], rot[~fresh], pos[~fresh], self._hinge[~fresh],
+                                          self.tracking)
+        if not fresh.any():
+            return tracked
         out = Registration(*(np.empty((len(points),) + getattr(start, f).shape[1:])
                              for f in Registration.__dataclass_fields__))
         for name in Registration.__dataclass_fields__:
@@ -151,6 +161,8 @@ class ToolState:
         raw = np.concatenate([velocity, omega, z], axis=1)
         self._smoothed = np.where(fresh[:, None], raw, self.alpha * raw + (1 - self.alpha) * self._smoothed)
         self._rot, self._pos, self._fresh = rot, pos, np.zeros(self.n_tools, bool)
+        # a re-registered tool's jump is not motion to carry into the next prediction
+        self._motion = np.where(lost[:, None], 0.0, raw[:, :6])
         if self.registration.config.articulated:
             self._hinge = result.hinge_angle.copy()
         s = self._smoothed
