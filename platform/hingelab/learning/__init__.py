@@ -1,0 +1,1 @@
+"""Policy learners: SAC on the platform's envs, trained from and into MCAP episode datasets."""

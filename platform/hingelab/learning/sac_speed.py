@@ -1,0 +1,613 @@
+"""Faster SAC gradient updates on CPU while staying on stable-baselines3.
+
+Where SB3's ``SAC.train()`` spends its time on this 2-core machine (batch 256, 2 x 256 ReLU
+actor and twin critics, Dict observations) and what each change here buys is written up in
+``analysis/bench/sac_updates.md``. In short:
+
+- ``configure_torch`` stops glibc from handing the ~256 KB activation buffers back to the
+  kernel after every free (``mallopt``): each fresh buffer otherwise costs 64 page faults,
+  which in this VM made a ReLU 30x slower than the same ReLU in a loop.
+- ``FastSAC`` is ``stable_baselines3.SAC`` with the same update, op for op, minus waste:
+  fused Adam, no critic weight gradients in the actor loss (they were zeroed unused), critic
+  features computed once per step, the squashed-Gaussian math without building a
+  ``torch.distributions.Normal``, a ``_foreach`` Polyak update, losses logged once per
+  ``train()`` call instead of four ``.item()`` per step, and a replay sampler that gathers
+  with ``index_select`` from zero-copy torch views of the buffer's numpy arrays (same
+  ``np.random`` draws as SB3, so the same seed gives the same batches).
+
+``FastSAC`` saves with SB3's ``save`` and the file loads as plain ``SAC`` too.
+
+Run the interleaved benchmark: ``python -m hingelab.learning.sac_speed --help``.
+"""
+
+from __future__ import annotations
+
+import ctypes
+import ctypes.util
+import math
+import time
+from collections.abc import Iterable
+from typing import Any
+
+import numpy as np
+import torch as th
+import torch.nn.functional as F
+from stable_baselines3 import SAC
+from stable_baselines3.common.buffers import DictReplayBuffer, ReplayBuffer
+from stable_baselines3.common.type_aliases import DictReplayBufferSamples, ReplayBufferSamples
+
+#: Every speed-up ``FastSAC`` applies by default; pass a subset as ``speedups=`` to ablate.
+ALL_SPEEDUPS = frozenset(
+    {
+        "sampler",  # index_select from zero-copy views of the buffer instead of numpy fancy indexing + copies
+        "actor_math",  # squashed Gaussian inline, no torch.distributions.Normal (arg validation)
+        "critic_no_weight_grad",  # actor loss does not compute critic weight gradients
+        "critic_features_once",  # parameter-free critic feature extractor run once per step
+        "foreach_polyak",  # two _foreach ops instead of two ops per parameter
+        "deferred_logging",  # losses stacked and averaged once per train() call
+        "inplace_relu",  # ReLU right after a Linear in the MLPs writes in place: one fresh buffer less each
+    }
+)
+
+_M_TRIM_THRESHOLD = -1  # glibc mallopt parameter numbers (malloc.h)
+_M_MMAP_THRESHOLD = -3
+
+
+def configure_torch(threads: int = 1, *, keep_heap: bool = True, flush_denormal: bool = False) -> dict[str, Any]:
+    """Apply the process settings measured fastest for SAC updates here; returns what was set.
+
+    threads: intra-op threads (``torch.set_num_threads``). Inter-op threads are set to 1 when
+        torch still allows it (only before the first parallel op; SAC has no inter-op work).
+    keep_heap: glibc only. Raise the mmap threshold to 64 MiB and the trim threshold to 512 MiB
+        so freed activation/gradient buffers stay in the heap: the largest single gain measured
+        (see analysis/bench/sac_updates.md). Costs up to a few hundred MB of RSS kept mapped.
+    flush_denormal: flush denormals to zero. Off by default: with it set, scipy's cKDTree
+        (used by the registration's voxel map) segfaults in this environment, and it gained
+        nothing measurable on SAC updates.
+    """
+    applied: dict[str, Any] = {}
+    th.set_num_threads(threads)
+    applied["num_threads"] = th.get_num_threads()
+    try:
+        th.set_num_interop_threads(1)
+    except RuntimeError:  # already set, or parallel work already started
+        pass
+    applied["num_interop_threads"] = th.get_num_interop_threads()
+    if flush_denormal:
+        applied["flush_denormal"] = bool(th.set_flush_denormal(True))
+    if keep_heap:
+        applied["keep_heap"] = _keep_heap()
+    return applied
+
+
+def _keep_heap() -> bool:
+    """``mallopt`` so the heap is neither trimmed nor bypassed with mmap; False if not glibc."""
+    name = ctypes.util.find_library("c")
+    if name is None:
+        return False
+    try:
+        libc = ctypes.CDLL(name)
+        mallopt = libc.mallopt
+    except (OSError, AttributeError):
+        return False
+    return bool(mallopt(_M_MMAP_THRESHOLD, 64 << 20)) and bool(mallopt(_M_TRIM_THRESHOLD, 512 << 20))
+
+
+class _TorchViewSampler:
+    """Samples a plain ``ReplayBuffer``/``DictReplayBuffer`` like SB3 does, but in torch.
+
+    Draws exactly the same ``np.random.randint`` calls as ``ReplayBuffer.sample`` +
+    ``_get_samples`` (so batches are identical for the same NumPy seed) and gathers rows with
+    ``index_select`` from ``torch.from_numpy`` views that share memory with the buffer's arrays,
+    so later ``add()`` calls are seen without copying.
+    """
+
+    def __init__(self, buffer: ReplayBuffer):
+        self.buffer = buffer
+        rows = buffer.buffer_size * buffer.n_envs
+
+        def view(array: np.ndarray) -> th.Tensor:
+            return th.from_numpy(array).reshape(rows, *array.shape[2:])
+
+        self.is_dict = isinstance(buffer, DictReplayBuffer)
+        if self.is_dict:
+            self.obs = {k: view(v) for k, v in buffer.observations.items()}
+            self.next_obs = {k: view(v) for k, v in buffer.next_observations.items()}
+        else:
+            self.obs = view(buffer.observations)
+            self.next_obs = view(buffer.next_observations)
+        self.actions = view(buffer.actions)
+        self.rewards = view(buffer.rewards)
+        self.dones = view(buffer.dones)
+        self.timeouts = view(buffer.timeouts)
+        self._arrays = self._array_ids(buffer)
+
+    @staticmethod
+    def supports(buffer: Any, vec_normalize_env: Any) -> bool:
+        return (
+            type(buffer) in (ReplayBuffer, DictReplayBuffer)
+            and not buffer.optimize_memory_usage
+            and vec_normalize_env is None
+            and th.device(buffer.device).type == "cpu"
+        )
+
+    @staticmethod
+    def _array_ids(buffer: ReplayBuffer) -> tuple[int, ...]:
+        obs = buffer.observations
+        obs_ids = tuple(id(v) for v in obs.values()) if isinstance(obs, dict) else (id(obs),)
+        return (*obs_ids, id(buffer.actions), id(buffer.rewards), id(buffer.dones))
+
+    def still_valid(self, buffer: Any) -> bool:
+        return buffer is self.buffer and self._array_ids(buffer) == self._arrays
+
+    def sample(self, batch_size: int) -> ReplayBufferSamples | DictReplayBufferSamples:
+        b = self.buffer
+        upper_bound = b.buffer_size if b.full else b.pos
+        batch_inds = np.random.randint(0, upper_bound, size=batch_size)
+        env_indices = np.random.randint(0, high=b.n_envs, size=(len(batch_inds),))
+        idx = th.from_numpy(batch_inds * b.n_envs + env_indices)
+
+        def take(t: th.Tensor) -> th.Tensor:
+            return t.index_select(0, idx)
+
+        if self.is_dict:
+            obs = {k: take(v) for k, v in self.obs.items()}
+            next_obs = {k: take(v) for k, v in self.next_obs.items()}
+        else:
+            obs, next_obs = take(self.obs), take(self.next_obs)
+        dones = (take(self.dones) * (1 - take(self.timeouts))).reshape(-1, 1)
+        rewards = take(self.rewards).reshape(-1, 1)
+        cls = DictReplayBufferSamples if self.is_dict else ReplayBufferSamples
+        return cls(observations=obs, actions=take(self.actions), next_observations=next_obs, dones=dones, rewards=rewards)
+
+
+class FastSAC(SAC):
+    """``stable_baselines3.SAC`` with a faster ``train()``; same algorithm and arguments.
+
+    Extra argument ``speedups``: a subset of ``ALL_SPEEDUPS`` (default: all). Adam is fused
+    unless ``policy_kwargs["optimizer_kwargs"]`` says otherwise. gSDE and replay buffers other
+    than plain ``ReplayBuffer``/``DictReplayBuffer`` (HER, n-step, memory-optimized,
+    VecNormalize) fall back to SB3's own code for the part they change (sampling, noise).
+    """
+
+    def __init__(self, policy: Any, env: Any, *args: Any, speedups: Iterable[str] | None = None, **kwargs: Any):
+        policy_kwargs = dict(kwargs.pop("policy_kwargs", None) or {})
+        optimizer_kwargs = dict(policy_kwargs.get("optimizer_kwargs") or {})
+        optimizer_kwargs.setdefault("fused", True)
+        policy_kwargs["optimizer_kwargs"] = optimizer_kwargs
+        kwargs["policy_kwargs"] = policy_kwargs
+        self.speedups = ALL_SPEEDUPS if speedups is None else frozenset(speedups)
+        unknown = self.speedups - ALL_SPEEDUPS
+        if unknown:
+            raise ValueError(f"unknown speedups {sorted(unknown)}; known: {sorted(ALL_SPEEDUPS)}")
+        super().__init__(policy, env, *args, **kwargs)
+
+    def _setup_model(self) -> None:
+        super()._setup_model()
+        if self.ent_coef_optimizer is not None:
+            fused = bool(self.policy_kwargs.get("optimizer_kwargs", {}).get("fused", False))
+            self.ent_coef_optimizer = th.optim.Adam([self.log_ent_coef], lr=self.lr_schedule(1), fused=fused)
+        if "inplace_relu" in self.speedups:
+            _relu_in_place_after_linear(self.policy)
+
+    def _excluded_save_params(self) -> list[str]:
+        return [*super()._excluded_save_params(), "_fast_sampler"]
+
+    # --- pieces of one update -------------------------------------------------------------
+
+    def _sample(self, batch_size: int) -> Any:
+        if "sampler" in self.speedups and _TorchViewSampler.supports(self.replay_buffer, self._vec_normalize_env):
+            sampler = getattr(self, "_fast_sampler", None)
+            if sampler is None or not sampler.still_valid(self.replay_buffer):
+                sampler = self._fast_sampler = _TorchViewSampler(self.replay_buffer)  # type: ignore[arg-type]
+            return sampler.sample(batch_size)
+        return self.replay_buffer.sample(batch_size, env=self._vec_normalize_env)  # type: ignore[union-attr]
+
+    def _action_log_prob(self, obs: Any) -> tuple[th.Tensor, th.Tensor]:
+        """Same ops, same order and same RNG draw as ``Actor.action_log_prob`` without gSDE."""
+        if self.use_sde or "actor_math" not in self.speedups:
+            actions, log_prob = self.actor.action_log_prob(obs)
+            return actions, log_prob
+        mean, log_std, _ = self.actor.get_action_dist_params(obs)
+        std = th.ones_like(mean) * log_std.exp()
+        gaussian = mean + th.empty(mean.shape, dtype=mean.dtype, device=mean.device).normal_() * std
+        actions = th.tanh(gaussian)
+        log_prob = -((gaussian - mean) ** 2) / (2 * std**2) - std.log() - math.log(math.sqrt(2 * math.pi))
+        log_prob = log_prob.sum(dim=1)
+        log_prob = log_prob - th.sum(th.log(1 - actions**2 + self.actor.action_dist.epsilon), dim=1)
+        return actions, log_prob
+
+    def _critic_features(self, obs: Any) -> th.Tensor | None:
+        """Critic features of ``obs`` when they can be reused within a step, else None.
+
+        Only for a parameter-free, unshared extractor (Flatten, CombinedExtractor of Flattens):
+        with parameters, SB3 recomputes them after the critic step, and so must we.
+        """
+        critic = self.critic
+        if "critic_features_once" not in self.speedups or critic.share_features_extractor:
+            return None
+        if any(True for _ in critic.features_extractor.parameters()):
+            return None
+        with th.no_grad():
+            return critic.extract_features(obs, critic.features_extractor)
+
+    def _q_values(self, critic: Any, obs: Any, features: th.Tensor | None, actions: th.Tensor) -> tuple[th.Tensor, ...]:
+        if features is None:
+            return critic(obs, actions)
+        qvalue_input = th.cat([features, actions], dim=1)
+        return tuple(q_net(qvalue_input) for q_net in critic.q_networks)
+
+    # --- the update -------------------------------------------------------------------------
+
+    def train(self, gradient_steps: int, batch_size: int = 64) -> None:
+        self.policy.set_training_mode(True)
+        optimizers = [self.actor.optimizer, self.critic.optimizer]
+        if self.ent_coef_optimizer is not None:
+            optimizers += [self.ent_coef_optimizer]
+        self._update_learning_rate(optimizers)
+
+        actor_ids = {id(p) for p in self.actor.parameters()}
+        critic_only = [p for p in self.critic.parameters() if id(p) not in actor_ids and p.requires_grad]
+        skip_critic_grads = "critic_no_weight_grad" in self.speedups
+        critic_params = list(self.critic.parameters())
+        target_params = list(self.critic_target.parameters())
+        foreach_polyak = "foreach_polyak" in self.speedups
+        deferred = "deferred_logging" in self.speedups
+
+        ent_coef_losses: list[Any] = []
+        ent_coefs: list[Any] = []
+        actor_losses: list[Any] = []
+        critic_losses: list[Any] = []
+
+        def keep(values: list[Any], x: th.Tensor) -> None:
+            values.append(x.detach() if deferred else x.item())
+
+        for gradient_step in range(gradient_steps):
+            replay_data = self._sample(batch_size)
+            discounts = replay_data.discounts if replay_data.discounts is not None else self.gamma
+
+            if self.use_sde:
+                self.actor.reset_noise()
+
+            actions_pi, log_prob = self._action_log_prob(replay_data.observations)
+            log_prob = log_prob.reshape(-1, 1)
+
+            ent_coef_loss = None
+            if self.ent_coef_optimizer is not None and self.log_ent_coef is not None:
+                ent_coef = th.exp(self.log_ent_coef.detach())
+                assert isinstance(self.target_entropy, float)
+                ent_coef_loss = -(self.log_ent_coef * (log_prob + self.target_entropy).detach()).mean()
+                keep(ent_coef_losses, ent_coef_loss)
+            else:
+                ent_coef = self.ent_coef_tensor
+            keep(ent_coefs, ent_coef)
+
+            if ent_coef_loss is not None and self.ent_coef_optimizer is not None:
+                self.ent_coef_optimizer.zero_grad()
+                ent_coef_loss.backward()
+                self.ent_coef_optimizer.step()
+
+            with th.no_grad():
+                next_actions, next_log_prob = self._action_log_prob(replay_data.next_observations)
+                next_q_values = th.cat(
+                    self._q_values(self.critic_target, replay_data.next_observations, None, next_actions), dim=1
+                )
+                next_q_values, _ = th.min(next_q_values, dim=1, keepdim=True)
+                next_q_values = next_q_values - ent_coef * next_log_prob.reshape(-1, 1)
+                target_q_values = replay_data.rewards + (1 - replay_data.dones) * discounts * next_q_values
+
+            features = self._critic_features(replay_data.observations)
+            current_q_values = self._q_values(self.critic, replay_data.observations, features, replay_data.actions)
+            # SB3 writes 0.5 * sum(...): the leading 0 + x is exact, so this is the same number
+            critic_loss = F.mse_loss(current_q_values[0], target_q_values)
+            for current_q in current_q_values[1:]:
+                critic_loss = critic_loss + F.mse_loss(current_q, target_q_values)
+            critic_loss = 0.5 * critic_loss
+            keep(critic_losses, critic_loss)
+
+            self.critic.optimizer.zero_grad()
+            critic_loss.backward()
+            self.critic.optimizer.step()
+
+            # SB3 lets the actor loss also fill the critic's .grad, which the next critic
+            # zero_grad() throws away: skip computing it (the input gradient is still computed).
+            if skip_critic_grads:
+                for p in critic_only:
+                    p.requires_grad_(False)
+            try:
+                q_values_pi = th.cat(self._q_values(self.critic, replay_data.observations, features, actions_pi), dim=1)
+                min_qf_pi, _ = th.min(q_values_pi, dim=1, keepdim=True)
+                actor_loss = (ent_coef * log_prob - min_qf_pi).mean()
+                keep(actor_losses, actor_loss)
+                self.actor.optimizer.zero_grad()
+                actor_loss.backward()
+            finally:
+                if skip_critic_grads:
+                    for p in critic_only:
+                        p.requires_grad_(True)
+            self.actor.optimizer.step()
+
+            if gradient_step % self.target_update_interval == 0:
+                self._polyak(critic_params, target_params, foreach_polyak)
+
+        self._n_updates += gradient_steps
+        self.logger.record("train/n_updates", self._n_updates, exclude="tensorboard")
+        self.logger.record("train/ent_coef", _mean(ent_coefs))
+        self.logger.record("train/actor_loss", _mean(actor_losses))
+        self.logger.record("train/critic_loss", _mean(critic_losses))
+        if len(ent_coef_losses) > 0:
+            self.logger.record("train/ent_coef_loss", _mean(ent_coef_losses))
+
+    def _polyak(self, params: list[th.Tensor], targets: list[th.Tensor], foreach: bool) -> None:
+        """``polyak_update`` of SB3 (mul_ then add with alpha), for parameters and BN stats."""
+        from stable_baselines3.common.utils import polyak_update
+
+        if not foreach:
+            polyak_update(params, targets, self.tau)
+            polyak_update(self.batch_norm_stats, self.batch_norm_stats_target, 1.0)
+            return
+        with th.no_grad():
+            target_data = [t.data for t in targets]
+            th._foreach_mul_(target_data, 1 - self.tau)
+            th._foreach_add_(target_data, [p.data for p in params], alpha=self.tau)
+            if self.batch_norm_stats:
+                stats_target = [t.data for t in self.batch_norm_stats_target]
+                th._foreach_mul_(stats_target, 0.0)
+                th._foreach_add_(stats_target, [s.data for s in self.batch_norm_stats], alpha=1.0)
+
+
+def _relu_in_place_after_linear(module: th.nn.Module) -> None:
+    """Set ``inplace`` on every ``nn.ReLU`` that directly follows an ``nn.Linear`` in a Sequential.
+
+    Linear's backward needs its input, not its output, so overwriting the output is safe and the
+    values are unchanged; it saves writing a fresh (256, 256) buffer per layer, which is slow here.
+    Not saved with the model (policy_kwargs still say ``nn.ReLU``); ``_setup_model`` redoes it.
+    """
+    for sequential in module.modules():
+        if isinstance(sequential, th.nn.Sequential):
+            layers = list(sequential)
+            for previous, layer in zip(layers, layers[1:]):
+                if isinstance(layer, th.nn.ReLU) and isinstance(previous, th.nn.Linear):
+                    layer.inplace = True
+
+
+def _mean(values: list[Any]) -> float:
+    if values and isinstance(values[0], th.Tensor):
+        return float(th.stack(values).to(th.float64).mean().item())
+    return float(np.mean(values))
+
+
+def update_rate(model: SAC, n_updates: int, batch_size: int) -> float:
+    """Gradient updates per second of ``model.train(gradient_steps=n_updates, batch_size=...)``.
+
+    The replay buffer must already hold data. Wall time, so measure A and B interleaved.
+    """
+    start = time.perf_counter()
+    model.train(gradient_steps=n_updates, batch_size=batch_size)
+    return n_updates / (time.perf_counter() - start)
+
+
+# --- benchmark: python -m hingelab.learning.sac_speed -------------------------------------
+
+
+class _DummyGoalEnv:
+    """Spaces of the project's goal-conditioned low-level task; steps return random data."""
+
+    def __new__(cls) -> Any:
+        import gymnasium as gym
+        from gymnasium import spaces
+
+        class DummyGoalEnv(gym.Env):
+            observation_space = spaces.Dict(
+                {
+                    "observation": spaces.Box(-10.0, 10.0, (26,), np.float32),
+                    "achieved_goal": spaces.Box(-1.0, 1.0, (2,), np.float32),
+                    "desired_goal": spaces.Box(-1.0, 1.0, (2,), np.float32),
+                }
+            )
+            action_space = spaces.Box(-1.0, 1.0, (9,), np.float32)
+
+            def reset(self, *, seed: int | None = None, options: dict | None = None) -> Any:
+                super().reset(seed=seed)
+                return self.observation_space.sample(), {}
+
+            def step(self, action: np.ndarray) -> Any:
+                return self.observation_space.sample(), 0.0, False, False, {}
+
+        return DummyGoalEnv()
+
+
+def make_filled_model(cls: type[SAC], seed: int = 0, buffer_size: int = 100_000, **kwargs: Any) -> SAC:
+    """SAC/FastSAC, MultiInputPolicy, 2 x 256, batch 256, on the dummy goal env, buffer full of noise."""
+    from stable_baselines3.common.logger import configure
+
+    policy_kwargs = dict(kwargs.pop("policy_kwargs", None) or {})
+    policy_kwargs.setdefault("net_arch", [256, 256])
+    model = cls(
+        "MultiInputPolicy",
+        _DummyGoalEnv(),
+        batch_size=256,
+        buffer_size=buffer_size,
+        learning_starts=0,
+        seed=seed,
+        policy_kwargs=policy_kwargs,
+        **kwargs,
+    )
+    rb = model.replay_buffer
+    rng = np.random.default_rng(seed)
+    for key in rb.observations:
+        rb.observations[key][:] = rng.standard_normal(rb.observations[key].shape)
+        rb.next_observations[key][:] = rng.standard_normal(rb.next_observations[key].shape)
+    rb.actions[:] = rng.uniform(-1.0, 1.0, rb.actions.shape)
+    rb.rewards[:] = rng.standard_normal(rb.rewards.shape)
+    rb.dones[:] = rng.random(rb.dones.shape) < 0.02
+    rb.full, rb.pos = True, 0
+    model.set_logger(configure(None, []))
+    return model
+
+
+# (category, alternatives): the first alternative present in the profile is used, so that a
+# FastSAC function and the SB3 function it may fall back to are not counted twice.
+_PROFILE_PARTS: list[tuple[str, list[list[tuple[str, str]]]]] = [
+    ("replay sampling + to-tensor", [[("sac_speed.py", "_sample")], [("buffers.py", "sample")]]),
+    ("actor forward (obs + next_obs, with squashed Gaussian)", [[("sac_speed.py", "_action_log_prob")], [("sac/policies.py", "action_log_prob")]]),
+    ("critic forward (target + critic loss + actor loss)", [[("sac_speed.py", "_q_values"), ("sac_speed.py", "_critic_features")], [("common/policies.py", "forward")]]),
+    ("backward (3 losses)", [[("torch/_tensor.py", "backward")]]),
+    ("Adam step (3 optimizers)", [[("torch/optim/optimizer.py", "wrapper")]]),
+    ("zero_grad", [[("torch/optim/optimizer.py", "zero_grad")]]),
+    ("polyak update", [[("sac_speed.py", "_polyak")], [("common/utils.py", "polyak_update")]]),
+    (".item() syncs", [[("~", "<method 'item' of 'torch._C.TensorBase' objects>")]]),
+    ("logger.record", [[("logger.py", "record")]]),
+]
+
+
+def profile_breakdown(model: SAC, n_updates: int = 200, batch_size: int = 256) -> dict[str, float]:
+    """ms per update by part, from cProfile (which inflates Python-heavy parts a little)."""
+    import cProfile
+    import pstats
+
+    model.train(gradient_steps=20, batch_size=batch_size)
+    profiler = cProfile.Profile()
+    start = time.perf_counter()
+    profiler.enable()
+    model.train(gradient_steps=n_updates, batch_size=batch_size)
+    profiler.disable()
+    total = time.perf_counter() - start
+    stats = pstats.Stats(profiler).stats  # type: ignore[attr-defined]
+    cumulative: dict[tuple[str, str], float] = {}
+    for (filename, _line, func), (_cc, _nc, _tt, ct, _callers) in stats.items():
+        for (_cat, alternatives) in _PROFILE_PARTS:
+            for alternative in alternatives:
+                for suffix, name in alternative:
+                    if func == name and filename.endswith(suffix):
+                        cumulative[(suffix, name)] = cumulative.get((suffix, name), 0.0) + ct
+    parts: dict[str, float] = {}
+    for category, alternatives in _PROFILE_PARTS:
+        for alternative in alternatives:
+            if any(key in cumulative for key in alternative):
+                parts[category] = sum(cumulative.get(key, 0.0) for key in alternative) / n_updates * 1e3
+                break
+        else:
+            parts[category] = 0.0
+    parts["rest (loss arithmetic, ent_coef, Python)"] = total / n_updates * 1e3 - sum(parts.values())
+    parts["total under cProfile"] = total / n_updates * 1e3
+    return parts
+
+
+#: name -> (class, process settings, FastSAC speedups, fused Adam)
+_BENCH_CONFIGS: dict[str, tuple[str, bool, frozenset[str] | None, bool]] = {
+    "SAC": ("SAC", False, None, False),
+    "SAC + configure_torch": ("SAC", True, None, False),
+    "FastSAC + configure_torch": ("FastSAC", True, ALL_SPEEDUPS, True),
+    "FastSAC, no configure_torch": ("FastSAC", False, ALL_SPEEDUPS, True),
+    "FastSAC - fused Adam": ("FastSAC", True, ALL_SPEEDUPS, False),
+    **{f"FastSAC - {s}": ("FastSAC", True, ALL_SPEEDUPS - {s}, True) for s in sorted(ALL_SPEEDUPS)},
+}
+
+
+def _bench_worker(config_name: str, connection: Any) -> None:
+    """Runs in its own process so process-wide settings (malloc) differ between configs."""
+    cls_name, process_settings, speedups, fused = _BENCH_CONFIGS[config_name]
+    if process_settings:
+        configure_torch(1)
+    if cls_name == "SAC":
+        model = make_filled_model(SAC)
+    else:
+        model = make_filled_model(FastSAC, speedups=speedups, policy_kwargs={"optimizer_kwargs": {"fused": fused}})
+    while True:
+        message = connection.recv()
+        if message is None:
+            return
+        command, threads, n_updates = message
+        th.set_num_threads(threads)
+        if command == "profile":
+            connection.send(profile_breakdown(model, n_updates))
+        else:
+            model.train(gradient_steps=10, batch_size=256)  # warm caches after a thread change
+            connection.send(update_rate(model, n_updates, 256))
+
+
+def interleaved_rates(
+    config_names: list[str], threads: int, rounds: int = 5, n_updates: int = 200
+) -> dict[str, list[float]]:
+    """Updates/s of each config, blocks run one at a time in round-robin (one process each)."""
+    import multiprocessing as mp
+
+    ctx = mp.get_context("spawn")
+    workers = {}
+    for name in config_names:
+        parent, child = ctx.Pipe()
+        process = ctx.Process(target=_bench_worker, args=(name, child), daemon=True)
+        process.start()
+        workers[name] = (process, parent)
+    rates: dict[str, list[float]] = {name: [] for name in config_names}
+    try:
+        for _ in range(rounds):
+            for name, (_process, connection) in workers.items():
+                connection.send(("rate", threads, n_updates))
+                rates[name].append(connection.recv())
+    finally:
+        for process, connection in workers.values():
+            connection.send(None)
+            process.join(timeout=30)
+    return rates
+
+
+def profiles(config_names: list[str], threads: int = 1, n_updates: int = 200) -> dict[str, dict[str, float]]:
+    import multiprocessing as mp
+
+    ctx = mp.get_context("spawn")
+    result = {}
+    for name in config_names:
+        parent, child = ctx.Pipe()
+        process = ctx.Process(target=_bench_worker, args=(name, child), daemon=True)
+        process.start()
+        parent.send(("profile", threads, n_updates))
+        result[name] = parent.recv()
+        parent.send(None)
+        process.join(timeout=30)
+    return result
+
+
+def main(argv: list[str] | None = None) -> int:
+    """Print the markdown tables of analysis/bench/sac_updates.md."""
+    import argparse
+    import os
+    import platform
+
+    parser = argparse.ArgumentParser(description=main.__doc__)
+    parser.add_argument("--rounds", type=int, default=5, help="alternating blocks per config")
+    parser.add_argument("--updates", type=int, default=200, help="gradient updates per block")
+    parser.add_argument("--threads", type=int, nargs="+", default=[1, 2], help="torch intra-op threads")
+    parser.add_argument("--ablation", action="store_true", help="also FastSAC minus each speed-up (threads 1)")
+    parser.add_argument("--profile", action="store_true", help="also the cProfile breakdown of SAC and FastSAC")
+    args = parser.parse_args(argv)
+
+    print(f"torch {th.__version__}, {platform.machine()} x {os.cpu_count()} cores, python {platform.python_version()}\n")
+    if args.profile:
+        names = ["SAC", "SAC + configure_torch", "FastSAC + configure_torch"]
+        table = profiles(names)
+        print("| part (ms/update, threads 1, cProfile) | " + " | ".join(names) + " |")
+        print("|---|" + "---|" * len(names))
+        for part in table[names[0]]:
+            print(f"| {part} | " + " | ".join(f"{table[n][part]:.2f}" for n in names) + " |")
+        print()
+    main_configs = ["SAC", "SAC + configure_torch", "FastSAC + configure_torch"]
+    print(f"Interleaved: {args.rounds} rounds x {args.updates} updates per config, median updates/s (min-max)\n")
+    print("| threads | config | updates/s | ms/update | / SAC |")
+    print("|---|---|---|---|---|")
+    for threads in args.threads:
+        configs = main_configs + ([n for n in _BENCH_CONFIGS if n not in main_configs] if args.ablation and threads == 1 else [])
+        rates = interleaved_rates(configs, threads, args.rounds, args.updates)
+        base = float(np.median(rates["SAC"]))
+        for name in configs:
+            med = float(np.median(rates[name]))
+            print(
+                f"| {threads} | {name} | {med:.1f} ({min(rates[name]):.1f}-{max(rates[name]):.1f}) "
+                f"| {1e3 / med:.2f} | {med / base:.2f} |"
+            )
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
