@@ -15,6 +15,7 @@ from pathlib import Path
 
 LEARNERS = {
     "encoder": "hingelab.cli.train:add_encoder_parser",
+    "low": "hingelab.cli.train:add_low_parser",
 }
 
 
@@ -67,4 +68,90 @@ def run_encoder(args: argparse.Namespace) -> int:
           f"for the opening (mean error {m['mae_opening_rad_val'] * 1000:.1f} mrad) and {m['r2_gap_val']:.3f} "
           f"for the tip gap (mean error {m['mae_gap_mm_val']:.2f} mm). Per-epoch metrics are in the checkpoint "
           "(`history`); load it with hingelab.perception.encoder.load_encoder.")
+    return 0
+
+
+# ---------------------------------------------------------------------------- low
+def add_low_parser(learners) -> None:
+    from hingelab.learning.low_level_config import LowLevelTrainConfig
+
+    d = LowLevelTrainConfig()
+    p = learners.add_parser(
+        "low",
+        help="the low-level policy: SAC shaping the tweezer to latent goals (ToolShape-v0)",
+        description="Train the goal-conditioned low-level SAC policy on hingelab/ToolShape-v0. Every training "
+                    "rollout is written as MCAP episodes into RUNDIR/dataset; evaluations on fixed held-out "
+                    "goals go to RUNDIR/metrics.csv (hingelab report RUNDIR draws the curves); checkpoints "
+                    "with the replay buffer go to RUNDIR/checkpoints (continue with --resume). All settings "
+                    "are saved in RUNDIR/config.json.",
+    )
+    p.add_argument("--steps", type=int, default=d.steps, help=f"environment steps in total (default {d.steps})")
+    p.add_argument("--seed", type=int, default=d.seed, help=f"run seed (default {d.seed})")
+    p.add_argument("--no-effort", action="store_true", help="drop the effort reward (the paper's ablation)")
+    p.add_argument("--her", action="store_true", help="HER relabelling (future strategy, 4 goals)")
+    p.add_argument("--goals", choices=("reachable", "normal"), default=d.goal_sampling,
+                   help=f"training goals: latents of reachable openings, or N(0, I) as in the paper "
+                        f"(default {d.goal_sampling})")
+    p.add_argument("--no-randomize", action="store_true", help="turn domain randomization off")
+    p.add_argument("--envs", type=int, default=d.n_envs, help=f"parallel rollout processes (default {d.n_envs})")
+    p.add_argument("--in-process", action="store_true",
+                   help="step the --envs envs in this process, one after another (several runs side by side)")
+    p.add_argument("--algorithm", choices=("fast_sac", "sac"), default=d.algorithm,
+                   help=f"fast_sac: same SAC updates, faster; sac: plain stable-baselines3 (default {d.algorithm})")
+    p.add_argument("--batch-size", type=int, default=d.batch_size, help=f"SAC batch (default {d.batch_size})")
+    p.add_argument("--buffer-size", type=int, default=d.buffer_size, help=f"replay buffer (default {d.buffer_size})")
+    p.add_argument("--learning-starts", type=int, default=d.learning_starts,
+                   help=f"random steps before the first update (default {d.learning_starts})")
+    p.add_argument("--gradient-steps", type=int, default=d.gradient_steps,
+                   help=f"updates per vectorized env step (default {d.gradient_steps})")
+    p.add_argument("--eval-every", type=int, default=d.eval_every, help=f"env steps between evaluations "
+                   f"(default {d.eval_every})")
+    p.add_argument("--eval-goals", type=int, default=d.eval_goals_per_region,
+                   help=f"held-out goals per third of the opening range (default {d.eval_goals_per_region})")
+    p.add_argument("--checkpoint-every", type=int, default=d.checkpoint_every,
+                   help=f"env steps between resumable checkpoints (default {d.checkpoint_every})")
+    p.add_argument("--threads", type=int, default=d.torch_threads, help=f"torch threads (default {d.torch_threads})")
+    p.add_argument("--no-record", action="store_true", help="do not write the training rollouts (not advised)")
+    p.add_argument("--from", dest="from_datasets", type=Path, nargs="+", default=[], metavar="DATASET",
+                   help="datasets whose transitions fill the replay buffer before training")
+    p.add_argument("--offline", type=int, default=0, metavar="UPDATES",
+                   help="train from the --from datasets alone for this many updates (no env rollouts)")
+    p.add_argument("--out", type=Path, default=None,
+                   help="run folder (default runs/low_seed{SEED}[_no_effort])")
+    p.add_argument("--resume", action="store_true",
+                   help="continue the run in --out from its last checkpoint (its saved config is kept; "
+                        "--steps may raise the budget)")
+    p.add_argument("--name", default=None, help="curve label in reports (default: the run folder's name)")
+    p.add_argument("--no-progress", action="store_true", help="no progress bar")
+    p.set_defaults(func=run_low)
+
+
+def run_low(args: argparse.Namespace) -> int:
+    from hingelab.learning.low_level_config import LowLevelTrainConfig
+    from hingelab.learning.train_low import train_low
+    from hingelab.paths import REPO_ROOT
+
+    config = LowLevelTrainConfig(
+        steps=args.steps, seed=args.seed, use_effort=not args.no_effort, her=args.her, goal_sampling=args.goals,
+        randomize=not args.no_randomize, n_envs=args.envs,
+        subprocess_envs=not args.in_process, algorithm=args.algorithm, batch_size=args.batch_size,
+        buffer_size=args.buffer_size, learning_starts=args.learning_starts, gradient_steps=args.gradient_steps,
+        eval_every=args.eval_every, eval_goals_per_region=args.eval_goals, checkpoint_every=args.checkpoint_every,
+        torch_threads=args.threads, record=not args.no_record,
+        from_datasets=tuple(str(p) for p in args.from_datasets), offline_updates=args.offline)
+    out = args.out or REPO_ROOT / "runs" / f"low_seed{args.seed}{'' if config.use_effort else '_no_effort'}"
+    s = train_low(config, out, resume=args.resume, progress=not args.no_progress, name=args.name)
+    last, best = s["last_evaluation"], s["best"]
+    prefill = ""
+    if s["prefill"]:
+        pf = s["prefill"]
+        prefill = (f" The replay buffer was pre-filled with {pf['transitions']} transitions from {pf['episodes']} "
+                   f"episodes at {pf['transitions_per_s']:.0f} transitions/s.")
+    print(f"Trained the low-level policy to {s['env_steps']} env steps ({s['updates']} updates) in "
+          f"{s['wall_time_s'] / 60:.1f} min.{prefill} Last evaluation: success {float(last.get('success_rate', 0)):.2f} "
+          f"on {3 * config.eval_goals_per_region} held-out reachable goals, final latent distance "
+          f"{float(last.get('final_latent_distance', 0)):.3f}, max tool drift "
+          f"{float(last.get('tool_drift_mm_max', 0)):.1f} mm. Best: success {best['success_rate']:.2f} at "
+          f"{best.get('env_steps', '?')} steps ({out}/best_model.zip). Curves: hingelab report {out}; "
+          f"rollouts: {out}/dataset.")
     return 0

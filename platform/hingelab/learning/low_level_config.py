@@ -1,0 +1,100 @@
+"""Every hyperparameter of a low-level run (``hingelab train low``), saved with the run.
+
+One frozen dataclass: the CLI fills it, ``RUNDIR/config.json`` stores it with the code
+version and seed, and ``--resume`` reads it back (a resumed run keeps its config).
+Defaults follow the paper where it speaks (SAC, 2 x 256 ReLU, the effort reward, 20 Hz,
+domain randomization) and SAC's usual values where it does not.
+"""
+
+from __future__ import annotations
+
+import json
+from dataclasses import asdict, dataclass, field, fields
+from pathlib import Path
+
+from hingelab.errors import ConfigError
+
+ENV_ID = "hingelab/ToolShape-v0"
+
+
+@dataclass(frozen=True)
+class LowLevelTrainConfig:
+    steps: int = 200_000  # environment steps (transitions) in total, over all envs
+    seed: int = 0
+    use_effort: bool = True  # False: the paper's ablation without the effort reward
+    her: bool = False  # HER relabelling ("future", 4 goals per transition)
+    goal_sampling: str = "reachable"  # training goals; see ToolShape-v0 "Goals"
+    randomize: bool = True  # delays, gains, friction (paper)
+    max_episode_steps: int = 50  # 2.5 s at 20 Hz
+    n_envs: int = 2  # rollouts per vectorized step
+    subprocess_envs: bool = True  # one process per env when n_envs > 1 (False: all in this process)
+    # SAC
+    net_arch: tuple = (256, 256)  # ReLU, actor and both critics (paper)
+    learning_rate: float = 3e-4
+    buffer_size: int = 300_000
+    batch_size: int = 256
+    gamma: float = 0.98  # 50-step episodes: a horizon of ~50 steps
+    tau: float = 0.005
+    learning_starts: int = 2_000
+    train_freq: int = 1  # env steps (per env) between updates
+    gradient_steps: int = 1  # updates each time: with n_envs=2, 1 update per 2 transitions
+    ent_coef: str = "auto"
+    algorithm: str = "fast_sac"  # "sac": plain stable-baselines3; "fast_sac": same math, faster updates
+    torch_threads: int = 1
+    # bookkeeping
+    eval_every: int = 5_000  # env steps between evaluations
+    eval_goals_per_region: int = 4  # held-out goals per third of the reachable opening range
+    checkpoint_every: int = 10_000  # env steps between resumable checkpoints
+    keep_checkpoints: int = 2
+    record: bool = True  # every training rollout into RUNDIR/dataset (MCAP)
+    from_datasets: tuple = ()  # datasets whose transitions pre-fill the replay buffer
+    offline_updates: int = 0  # > 0: train from the datasets alone, this many updates
+    env_kwargs: dict = field(default_factory=dict)  # more ToolShape-v0 arguments
+
+    def __post_init__(self):
+        checks = {
+            "steps": self.steps >= 0, "n_envs": self.n_envs >= 1, "batch_size": self.batch_size >= 1,
+            "buffer_size": self.buffer_size >= self.batch_size, "learning_rate": self.learning_rate > 0,
+            "gamma": 0 < self.gamma <= 1, "tau": 0 < self.tau <= 1, "train_freq": self.train_freq >= 1,
+            "gradient_steps": self.gradient_steps >= 1, "eval_every": self.eval_every >= 1,
+            "checkpoint_every": self.checkpoint_every >= 1, "max_episode_steps": self.max_episode_steps >= 1,
+            "keep_checkpoints": self.keep_checkpoints >= 1, "offline_updates": self.offline_updates >= 0,
+            "eval_goals_per_region": self.eval_goals_per_region >= 1, "torch_threads": self.torch_threads >= 1,
+            "goal_sampling": self.goal_sampling in ("normal", "reachable"),
+            "algorithm": self.algorithm in ("sac", "fast_sac"),
+        }
+        bad = [name for name, ok in checks.items() if not ok]
+        if bad:
+            raise ConfigError(f"invalid low-level training config: {', '.join(f'{b}={getattr(self, b)!r}' for b in bad)}")
+        if self.offline_updates and not self.from_datasets:
+            raise ConfigError("offline training (--offline N) needs datasets to learn from: add --from DATASET")
+
+    def to_dict(self) -> dict:
+        out = asdict(self)
+        out["net_arch"] = list(self.net_arch)
+        out["from_datasets"] = [str(p) for p in self.from_datasets]
+        return out
+
+    @classmethod
+    def from_dict(cls, data: dict) -> "LowLevelTrainConfig":
+        known = {f.name for f in fields(cls)}
+        unknown = sorted(set(data) - known)
+        if unknown:
+            raise ConfigError(f"unknown low-level config keys {unknown}; this run was made by another hingelab version")
+        data = dict(data)
+        data["net_arch"] = tuple(data.get("net_arch", cls.net_arch))
+        data["from_datasets"] = tuple(data.get("from_datasets", ()))
+        return cls(**data)
+
+    @classmethod
+    def load(cls, path: Path) -> "LowLevelTrainConfig":
+        try:
+            data = json.loads(Path(path).read_text())
+        except (OSError, ValueError) as exc:
+            raise ConfigError(f"cannot read the run config {path}: {exc}") from exc
+        return cls.from_dict(data.get("config", data))
+
+    def env_arguments(self) -> dict:
+        """Keyword arguments of ``gymnasium.make(ENV_ID, ...)`` for this run."""
+        return {"use_effort": self.use_effort, "goal_sampling": self.goal_sampling, "randomize": self.randomize,
+                "max_episode_steps": self.max_episode_steps, **self.env_kwargs}

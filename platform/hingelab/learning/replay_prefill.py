@@ -1,0 +1,155 @@
+"""Fill a stable-baselines3 replay buffer from MCAP episode datasets, in bulk.
+
+``episodes.transitions.fill_replay_buffer`` adds one transition at a time through
+``buffer.add`` (tens of microseconds each); here whole arrays are written into the
+buffer's storage. SB3 buffers hold ``n_envs`` transitions per row and sample any
+(row, env) pair below ``pos``, so:
+
+* plain / Dict buffers: transitions fill rows ``n_envs`` at a time (a remainder of
+  fewer than ``n_envs`` transitions is left out: it would leave empty slots that get
+  sampled);
+* HER buffers: relabelling needs whole episodes in order, so episodes are dealt to the
+  env slots (the emptiest slot next) and each slot is written as its own stream with
+  its episodes' start and length; slots shorter than the longest keep ``ep_length`` 0
+  in their tail rows, which HER never samples.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from hingelab.episodes.dataset import Dataset
+from hingelab.episodes.errors import DatasetError
+from hingelab.episodes.transitions import Transitions, concat_transitions, episode_transitions
+from hingelab.episodes import schemas as S
+from hingelab.errors import ConfigError
+
+
+@dataclass
+class PrefillStats:
+    datasets: int
+    episodes: int
+    transitions: int  # added to the buffer
+    read_s: float
+    insert_s: float
+
+    @property
+    def transitions_per_s(self) -> float:
+        return self.transitions / max(self.read_s + self.insert_s, 1e-9)
+
+
+def read_transitions(roots, progress: bool = False) -> tuple[Transitions, int]:
+    """All transitions of the datasets (``/step`` only), episode by episode; and the episode count."""
+    parts, episodes = [], 0
+    for root in roots:
+        root = Path(root)
+        if not root.exists():
+            raise ConfigError(f"dataset {root} does not exist; give a dataset folder (hingelab datasets info lists one)")
+        dataset = Dataset(root)
+        if len(dataset) == 0:
+            raise DatasetError(f"dataset {root} has no finished episodes to learn from")
+        for episode in dataset.iter_episodes(topics=[S.TOPIC_STEP], progress=progress):
+            if S.TOPIC_STEP not in episode.topics or "reward" not in episode.topics[S.TOPIC_STEP]:
+                raise DatasetError(f"{episode.path} has no learner transitions (/step with reward); "
+                                   "record it with RecordingWrapper or a learner")
+            parts.append(episode_transitions(episode, episodes))
+            episodes += 1
+    return concat_transitions(parts), episodes
+
+
+def _check_shapes(buffer, transitions: Transitions) -> None:
+    spaces = getattr(buffer.observation_space, "spaces", None)
+    if spaces is not None:
+        if not transitions.is_dict:
+            raise ConfigError("the datasets hold flat observations but the learner needs goal (Dict) observations")
+        for key, space in spaces.items():
+            got = transitions.observations.get(key)
+            if got is None or got.shape[1:] != space.shape:
+                raise ConfigError(f"dataset observation {key!r} has shape {None if got is None else got.shape[1:]}, "
+                                  f"the learner needs {space.shape}: the datasets are from another task")
+    elif transitions.is_dict or transitions.observations.shape[1:] != buffer.observation_space.shape:
+        raise ConfigError("the datasets' observations do not match the learner's observation space")
+    if transitions.actions.shape[1:] != buffer.action_space.shape:
+        raise ConfigError(f"dataset actions have shape {transitions.actions.shape[1:]}, the learner's "
+                          f"{buffer.action_space.shape}: the datasets are from another task")
+
+
+def _write_rows(buffer, rows: np.ndarray, slots: np.ndarray, tr: Transitions, idx: np.ndarray) -> None:
+    """Write transitions ``idx`` to buffer (row, slot) pairs."""
+    if tr.is_dict:
+        for key in buffer.observations:
+            buffer.observations[key][rows, slots] = tr.observations[key][idx]
+            buffer.next_observations[key][rows, slots] = tr.next_observations[key][idx]
+    else:
+        buffer.observations[rows, slots] = tr.observations[idx]
+        buffer.next_observations[rows, slots] = tr.next_observations[idx]
+    buffer.actions[rows, slots] = tr.actions[idx]
+    buffer.rewards[rows, slots] = tr.rewards[idx]
+    done = tr.terminated[idx] | tr.truncated[idx]
+    buffer.dones[rows, slots] = done
+    if getattr(buffer, "handle_timeout_termination", False):
+        buffer.timeouts[rows, slots] = tr.truncated[idx] & ~tr.terminated[idx]
+
+
+def insert_transitions(buffer, transitions: Transitions) -> int:
+    """Bulk-write into an empty-or-partly-filled SB3 buffer from its ``pos``; returns transitions added."""
+    _check_shapes(buffer, transitions)
+    n_envs = buffer.n_envs
+    if hasattr(buffer, "ep_length"):  # HerReplayBuffer
+        return _insert_her(buffer, transitions)
+    rows_needed = len(transitions) // n_envs
+    space = buffer.buffer_size - buffer.pos
+    if rows_needed > space:
+        raise ConfigError(f"the datasets hold {len(transitions)} transitions, the replay buffer has room for "
+                          f"{space * n_envs}; raise buffer_size or pre-fill from fewer datasets")
+    idx = np.arange(rows_needed * n_envs)
+    rows = buffer.pos + idx // n_envs
+    _write_rows(buffer, rows, idx % n_envs, transitions, idx)
+    buffer.pos += rows_needed
+    buffer.full = buffer.full or buffer.pos == buffer.buffer_size
+    buffer.pos %= buffer.buffer_size
+    return len(idx)
+
+
+def _insert_her(buffer, tr: Transitions) -> int:
+    n_envs = buffer.n_envs
+    starts = np.flatnonzero(np.r_[True, tr.episode_index[1:] != tr.episode_index[:-1]])
+    ends = np.r_[starts[1:], len(tr)]
+    fill = np.zeros(n_envs, dtype=np.int64)
+    placements = []  # (slot, first row, episode start, episode end)
+    for s, e in zip(starts, ends):
+        slot = int(np.argmin(fill))
+        placements.append((slot, buffer.pos + fill[slot], s, e))
+        fill[slot] += e - s
+    if buffer.pos + fill.max() > buffer.buffer_size:
+        raise ConfigError(f"the datasets' episodes need {fill.max()} buffer rows, the replay buffer has "
+                          f"{buffer.buffer_size - buffer.pos}; raise buffer_size or pre-fill from fewer datasets")
+    for slot, row0, s, e in placements:
+        idx = np.arange(s, e)
+        rows = row0 + np.arange(e - s)
+        _write_rows(buffer, rows, np.full(len(idx), slot), tr, idx)
+        buffer.ep_start[rows, slot] = row0
+        buffer.ep_length[rows, slot] = e - s
+        if buffer.copy_info_dict:
+            for j, row in enumerate(rows):
+                buffer.infos[row, slot] = {k: float(v[s + j]) for k, v in tr.infos.items()}
+    buffer.pos += int(fill.max())
+    buffer.full = buffer.full or buffer.pos == buffer.buffer_size
+    buffer.pos %= buffer.buffer_size
+    buffer._current_ep_start[:] = buffer.pos
+    return int(fill.sum())
+
+
+def prefill_replay_buffer(buffer, roots, progress: bool = False) -> PrefillStats:
+    """Read the datasets and write their transitions into ``buffer``; timings for the report."""
+    roots = list(roots)
+    t0 = time.perf_counter()
+    transitions, episodes = read_transitions(roots, progress=progress)
+    t1 = time.perf_counter()
+    added = insert_transitions(buffer, transitions)
+    t2 = time.perf_counter()
+    return PrefillStats(len(roots), episodes, added, t1 - t0, t2 - t1)

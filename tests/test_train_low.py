@@ -1,0 +1,185 @@
+"""hingelab train low / eval low on tiny sizes: files written, losses moving, exact resume,
+replay pre-fill from MCAP, offline training, parallel envs and bad input."""
+
+from __future__ import annotations
+
+import json
+import pickle
+import shutil
+from dataclasses import replace
+
+import numpy as np
+import pandas as pd
+import pytest
+import torch
+
+from hingelab.episodes.dataset import Dataset
+from hingelab.errors import ConfigError
+from hingelab.learning import checkpoints as ckpt
+from hingelab.learning.low_level_config import LowLevelTrainConfig
+from hingelab.learning.train_low import train_low
+
+TINY = LowLevelTrainConfig(
+    steps=120, n_envs=1, max_episode_steps=10, learning_starts=30, batch_size=16, buffer_size=2000,
+    eval_every=60, eval_goals_per_region=1, checkpoint_every=30, keep_checkpoints=10, algorithm="sac",
+)
+
+
+def _params(path) -> dict:
+    from stable_baselines3 import SAC
+
+    return SAC.load(path, device="cpu").policy.state_dict()
+
+
+@pytest.fixture(scope="module")
+def tiny_run(tmp_path_factory):
+    run = tmp_path_factory.mktemp("runs") / "tiny"
+    summary = train_low(TINY, run, progress=False)
+    return run, summary
+
+
+def test_run_writes_config_metrics_rollouts_checkpoints(tiny_run):
+    run, summary = tiny_run
+    doc = json.loads((run / "config.json").read_text())
+    assert doc["config"]["seed"] == 0 and doc["env_id"] == "hingelab/ToolShape-v0"
+    assert "git_commit" in doc and "hingelab_version" in doc
+    metrics = pd.read_csv(run / "metrics.csv")
+    assert list(metrics["env_steps"]) == [0, 60, 120]
+    assert {"success_rate", "return", "final_latent_distance", "tool_drift_mm_max"} <= set(metrics.columns)
+    # the critic is being trained: its loss is logged and changes between evaluations
+    losses = metrics["critic_loss"].dropna()
+    assert len(losses) == 2 and losses.iloc[0] != losses.iloc[1]
+    assert summary["env_steps"] == 120 and summary["updates"] == 120 - TINY.learning_starts
+    # every finished training episode is an MCAP episode of the run's dataset
+    dataset = Dataset(run / "dataset")
+    assert len(dataset) >= 120 // TINY.max_episode_steps
+    assert (dataset.index["source"] == "low_level_training").all()
+    assert dataset.index["length"].sum() - len(dataset) <= 120  # steps (+1 reset row each) of finished episodes
+    assert ckpt.latest_checkpoint(run).name == "step_000000000120"
+    provenance = pickle.loads((ckpt.latest_checkpoint(run) / ckpt.STATE_FILE).read_bytes())
+    assert provenance["num_timesteps"] == 120
+    from stable_baselines3 import SAC
+
+    model = SAC.load(run / "model.zip")
+    assert model.hingelab_provenance["config"]["max_episode_steps"] == 10
+    assert [m.out_features for m in model.actor.latent_pi if isinstance(m, torch.nn.Linear)] == [256, 256]
+
+
+def test_resume_from_a_checkpoint_continues_exactly(tiny_run, tmp_path):
+    run, _ = tiny_run
+    boundary = [p for p in ckpt.checkpoint_dirs(run)
+                if not pickle.loads((p / ckpt.STATE_FILE).read_bytes())["mid_episode"] and
+                0 < pickle.loads((p / ckpt.STATE_FILE).read_bytes())["num_timesteps"] < 120]
+    assert boundary, "no checkpoint at an episode boundary"
+    start = boundary[-1]
+    copy = tmp_path / "tiny"
+    shutil.copytree(run, copy)
+    for later in ckpt.checkpoint_dirs(copy):
+        if later.name > start.name:
+            shutil.rmtree(later)
+    (copy / "model.zip").unlink()
+    train_low(TINY, copy, resume=True, progress=False)
+    a, b = _params(run / "model.zip"), _params(copy / "model.zip")
+    assert all(torch.equal(a[k], b[k]) for k in a)
+    before = pd.read_csv(run / "metrics.csv")[["env_steps", "success_rate", "return"]]
+    after = pd.read_csv(copy / "metrics.csv")[["env_steps", "success_rate", "return"]]
+    pd.testing.assert_frame_equal(before, after)
+
+
+def test_resume_keeps_the_config_and_refuses_misuse(tiny_run, tmp_path):
+    run, _ = tiny_run
+    with pytest.raises(ConfigError, match="already holds a run"):
+        train_low(TINY, run, progress=False)
+    with pytest.raises(ConfigError, match="does not exist"):
+        train_low(TINY, tmp_path / "nothing", resume=True, progress=False)
+    with pytest.raises(ConfigError, match="needs datasets"):
+        replace(TINY, offline_updates=10)
+
+
+def test_prefill_from_the_runs_dataset_and_offline_training(tiny_run, tmp_path):
+    run, _ = tiny_run
+    config = replace(TINY, from_datasets=(str(run / "dataset"),), offline_updates=40, eval_every=20)
+    summary = train_low(config, tmp_path / "offline", progress=False)
+    prefill = summary["prefill"]
+    n_transitions = int((Dataset(run / "dataset").index["length"] - 1).sum())
+    assert prefill["transitions"] == n_transitions and prefill["transitions_per_s"] > 0
+    metrics = pd.read_csv(tmp_path / "offline" / "metrics.csv")
+    assert list(metrics["env_steps"]) == [0, 20, 40]  # offline runs: x = updates
+    assert summary["updates"] == 40
+
+
+def test_prefill_matches_per_transition_add_and_feeds_her(tiny_run):
+    from stable_baselines3 import SAC, HerReplayBuffer
+    from stable_baselines3.common.buffers import DictReplayBuffer
+
+    from hingelab.episodes.transitions import fill_replay_buffer
+    from hingelab.learning.replay_prefill import insert_transitions, read_transitions
+
+    run, _ = tiny_run
+    transitions, episodes = read_transitions([run / "dataset"])
+    model = SAC.load(run / "model.zip")
+    slow = DictReplayBuffer(1000, model.observation_space, model.action_space, n_envs=1)
+    fast = DictReplayBuffer(1000, model.observation_space, model.action_space, n_envs=1)
+    fill_replay_buffer(slow, transitions)
+    insert_transitions(fast, transitions)
+    assert fast.pos == slow.pos == len(transitions)
+    for key in fast.observations:
+        np.testing.assert_array_equal(fast.observations[key], slow.observations[key])
+        np.testing.assert_array_equal(fast.next_observations[key], slow.next_observations[key])
+    np.testing.assert_array_equal(fast.rewards, slow.rewards)
+    np.testing.assert_array_equal(fast.dones, slow.dones)
+    np.testing.assert_array_equal(fast.timeouts, slow.timeouts)
+    # HER: whole episodes per env slot, relabelled samples come out
+    from hingelab.learning.low_level_eval import make_eval_env
+    from stable_baselines3.common.vec_env import DummyVecEnv
+
+    env = DummyVecEnv([lambda: make_eval_env({"max_episode_steps": 10}), lambda: make_eval_env({"max_episode_steps": 10})])
+    her = HerReplayBuffer(1000, model.observation_space, model.action_space, env=env, n_envs=2, copy_info_dict=True)
+    added = insert_transitions(her, transitions)
+    assert added == len(transitions)
+    assert her.ep_length.max() <= 10 and (her.ep_length > 0).sum() == len(transitions)
+    batch = her.sample(32)
+    assert batch.rewards.shape == (32, 1) and np.isfinite(batch.rewards.numpy()).all()
+    env.close()
+
+
+def test_prefill_refuses_another_tasks_data(tiny_run):
+    from stable_baselines3.common.buffers import ReplayBuffer
+    from gymnasium import spaces
+
+    from hingelab.learning.replay_prefill import insert_transitions, read_transitions
+
+    run, _ = tiny_run
+    transitions, _ = read_transitions([run / "dataset"])
+    flat = ReplayBuffer(100, spaces.Box(-1, 1, (14,)), spaces.Box(-1, 1, (5,)))
+    with pytest.raises(ConfigError, match="Dict|observations"):
+        insert_transitions(flat, transitions)
+    with pytest.raises(ConfigError, match="does not exist"):
+        read_transitions([run / "no_such_dataset"])
+
+
+def test_parallel_envs_give_the_same_rollouts_as_in_process(tmp_path):
+    config = replace(TINY, steps=40, n_envs=2, learning_starts=20, eval_every=1000, checkpoint_every=1000,
+                     eval_goals_per_region=1, record=False)
+    train_low(replace(config, subprocess_envs=True), tmp_path / "subprocess", progress=False)
+    train_low(replace(config, subprocess_envs=False), tmp_path / "in_process2", progress=False)
+    buffers = [pickle.loads((ckpt.latest_checkpoint(tmp_path / name) / ckpt.BUFFER_FILE).read_bytes())
+               for name in ("subprocess", "in_process2")]
+    for key in buffers[0].observations:
+        np.testing.assert_array_equal(buffers[0].observations[key], buffers[1].observations[key])
+    np.testing.assert_array_equal(buffers[0].actions, buffers[1].actions)
+
+
+def test_eval_low_cli_writes_a_dataset_and_a_region_table(tiny_run, tmp_path):
+    from hingelab.cli.main import main
+
+    run, _ = tiny_run
+    out = tmp_path / "eval"
+    assert main(["eval", "low", str(run / "model.zip"), "--episodes", "3", "--out", str(out), "--no-progress"]) == 0
+    regions = pd.read_csv(out / "regions.csv")
+    assert list(regions["goal_region"]) == ["closed", "middle", "open", "all"]
+    assert regions.set_index("goal_region").loc["all", "episodes"] == 3
+    assert len(Dataset(out)) == 3
+    assert (out / "report.md").read_text().count("|") > 20
+    assert main(["eval", "low", str(tmp_path / "missing.zip"), "--episodes", "1", "--out",
+                 str(tmp_path / "e2")]) == 1
