@@ -108,3 +108,20 @@ def test_help_of_the_verbs(verb, capsys):
         main([verb, "--help"])
     assert exit_info.value.code == 0
     assert ("Wilson 95% intervals" if verb == "report" else "--cloud-every") in capsys.readouterr().out
+
+
+def test_learning_curves_draw_the_optional_metrics_every_run_records(tmp_path):
+    from hingelab.analysis.learning_curves import load_learning_curves
+    from hingelab.analysis.plots import learning_curve_plot
+
+    for name in ("with_effort", "without"):
+        write_run(tmp_path / name)
+        metrics = pd.read_csv(tmp_path / name / "metrics.csv")
+        metrics["settled_success_rate"] = metrics["success_rate"] / 2
+        metrics.to_csv(tmp_path / name / "metrics.csv", index=False)
+    curves = load_learning_curves([tmp_path / "with_effort", tmp_path / "without"])
+    row = curves[(curves.run == "without") & (curves.env_steps == 2000)].iloc[0]
+    assert row["settled_success_rate_mean"] == pytest.approx(np.mean([0.25, 0.3, 0.35]))
+    assert "final_latent_distance_mean" not in curves  # not recorded: not drawn
+    png = learning_curve_plot(curves, tmp_path / "curves.png")
+    assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"

@@ -183,3 +183,76 @@ def test_eval_low_cli_writes_a_dataset_and_a_region_table(tiny_run, tmp_path):
     assert (out / "report.md").read_text().count("|") > 20
     assert main(["eval", "low", str(tmp_path / "missing.zip"), "--episodes", "1", "--out",
                  str(tmp_path / "e2")]) == 1
+
+
+def test_eval_low_references_hold_still_and_synergy(tmp_path):
+    """The two references behind `hingelab eval low --baseline`: the scripted synergy (latent
+    feedback) settles nearer its latent goals than holding still does. (The true hinge it ends at
+    can differ from the goal's calibrated opening: the in-hand latent's offset varies by episode,
+    which ``tip_gap_error_mm`` reports.)"""
+    from hingelab.cli.main import main
+
+    distances, settled = {}, {}
+    for baseline in ("hold-still", "synergy"):
+        out = tmp_path / baseline
+        assert main(["eval", "low", "--baseline", baseline, "--episodes", "2", "--out", str(out),
+                     "--no-progress"]) == 0
+        episodes = pd.read_csv(out / "episodes.csv").sort_values("goal_opening_rad")
+        assert {"settled_success", "settled_latent_distance", "tip_gap_error_mm"} <= set(episodes.columns)
+        assert (episodes["tip_gap_error_mm"] >= 0).all() and len(Dataset(out)) == 2
+        regions = pd.read_csv(out / "regions.csv").set_index("goal_region")
+        assert 0 <= regions.loc["all", "settled_success_rate"] <= 1
+        distances[baseline] = episodes["settled_latent_distance"].mean()
+        settled[baseline] = int(episodes["settled_success"].sum())
+    assert distances["synergy"] < distances["hold-still"] and settled["synergy"] >= 1, (distances, settled)
+    assert main(["eval", "low", "x.zip", "--baseline", "synergy", "--out", str(tmp_path / "both")]) == 1
+
+
+def test_prefill_relabels_rewards_with_the_runs_own_reward(tiny_run):
+    """Recorded with the effort term, the same transitions train a --no-effort run on the goal term alone."""
+    import gymnasium as gym
+
+    from hingelab.learning.replay_prefill import read_transitions, relabel_rewards
+
+    run, _ = tiny_run
+    recorded, _ = read_transitions([run / "dataset"])
+    with_effort = gym.make("hingelab/ToolShape-v0", use_effort=True).unwrapped
+    without = gym.make("hingelab/ToolShape-v0", use_effort=False).unwrapped
+    same = relabel_rewards(read_transitions([run / "dataset"])[0], with_effort)
+    np.testing.assert_allclose(same.rewards, recorded.rewards, rtol=1e-5, atol=1e-6)
+    goal_only = relabel_rewards(read_transitions([run / "dataset"])[0], without)
+    distance = np.linalg.norm(recorded.next_observations["achieved_goal"] - recorded.observations["desired_goal"], axis=1)
+    np.testing.assert_allclose(goal_only.rewards, np.exp(-without.reward_config.c1 * distance), rtol=1e-5)
+    assert (goal_only.rewards >= recorded.rewards - 1e-6).all()  # the effort term only ever subtracts
+
+
+def test_learning_from_demonstrations_pretrains_and_anchors_the_actor(tiny_run, tmp_path):
+    """--bc-pretrain fits the actor to the --from episodes' actions; --bc-weight keeps a
+    Q-filtered BC term in the actor loss; the checkpoint does not carry the demonstrations."""
+    from hingelab.learning.demo_bc import DemoBC, pretrain_actor
+    from hingelab.learning.replay_prefill import read_transitions
+    from hingelab.learning.sac_speed import FastSAC
+
+    run, _ = tiny_run
+    transitions, _ = read_transitions([run / "dataset"])
+    model = FastSAC.load(run / "model.zip", device="cpu")
+    # the tiny run's own actions are random; a demonstrator acts as a function of the state
+    transitions.actions = np.tanh(3 * transitions.observations["observation"][:, :9]).astype(np.float32)
+    demo = DemoBC.from_transitions(transitions, weight=1.0)
+    losses = pretrain_actor(model, demo, updates=300, batch_size=32)
+    assert losses[-1] < 0.5 * losses[0], losses
+    model.demo_bc = demo
+    term = demo.loss(model, 64)
+    assert term.requires_grad and 0 <= float(term) <= float(DemoBC.from_transitions(transitions, 1.0, q_filter=False)
+                                                             .loss(model, 64)) + 9 * 4
+    config = replace(TINY, steps=60, from_datasets=(str(run / "dataset"),), demo_bc_weight=1.0,
+                     bc_pretrain_updates=50, algorithm="fast_sac", eval_every=60, checkpoint_every=60)
+    summary = train_low(config, tmp_path / "bc", progress=False)
+    assert summary["env_steps"] == 60
+    saved = FastSAC.load(tmp_path / "bc" / "model.zip", device="cpu")
+    assert saved.demo_bc is None
+    train_low(replace(config, steps=90), tmp_path / "bc", resume=True, progress=False)  # demos re-read on resume
+    with pytest.raises(ConfigError, match="needs them"):
+        replace(TINY, demo_bc_weight=1.0)
+    with pytest.raises(ConfigError, match="fast_sac"):
+        replace(config, algorithm="sac")

@@ -30,6 +30,8 @@ METRICS_FILE = "metrics.csv"
 RUN_FILE = "run.json"
 REQUIRED_COLUMNS = ("env_steps", "seed", "success_rate", "return")
 CURVE_METRICS = ("success_rate", "return")
+# drawn too when every run folder records them (hingelab train low does)
+OPTIONAL_CURVE_METRICS = ("settled_success_rate", "final_latent_distance", "tool_drift_mm_mean")
 
 
 def run_name(run_dir: Path) -> str:
@@ -68,10 +70,12 @@ def load_run_metrics(run_dir) -> pd.DataFrame:
 
 
 def learning_curves(metrics: pd.DataFrame) -> pd.DataFrame:
-    """Per run and env_steps: seeds, and mean and std over seeds of success_rate and return."""
+    """Per run and env_steps: seeds, and mean and std over seeds of success_rate and return (and of
+    the OPTIONAL_CURVE_METRICS that every row has)."""
     grouped = metrics.groupby(["run", "env_steps"], sort=True)
     table = grouped["seed"].nunique().rename("seeds").to_frame()
-    for metric in CURVE_METRICS:
+    optional = [m for m in OPTIONAL_CURVE_METRICS if m in metrics.columns and metrics[m].notna().all()]
+    for metric in (*CURVE_METRICS, *optional):
         table[f"{metric}_mean"] = grouped[metric].mean()
         table[f"{metric}_std"] = grouped[metric].std(ddof=1).fillna(0.0)
     return table.reset_index()
@@ -86,4 +90,4 @@ def load_learning_curves(run_dirs) -> pd.DataFrame:
     return learning_curves(pd.concat([load_run_metrics(d) for d in run_dirs], ignore_index=True))
 
 
-__all__ = ["load_run_metrics", "learning_curves", "load_learning_curves", "METRICS_FILE", "REQUIRED_COLUMNS"]
+__all__ = ["OPTIONAL_CURVE_METRICS", "load_run_metrics", "learning_curves", "load_learning_curves", "METRICS_FILE", "REQUIRED_COLUMNS"]

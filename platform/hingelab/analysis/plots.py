@@ -88,22 +88,35 @@ def histograms(episodes: pd.DataFrame, column: str, path: Path, xlabel: str) -> 
     return _save(fig, path)
 
 
+CURVE_PANELS = {"success_rate": "success rate", "settled_success_rate": "settled success rate",
+                "return": "return", "final_latent_distance": "final latent distance",
+                "tool_drift_mm_mean": "tool drift (mm, mean of episode max)"}
+
+
 def learning_curve_plot(curves: pd.DataFrame, path: Path) -> Path:
-    """Success rate and return against env steps: mean over seeds, band +- one std."""
-    fig, axes = plt.subplots(1, 2, figsize=(10, 3.6))
+    """Success rate and return (and the optional metrics the runs record) against env steps:
+    mean over seeds, band +- one std."""
+    metrics = [m for m in CURVE_PANELS if f"{m}_mean" in curves.columns]
+    columns = min(len(metrics), 3)
+    rows = -(-len(metrics) // columns)
+    fig, axes = plt.subplots(rows, columns, figsize=(5 * columns, 3.6 * rows), squeeze=False)
+    axes = axes.ravel()
     for j, (run, part) in enumerate(curves.groupby("run", sort=True)):
         part = part.sort_values("env_steps")
         color = PALETTE[j % len(PALETTE)]
-        for ax, metric in zip(axes, ("success_rate", "return")):
+        for ax, metric in zip(axes, metrics):
             mean, std = part[f"{metric}_mean"].to_numpy(float), part[f"{metric}_std"].to_numpy(float)
             steps = part["env_steps"].to_numpy(float)
             ax.plot(steps, mean, color=color, label=f"{run} ({int(part['seeds'].max())} seeds)")
             ax.fill_between(steps, mean - std, mean + std, color=color, alpha=0.2)
-    for ax, label in zip(axes, ("success rate", "return")):
+    for ax, metric in zip(axes, metrics):
         ax.set_xlabel("environment steps")
-        ax.set_ylabel(label)
+        ax.set_ylabel(CURVE_PANELS[metric])
         ax.grid(alpha=0.3)
-    axes[0].set_ylim(-0.02, 1.02)
+        if metric.endswith("success_rate"):
+            ax.set_ylim(-0.02, 1.02)
+    for ax in axes[len(metrics):]:
+        ax.set_visible(False)
     axes[0].legend(fontsize=8)
     fig.suptitle("learning curves (mean over seeds, band: +- 1 std)")
     return _save(fig, path)

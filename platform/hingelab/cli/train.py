@@ -114,6 +114,14 @@ def add_low_parser(learners) -> None:
     p.add_argument("--no-record", action="store_true", help="do not write the training rollouts (not advised)")
     p.add_argument("--from", dest="from_datasets", type=Path, nargs="+", default=[], metavar="DATASET",
                    help="datasets whose transitions fill the replay buffer before training")
+    p.add_argument("--bc-weight", type=float, default=d.demo_bc_weight, metavar="W",
+                   help="learn from the --from datasets as demonstrations: a Q-filtered behaviour-cloning term "
+                        "of this weight in the actor loss (Nair et al. 2018; 0: plain SAC, the default)")
+    p.add_argument("--bc-no-q-filter", action="store_true",
+                   help="apply the BC term on every demonstration, not only where the critic prefers the "
+                        "demonstrated action (keeps the actor near the demonstrator)")
+    p.add_argument("--bc-pretrain", type=int, default=d.bc_pretrain_updates, metavar="UPDATES",
+                   help="behaviour-cloning updates of the actor on the --from datasets before training (default 0)")
     p.add_argument("--offline", type=int, default=0, metavar="UPDATES",
                    help="train from the --from datasets alone for this many updates (no env rollouts)")
     p.add_argument("--out", type=Path, default=None,
@@ -138,7 +146,8 @@ def run_low(args: argparse.Namespace) -> int:
         buffer_size=args.buffer_size, learning_starts=args.learning_starts, gradient_steps=args.gradient_steps,
         eval_every=args.eval_every, eval_goals_per_region=args.eval_goals, checkpoint_every=args.checkpoint_every,
         torch_threads=args.threads, record=not args.no_record,
-        from_datasets=tuple(str(p) for p in args.from_datasets), offline_updates=args.offline)
+        from_datasets=tuple(str(p) for p in args.from_datasets), offline_updates=args.offline,
+        demo_bc_weight=args.bc_weight, bc_pretrain_updates=args.bc_pretrain, demo_q_filter=not args.bc_no_q_filter)
     out = args.out or REPO_ROOT / "runs" / f"low_seed{args.seed}{'' if config.use_effort else '_no_effort'}"
     s = train_low(config, out, resume=args.resume, progress=not args.no_progress, name=args.name)
     last, best = s["last_evaluation"], s["best"]

@@ -6,7 +6,8 @@ Two kinds, one interface (``reset``, ``act(z_goal) -> None`` acting on the sim):
   the privileged hinge servo, the fingers following the grasp synergy so the tool stays
   held. ToolPick-v0 works with it before any low-level policy is trained.
 * ``PolicyLowLevel``: a trained low-level SAC checkpoint (``hingelab train low``) observing
-  the hand and tool as in ToolShape-v0 and moving the 9 finger channels.
+  the hand and tool as in ToolShape-v0 and moving the 9 finger channels. The shipped one,
+  ``assets/checkpoints/low_level.zip``, is the default (``low_level="policy"`` in ToolPick-v0).
 """
 
 from __future__ import annotations
@@ -16,9 +17,11 @@ from pathlib import Path
 import numpy as np
 
 from hingelab.errors import ConfigError
+from hingelab.paths import ASSETS_DIR
 from hingelab.sim.core import SimCore
 from hingelab.sim.finger_synergy import FingerSynergy
 
+SHIPPED_LOW_LEVEL = ASSETS_DIR / "checkpoints" / "low_level.zip"
 FINGER_SQUEEZE = 0.03  # rad the fingers aim past the commanded opening (keeps leg b pressed)
 
 
@@ -50,7 +53,7 @@ class PolicyLowLevel:
 
     kind = "policy"
 
-    def __init__(self, checkpoint: str | Path, action_scale: float = 0.05):
+    def __init__(self, checkpoint: str | Path = SHIPPED_LOW_LEVEL, action_scale: float = 0.05):
         path = Path(checkpoint)
         if not path.exists():
             raise ConfigError(f"low-level checkpoint {path} does not exist; train one with `hingelab train low`")

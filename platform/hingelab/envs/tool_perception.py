@@ -10,17 +10,18 @@ import numpy as np
 
 from hingelab.perception.clouds import IDEAL, CloudRealism, CloudSynthesizer
 from hingelab.perception.encoder import ToolEncoder, load_encoder
-from hingelab.perception.tool_state import ToolState, ToolStateSample
+from hingelab.perception.tool_state import ALPHA, ToolState, ToolStateSample
 from hingelab.sim.core import SimCore
 
 
 class ToolPerception:
     """``reset(seed)`` then ``observe(sim) -> ToolStateSample`` (B = 1) once per control step."""
 
-    def __init__(self, encoder: ToolEncoder | None = None, realistic: bool = True, dt: float = 0.05):
+    def __init__(self, encoder: ToolEncoder | None = None, realistic: bool = True, dt: float = 0.05,
+                 alpha: float = ALPHA):
         self.encoder = encoder or load_encoder()
         self.synthesizer = CloudSynthesizer(realism=CloudRealism() if realistic else IDEAL)
-        self.tool_state = ToolState(encoder=self.encoder, n_tools=1, dt=dt)
+        self.tool_state = ToolState(encoder=self.encoder, n_tools=1, dt=dt, alpha=alpha)
         self.cloud: np.ndarray | None = None  # (256, 3) float32, hand_base: the last cloud
 
     def reset(self, seed: int | None) -> None:

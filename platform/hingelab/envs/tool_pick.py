@@ -31,8 +31,8 @@ episode: the object stays where it fell and the next grasp is attempt 2
 (``info["attempt"]``; ``info["first_attempt_success"]``).
 
 ## Arguments
-``object`` ("sphere"), ``size`` (0.02 m), ``mass`` (0.01 kg), ``low_level`` ("privileged" or a
-checkpoint path), ``randomize`` (True: object friction 1-5, finger friction, gains
+``object`` ("sphere"), ``size`` (0.02 m), ``mass`` (0.01 kg), ``low_level`` ("privileged"; "policy":
+the shipped low-level policy ``assets/checkpoints/low_level.zip``; or a checkpoint path), ``randomize`` (True: object friction 1-5, finger friction, gains
 60-150% of hand and arm servos, observation delays up to 150 ms), ``placement_half_width``
 (0.05 m), ``max_episode_steps`` (200), ``encoder_path``.
 
@@ -81,8 +81,10 @@ class ToolPickEnv(SimRenderMixin, gym.Env):
         calibration = self.perception.calibration
         if calibration is None:
             raise ConfigError("the encoder checkpoint has no latent-opening calibration; retrain it")
-        self.low_level = (PrivilegedLowLevel(calibration) if low_level == "privileged"
-                          else PolicyLowLevel(low_level))
+        if low_level == "privileged":
+            self.low_level = PrivilegedLowLevel(calibration)
+        else:
+            self.low_level = PolicyLowLevel() if low_level == "policy" else PolicyLowLevel(low_level)
         self.reward_config = reward or HighLevelRewardConfig()
         self.placement_half_width = placement_half_width
         self.max_episode_steps = max_episode_steps

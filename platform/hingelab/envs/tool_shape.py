@@ -42,14 +42,17 @@ objects; computed from the encoder's calibration at construction (``info["succes
 ## Episode End
 Truncated after ``max_episode_steps`` (50 = 2.5 s, the time limit wrapper) or when the
 simulation diverges (``info["diverged"]``, failure reason "divergence"); terminated early
-only if the tool leaves the hand (more than 3 cm from its start: ``info["dropped"]``).
-Never on success (HER convention).
+only if the tool leaves the hand (more than 3 cm from its start: ``info["dropped"]``;
+``terminate_on_drop=False`` reports it and runs on to the time limit). Never on success
+(HER convention).
 
 ## Arguments
 ``use_effort`` (True), ``goal_sampling`` ("normal"), ``randomize`` (True: delays up to 150
 ms, gains 60-150%, friction 0.2-1 per finger segment), ``success_threshold`` (None:
 calibrated), ``action_scale`` (0.05), ``encoder_path`` (None: shipped), ``realistic_clouds``
-(True: 3 mm noise, 20% occlusion, per-episode pose error).
+(True: 3 mm noise, 20% occlusion, per-episode pose error), ``smoothing_alpha`` (0.9: the EMA
+weight of the newest v, omega, z; 0.1 smooths over ~10 steps and cuts the latent's
+frame-to-frame jitter from 0.04-0.10 to about a quarter of that), ``terminate_on_drop`` (True).
 
 ## Version History
 v0: first version.
@@ -82,7 +85,8 @@ class ToolShapeEnv(SimRenderMixin, gym.Env):
     def __init__(self, use_effort: bool = True, goal_sampling: str = "normal", randomize: bool = True,
                  success_threshold: float | None = None, action_scale: float = 0.05,
                  encoder_path: str | None = None, realistic_clouds: bool = True,
-                 reward: LowLevelRewardConfig | None = None, render_mode: str | None = None):
+                 reward: LowLevelRewardConfig | None = None, render_mode: str | None = None,
+                 smoothing_alpha: float = 0.9, terminate_on_drop: bool = True):
         if goal_sampling not in GOAL_SAMPLERS:
             raise ConfigError(f"goal_sampling {goal_sampling!r} is unknown; choose one of {GOAL_SAMPLERS}")
         if not 0 < action_scale <= 0.5:
@@ -91,7 +95,7 @@ class ToolShapeEnv(SimRenderMixin, gym.Env):
 
         self.sim = SimCore("tool_shape", randomization=RandomizationConfig(enabled=randomize))
         self.perception = ToolPerception(load_encoder(encoder_path), realistic=realistic_clouds,
-                                         dt=self.sim.control_dt)
+                                         dt=self.sim.control_dt, alpha=smoothing_alpha)
         self.calibration = self.perception.calibration
         if self.calibration is None:
             raise ConfigError("the encoder checkpoint has no latent-opening calibration; "
@@ -101,6 +105,7 @@ class ToolShapeEnv(SimRenderMixin, gym.Env):
             self.reward_config = LowLevelRewardConfig(**{**reward.__dict__, "use_effort": use_effort})
         self.goal_sampling = goal_sampling
         self.action_scale = action_scale
+        self.terminate_on_drop = terminate_on_drop
         self.reachable_range = FingerSynergy.load().theta_range
         self.success_threshold = (success_threshold if success_threshold is not None
                                   else latent_distance_for_gap(self.calibration, SUCCESS_GAP_MM))
@@ -151,7 +156,7 @@ class ToolShapeEnv(SimRenderMixin, gym.Env):
         info = self._info(terms)
         info["diverged"] = result.diverged
         reward = goal + tool_term + finger_term
-        terminated = bool(info["dropped"]) and not result.diverged
+        terminated = bool(info["dropped"]) and not result.diverged and self.terminate_on_drop
         truncated = bool(result.diverged)  # a void episode, not a task outcome
         if result.diverged:
             info["failure_reason"] = "divergence"

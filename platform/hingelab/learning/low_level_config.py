@@ -49,6 +49,9 @@ class LowLevelTrainConfig:
     record: bool = True  # every training rollout into RUNDIR/dataset (MCAP)
     from_datasets: tuple = ()  # datasets whose transitions pre-fill the replay buffer
     offline_updates: int = 0  # > 0: train from the datasets alone, this many updates
+    demo_bc_weight: float = 0.0  # > 0: Q-filtered BC on the --from datasets in the actor loss (demo_bc)
+    bc_pretrain_updates: int = 0  # behaviour-cloning updates of the actor on --from before training
+    demo_q_filter: bool = True  # BC term only where the critic prefers the demo action (Nair et al.)
     env_kwargs: dict = field(default_factory=dict)  # more ToolShape-v0 arguments
 
     def __post_init__(self):
@@ -62,12 +65,17 @@ class LowLevelTrainConfig:
             "eval_goals_per_region": self.eval_goals_per_region >= 1, "torch_threads": self.torch_threads >= 1,
             "goal_sampling": self.goal_sampling in ("normal", "reachable"),
             "algorithm": self.algorithm in ("sac", "fast_sac"),
+            "demo_bc_weight": self.demo_bc_weight >= 0, "bc_pretrain_updates": self.bc_pretrain_updates >= 0,
         }
         bad = [name for name, ok in checks.items() if not ok]
         if bad:
             raise ConfigError(f"invalid low-level training config: {', '.join(f'{b}={getattr(self, b)!r}' for b in bad)}")
         if self.offline_updates and not self.from_datasets:
             raise ConfigError("offline training (--offline N) needs datasets to learn from: add --from DATASET")
+        if (self.demo_bc_weight or self.bc_pretrain_updates) and not self.from_datasets:
+            raise ConfigError("learning from demonstrations (--bc-weight, --bc-pretrain) needs them: add --from DATASET")
+        if (self.demo_bc_weight or self.bc_pretrain_updates) and (self.algorithm != "fast_sac" or self.her):
+            raise ConfigError("--bc-weight and --bc-pretrain work with --algorithm fast_sac and without --her")
 
     def to_dict(self) -> dict:
         out = asdict(self)

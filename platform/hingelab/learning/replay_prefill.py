@@ -144,11 +144,34 @@ def _insert_her(buffer, tr: Transitions) -> int:
     return int(fill.sum())
 
 
-def prefill_replay_buffer(buffer, roots, progress: bool = False) -> PrefillStats:
-    """Read the datasets and write their transitions into ``buffer``; timings for the report."""
+def relabel_rewards(transitions: Transitions, goal_env) -> Transitions:
+    """The learner's own rewards for recorded transitions: ``goal_env.compute_reward`` on the
+    recorded goals and the recorded goal-free ``effort`` info. A dataset recorded with another
+    reward setting (the effort term on or off) then trains this run with this run's reward."""
+    if not transitions.is_dict:
+        raise ConfigError("reward relabelling needs goal (Dict) observations")
+    uses_effort = getattr(getattr(goal_env, "reward_config", None), "use_effort", False)
+    if uses_effort and "effort" not in transitions.infos:
+        raise DatasetError("the datasets do not record the effort term (info.effort) that this run's reward "
+                           "needs; record them with RecordingWrapper, or train with --no-effort")
+    effort = transitions.infos.get("effort", np.zeros(len(transitions)))
+    infos = [{"effort": float(e)} for e in effort]
+    transitions.rewards = np.asarray(goal_env.compute_reward(transitions.next_observations["achieved_goal"],
+                                                             transitions.observations["desired_goal"], infos),
+                                     dtype=np.float32)
+    return transitions
+
+
+def prefill_replay_buffer(buffer, roots, progress: bool = False, goal_env=None) -> PrefillStats:
+    """Read the datasets and write their transitions into ``buffer``; timings for the report.
+
+    ``goal_env``: relabel the rewards with this env's ``compute_reward`` (``relabel_rewards``).
+    """
     roots = list(roots)
     t0 = time.perf_counter()
     transitions, episodes = read_transitions(roots, progress=progress)
+    if goal_env is not None:
+        transitions = relabel_rewards(transitions, goal_env)
     t1 = time.perf_counter()
     added = insert_transitions(buffer, transitions)
     t2 = time.perf_counter()

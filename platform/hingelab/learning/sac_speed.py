@@ -177,6 +177,7 @@ class FastSAC(SAC):
         policy_kwargs["optimizer_kwargs"] = optimizer_kwargs
         kwargs["policy_kwargs"] = policy_kwargs
         self.speedups = ALL_SPEEDUPS if speedups is None else frozenset(speedups)
+        self.demo_bc = None  # a hingelab.learning.demo_bc.DemoBC adds its term to the actor loss
         unknown = self.speedups - ALL_SPEEDUPS
         if unknown:
             raise ValueError(f"unknown speedups {sorted(unknown)}; known: {sorted(ALL_SPEEDUPS)}")
@@ -191,7 +192,7 @@ class FastSAC(SAC):
             _relu_in_place_after_linear(self.policy)
 
     def _excluded_save_params(self) -> list[str]:
-        return [*super()._excluded_save_params(), "_fast_sampler"]
+        return [*super()._excluded_save_params(), "_fast_sampler", "demo_bc"]
 
     # --- pieces of one update -------------------------------------------------------------
 
@@ -318,6 +319,8 @@ class FastSAC(SAC):
                 q_values_pi = th.cat(self._q_values(self.critic, replay_data.observations, features, actions_pi), dim=1)
                 min_qf_pi, _ = th.min(q_values_pi, dim=1, keepdim=True)
                 actor_loss = (ent_coef * log_prob - min_qf_pi).mean()
+                if self.demo_bc is not None:  # SAC from demonstrations (hingelab.learning.demo_bc)
+                    actor_loss = actor_loss + self.demo_bc.loss(self, batch_size)
                 keep(actor_losses, actor_loss)
                 self.actor.optimizer.zero_grad()
                 actor_loss.backward()

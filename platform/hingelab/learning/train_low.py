@@ -195,9 +195,24 @@ class LowLevelRun:
         if self.config.from_datasets and state is None:
             from hingelab.learning.replay_prefill import prefill_replay_buffer
 
+            # rewards recomputed with this run's reward (the datasets may be recorded with or without effort)
             self.prefill = prefill_replay_buffer(self.model.replay_buffer, self.config.from_datasets,
-                                                 progress=self.progress)
+                                                 progress=self.progress, goal_env=self.eval_env.unwrapped)
+        if self.config.demo_bc_weight or self.config.bc_pretrain_updates:
+            self._set_up_demonstrations(pretrain=state is None)
         return self
+
+    def _set_up_demonstrations(self, pretrain: bool) -> None:
+        """The --from datasets as demonstrations: BC pre-training (new runs) and the actor's BC term."""
+        from hingelab.learning.demo_bc import DemoBC, pretrain_actor
+        from hingelab.learning.replay_prefill import read_transitions
+
+        transitions, _ = read_transitions(self.config.from_datasets)
+        demo = DemoBC.from_transitions(transitions, self.config.demo_bc_weight, q_filter=self.config.demo_q_filter)
+        if pretrain and self.config.bc_pretrain_updates:
+            losses = pretrain_actor(self.model, demo, self.config.bc_pretrain_updates, self.config.batch_size)
+            self.bc_pretrain_losses = losses
+        self.model.demo_bc = demo if self.config.demo_bc_weight else None
 
     # ------------------------------------------------------------------ pieces the callback calls
     def evaluate_now(self, env_steps: int, extra: dict) -> dict:
