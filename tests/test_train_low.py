@@ -205,6 +205,12 @@ def test_eval_low_references_hold_still_and_synergy(tmp_path):
         distances[baseline] = episodes["settled_latent_distance"].mean()
         settled[baseline] = int(episodes["settled_success"].sum())
     assert distances["synergy"] < distances["hold-still"] and settled["synergy"] >= 1, (distances, settled)
+    from hingelab.analysis.low_level_summary import write_summary
+
+    table = write_summary(tmp_path / "summary", [tmp_path / "hold-still", tmp_path / "synergy"])
+    assert list(table["policy"]) == ["hold-still", "synergy"] and (table["episodes"] == 2).all()
+    assert table.loc[1, "settled_success"].startswith(f"{settled['synergy'] / 2:.2f} [")
+    assert (tmp_path / "summary.md").read_text().count("|") > 20
     assert main(["eval", "low", "x.zip", "--baseline", "synergy", "--out", str(tmp_path / "both")]) == 1
 
 

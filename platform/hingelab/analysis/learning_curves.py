@@ -30,7 +30,7 @@ METRICS_FILE = "metrics.csv"
 RUN_FILE = "run.json"
 REQUIRED_COLUMNS = ("env_steps", "seed", "success_rate", "return")
 CURVE_METRICS = ("success_rate", "return")
-# drawn too when every run folder records them (hingelab train low does)
+# drawn too for the runs that record them (hingelab train low does); NaN for the others
 OPTIONAL_CURVE_METRICS = ("settled_success_rate", "final_latent_distance", "tool_drift_mm_mean")
 
 
@@ -71,10 +71,10 @@ def load_run_metrics(run_dir) -> pd.DataFrame:
 
 def learning_curves(metrics: pd.DataFrame) -> pd.DataFrame:
     """Per run and env_steps: seeds, and mean and std over seeds of success_rate and return (and of
-    the OPTIONAL_CURVE_METRICS that every row has)."""
+    the OPTIONAL_CURVE_METRICS that any run records; NaN for runs without them)."""
     grouped = metrics.groupby(["run", "env_steps"], sort=True)
     table = grouped["seed"].nunique().rename("seeds").to_frame()
-    optional = [m for m in OPTIONAL_CURVE_METRICS if m in metrics.columns and metrics[m].notna().all()]
+    optional = [m for m in OPTIONAL_CURVE_METRICS if m in metrics.columns and metrics[m].notna().any()]
     for metric in (*CURVE_METRICS, *optional):
         table[f"{metric}_mean"] = grouped[metric].mean()
         table[f"{metric}_std"] = grouped[metric].std(ddof=1).fillna(0.0)

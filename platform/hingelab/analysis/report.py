@@ -6,7 +6,7 @@ Writes into ``out`` (created if needed; files of an earlier report are replaced)
     report.json                    where the numbers came from: datasets (path, card name,
                                    config hash, episodes), run folders, code version, time
     episodes.csv                   the episode table every number is computed from
-    overall.csv, success_by_source.csv, success_by_object.csv, success_by_size.csv,
+    overall.csv, success_by_source.csv, success_by_dataset.csv, success_by_object.csv, success_by_size.csv,
     attempts.csv, lengths_returns.csv, failure_reasons.csv, learning_curves.csv (with runs)
     *.png                          the plots beside them
 
@@ -56,6 +56,7 @@ def compute_tables(episodes: pd.DataFrame, curves: pd.DataFrame, attempts_k=(1, 
     tables = {
         "overall": overall_success(episodes),
         "success_by_source": success_rates(episodes, "source"),
+        "success_by_dataset": success_rates(episodes, ["dataset", "source"]),
         "success_by_object": success_rates(episodes, ["source", "object"]),
         "success_by_size": success_rates(episodes, ["source", "object", "object_size"]),
         "attempts": attempt_rates(episodes, attempts_k),
@@ -81,6 +82,8 @@ def _sections(tables: dict[str, pd.DataFrame], plot_files: dict[str, str]) -> li
                 tables["overall"], "overall.csv"),
         Section("Success rate by source", "Per producing source (heuristic, low_level, high_level, real, ...).",
                 tables["success_by_source"], "success_by_source.csv", [plot_files["success_by_source"]]),
+        Section("Success rate by dataset", "Per dataset (its card's name): e.g. one evaluation dataset per policy.",
+                tables["success_by_dataset"], "success_by_dataset.csv"),
         Section("Success rate by object shape", "Per source and object shape.",
                 tables["success_by_object"], "success_by_object.csv", [plot_files["success_by_object"]]),
         Section("Success rate by object size",

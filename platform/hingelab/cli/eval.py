@@ -62,7 +62,9 @@ def run_low(args: argparse.Namespace) -> int:
                 "max_episode_steps": trained.get("max_episode_steps", 50)}
     config = {"checkpoint": label, "episodes": args.episodes, "env": env_args,
               "checkpoint_git_commit": provenance.get("git_commit", "unknown")}
-    create_dataset(args.out, name=f"eval-{Path(label).stem}", source="low_level_evaluation", config=config,
+    # a run's model.zip and best_model.zip: the run folder names the dataset
+    name = f"eval-{args.baseline}" if args.baseline else f"eval-{args.checkpoint.parent.name}-{args.checkpoint.stem}"
+    create_dataset(args.out, name=name, source="low_level_evaluation", config=config,
                    seed=args.seed, description="hingelab eval low: a low-level policy toward reachable goals")
     env = make_eval_env(env_args, record_dir=args.out)
     unwrapped = env.unwrapped
