@@ -29,6 +29,9 @@ def test_demo_runs_and_measures_the_platform(tmp_path):
     assert measured["finger_hinge_range_rad"][1] - measured["finger_hinge_range_rad"][0] > 0.15
     assert measured["reach_worst_error_mm"] < 2 and not measured["reach_table_collision"]
     assert measured["lift_cm"] > 4.5
+    low = json.loads(out_file.read_text())["step_low_level_policy"]  # the shipped low-level policy
+    assert len(low["tip_gap_error_mm"]) == 3 and 0 <= low["settled_success_rate"] <= 1
+    assert "low_level.zip: settled success" in result.stdout
 
 
 def test_bench_sim_writes_its_table(tmp_path):

@@ -138,3 +138,33 @@ def test_diverging_episode_is_truncated_with_its_reason(pick_env):
     pick_env.unwrapped.sim.data.qvel[:] = 1e12
     _, _, terminated, truncated, info = pick_env.step(np.zeros(5))
     assert truncated and not terminated and info["failure_reason"] == "divergence"
+
+
+def test_tool_pick_with_the_shipped_low_level_policy_follows_the_goal():
+    """A scripted high level (arm still) asks the shipped low-level policy for a nearly closed and
+    an open tweezer in turn; the tool's latent goes to each goal and the hinge follows (loose
+    bounds: 3 success thresholds in latent distance, and the order of the openings)."""
+    from hingelab.envs.low_level import SHIPPED_LOW_LEVEL
+    from hingelab.envs.tool_shape import latent_distance_for_gap
+
+    assert SHIPPED_LOW_LEVEL.exists(), "the shipped low-level policy is missing: see assets/checkpoints/README.md"
+    env = gym.make(TOOL_PICK_ID, low_level="policy")
+    unwrapped = env.unwrapped
+    assert unwrapped.low_level.kind == "policy"
+    calibration = unwrapped.perception.calibration
+    threshold = latent_distance_for_gap(calibration, 2.0)
+    env.reset(seed=4)
+    hinge, distance = {}, {}
+    for opening in (0.03, 0.22):
+        z_goal = np.asarray(calibration.z_for_opening(opening))
+        action = np.concatenate([z_goal / 3.0, np.zeros(3)])
+        z_seen = []
+        for _ in range(40):
+            *_, info = env.step(action)
+            z_seen.append(unwrapped.sample.z_smoothed[0].copy())
+        np.testing.assert_allclose(info["z_goal"], z_goal, atol=1e-6)
+        hinge[opening] = info["hinge_angle"]
+        distance[opening] = float(np.linalg.norm(np.mean(z_seen[-10:], axis=0) - z_goal))
+    env.close()
+    assert max(distance.values()) < 3 * threshold, (distance, threshold)
+    assert hinge[0.22] - hinge[0.03] > 0.08, hinge

@@ -29,7 +29,8 @@ def add_parser(subparsers) -> None:
             "tweezer, opens and closes it with the fingers alone, carries it over a 10 x 10 cm "
             "area of the platform with the Jacobian arm controller, grasps and lifts the sphere "
             "with the privileged hinge command; then records 3 privileged-heuristic episodes of "
-            "ToolPick-v0 into datasets/demo_heuristic, reports on them (analysis/demo/report.html) "
+            "ToolPick-v0 into datasets/demo_heuristic, runs the shipped low-level policy toward 3 "
+            "latent goals on ToolShape-v0 (datasets/demo_low_level), reports on both (analysis/demo/report.html) "
             "and saves a Rerun recording (analysis/demo/demo_heuristic.rrd). Prints what it measured."
         ),
     )
@@ -98,12 +99,45 @@ def step_heuristic_demos(seed: int) -> dict:
             "success_rate": float(np.mean([s.success for s in summaries]))}
 
 
+DEMO_LOW_LEVEL_DATASET = DATASETS_DIR / "demo_low_level"
+
+
+def step_low_level_policy(seed: int) -> dict:
+    """Issue 7: the shipped low-level policy shapes the tweezer to latent goals (ToolShape-v0)."""
+    from hingelab.envs.low_level import SHIPPED_LOW_LEVEL, PolicyLowLevel
+    from hingelab.episodes import create_dataset
+    from hingelab.learning.low_level_eval import make_eval_env, region_table, run_episode, sampled_goals
+
+    shutil.rmtree(DEMO_LOW_LEVEL_DATASET, ignore_errors=True)
+    policy = PolicyLowLevel(SHIPPED_LOW_LEVEL).model
+    create_dataset(DEMO_LOW_LEVEL_DATASET, name="demo-low-level", source="low_level_evaluation",
+                   config={"checkpoint": str(SHIPPED_LOW_LEVEL), "episodes": 3}, seed=seed,
+                   description="hingelab demo: the shipped low-level policy toward 3 reachable goals")
+    env = make_eval_env({}, record_dir=DEMO_LOW_LEVEL_DATASET)
+    unwrapped = env.unwrapped
+    started = time.perf_counter()
+    rows = [run_episode(policy, env, goal)
+            for goal in sampled_goals(unwrapped.calibration, unwrapped.reachable_range, 3, seed)]
+    env.close()
+    for row in rows:
+        print(f"  goal opening {row['goal_opening_rad']:.3f} rad: hinge reached {row['final_hinge_rad']:.3f} rad, "
+              f"tip-gap error {row['tip_gap_error_mm']:.1f} mm, latent distance {row['settled_latent_distance']:.3f} "
+              f"(threshold {unwrapped.success_threshold:.3f}), tool moved at most {row['tool_drift_mm_max']:.1f} mm")
+    import pandas as pd
+
+    overall = region_table(pd.DataFrame(rows)).iloc[-1]
+    print(f"  {SHIPPED_LOW_LEVEL.name}: settled success {int(overall['settled_successes'])}/3 in "
+          f"{time.perf_counter() - started:.1f} s, recorded in {DEMO_LOW_LEVEL_DATASET}")
+    return {"dataset": str(DEMO_LOW_LEVEL_DATASET), "settled_success_rate": float(overall["settled_success_rate"]),
+            "tip_gap_error_mm": [r["tip_gap_error_mm"] for r in rows]}
+
+
 def step_report_and_recording(seed: int) -> dict:
     """Issue 6: a success-rate report and a Rerun recording of the demo dataset."""
     from hingelab.analysis import build_report
     from hingelab.viewers.view import view
 
-    report = build_report([DEMO_DATASET], DEMO_OUT)
+    report = build_report([DEMO_DATASET, DEMO_LOW_LEVEL_DATASET], DEMO_OUT)
     result, _ = view(DEMO_DATASET, save=DEMO_OUT / "demo_heuristic.rrd", progress=False)
     overall = report.tables["overall"].iloc[0]
     print(f"  report {report.html}: success {overall.success_rate:.0%} "
@@ -115,7 +149,8 @@ def step_report_and_recording(seed: int) -> dict:
 STEPS = [
     ("robot platform (scene, hand, tweezer, arm)", step_platform),
     ("heuristic demos on ToolPick-v0 (privileged heuristic, perception on)", step_heuristic_demos),
-    ("report and Rerun recording of the demo dataset", step_report_and_recording),
+    ("the shipped low-level policy on ToolShape-v0 (3 reachable latent goals)", step_low_level_policy),
+    ("report and Rerun recording of the demo datasets", step_report_and_recording),
 ]
 
 
