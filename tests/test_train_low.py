@@ -257,7 +257,9 @@ def test_learning_from_demonstrations_pretrains_and_anchors_the_actor(tiny_run, 
     assert summary["env_steps"] == 60
     saved = FastSAC.load(tmp_path / "bc" / "model.zip", device="cpu")
     assert saved.demo_bc is None
+    (tmp_path / "bc" / "run.json").write_text(json.dumps({"name": "relabelled"}))  # a new curve label
     train_low(replace(config, steps=90), tmp_path / "bc", resume=True, progress=False)  # demos re-read on resume
+    assert Dataset(tmp_path / "bc" / "dataset").card.name == "bc-rollouts"  # the card keeps its name
     with pytest.raises(ConfigError, match="needs them"):
         replace(TINY, demo_bc_weight=1.0)
     with pytest.raises(ConfigError, match="fast_sac"):

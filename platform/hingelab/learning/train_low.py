@@ -150,8 +150,9 @@ class LowLevelRun:
 
         root = self.run_dir / DATASET_DIR
         dataset_config = {k: v for k, v in self.config.to_dict().items() if k != "steps"}
-        create_dataset(root, name=f"{self.name}-rollouts", source=TRAIN_SOURCE, config=dataset_config,
-                       seed=self.config.seed, description="every training rollout of a hingelab train low run")
+        if not (self.resume and (root / "dataset.json").exists()):  # a resumed run keeps its card (and its name)
+            create_dataset(root, name=f"{self.name}-rollouts", source=TRAIN_SOURCE, config=dataset_config,
+                           seed=self.config.seed, description="every training rollout of a hingelab train low run")
         if self.resume:  # episodes that were running when the run stopped are replayed from their seeds
             for partial in (root / "episodes").glob("*.partial"):
                 partial.unlink()
