@@ -158,7 +158,7 @@ def run_low(args: argparse.Namespace) -> int:
                    f"episodes at {pf['transitions_per_s']:.0f} transitions/s.")
     print(f"Trained the low-level policy to {s['env_steps']} env steps ({s['updates']} updates) in "
           f"{s['wall_time_s'] / 60:.1f} min.{prefill} Last evaluation: success {float(last.get('success_rate', 0)):.2f} "
-          f"on {3 * config.eval_goals_per_region} held-out reachable goals, final latent distance "
+          f"on {s['eval_goals']} held-out reachable goals, final latent distance "
           f"{float(last.get('final_latent_distance', 0)):.3f}, max tool drift "
           f"{float(last.get('tool_drift_mm_max', 0)):.1f} mm. Best: success {best['success_rate']:.2f} at "
           f"{best.get('env_steps', '?')} steps ({out}/best_model.zip). Curves: hingelab report {out}; "

@@ -290,6 +290,7 @@ class LowLevelRun:
         self.env.close()
         self.eval_env.close()
         return {"run_dir": str(self.run_dir), "env_steps": self.model.num_timesteps, "updates": self.model._n_updates,
+                "eval_goals": len(self.goals),
                 "wall_time_s": elapsed_s, "last_evaluation": last, "best": self.best,
                 "prefill": None if self.prefill is None else self.prefill.__dict__ | {
                     "transitions_per_s": self.prefill.transitions_per_s}}
