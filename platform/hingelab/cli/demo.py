@@ -106,7 +106,7 @@ def step_low_level_policy(seed: int) -> dict:
     """Issue 7: the shipped low-level policy shapes the tweezer to latent goals (ToolShape-v0)."""
     from hingelab.envs.low_level import SHIPPED_LOW_LEVEL, PolicyLowLevel
     from hingelab.episodes import create_dataset
-    from hingelab.learning.low_level_eval import make_eval_env, region_table, run_episode, sampled_goals
+    from hingelab.learning.low_level_eval import evaluate_sampled_goals, make_eval_env, region_table
 
     shutil.rmtree(DEMO_LOW_LEVEL_DATASET, ignore_errors=True)
     policy = PolicyLowLevel(SHIPPED_LOW_LEVEL).model
@@ -114,18 +114,16 @@ def step_low_level_policy(seed: int) -> dict:
                    config={"checkpoint": str(SHIPPED_LOW_LEVEL), "episodes": 3}, seed=seed,
                    description="hingelab demo: the shipped low-level policy toward 3 reachable goals")
     env = make_eval_env({}, record_dir=DEMO_LOW_LEVEL_DATASET)
-    unwrapped = env.unwrapped
+    threshold = env.unwrapped.success_threshold
     started = time.perf_counter()
-    rows = [run_episode(policy, env, goal)
-            for goal in sampled_goals(unwrapped.calibration, unwrapped.reachable_range, 3, seed)]
+    episodes = evaluate_sampled_goals(policy, env, 3, seed)
     env.close()
+    rows = episodes.to_dict("records")
     for row in rows:
         print(f"  goal opening {row['goal_opening_rad']:.3f} rad: hinge reached {row['final_hinge_rad']:.3f} rad, "
               f"tip-gap error {row['tip_gap_error_mm']:.1f} mm, latent distance {row['settled_latent_distance']:.3f} "
-              f"(threshold {unwrapped.success_threshold:.3f}), tool moved at most {row['tool_drift_mm_max']:.1f} mm")
-    import pandas as pd
-
-    overall = region_table(pd.DataFrame(rows)).iloc[-1]
+              f"(threshold {threshold:.3f}), tool moved at most {row['tool_drift_mm_max']:.1f} mm")
+    overall = region_table(episodes).iloc[-1]
     print(f"  {SHIPPED_LOW_LEVEL.name}: settled success {int(overall['settled_successes'])}/3 in "
           f"{time.perf_counter() - started:.1f} s, recorded in {DEMO_LOW_LEVEL_DATASET}")
     return {"dataset": str(DEMO_LOW_LEVEL_DATASET), "settled_success_rate": float(overall["settled_success_rate"]),

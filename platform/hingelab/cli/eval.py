@@ -28,7 +28,7 @@ def add_parser(subparsers) -> None:
     low.add_argument("--episodes", type=int, default=60, help="evaluation episodes (default 60)")
     low.add_argument("--out", type=Path, required=True, help="dataset folder to write (must be new or empty)")
     low.add_argument("--seed", type=int, default=0, help="seed of the goals and episodes (default 0)")
-    low.add_argument("--baseline", choices=("hold-still", "synergy"), default=None,
+    low.add_argument("--baseline", choices=("hold-still", "synergy"), default=None,  # low_level_eval.REFERENCES
                      help="evaluate a reference instead of a checkpoint: hold-still (zero finger changes) or "
                           "synergy (the scripted controller: z_goal -> calibrated opening -> grasp-synergy "
                           "finger targets)")
@@ -38,13 +38,11 @@ def add_parser(subparsers) -> None:
 
 
 def run_low(args: argparse.Namespace) -> int:
-    from tqdm import tqdm
-
     from hingelab.envs.low_level import SHIPPED_LOW_LEVEL, PolicyLowLevel
     from hingelab.episodes import create_dataset
     from hingelab.errors import ConfigError
-    from hingelab.learning.low_level_eval import (SETTLE_STEPS, HoldStillPolicy, SynergyPolicy, make_eval_env,
-                                                  region_table, run_episode, sampled_goals)
+    from hingelab.learning.low_level_eval import (SETTLE_STEPS, evaluate_sampled_goals, make_eval_env,
+                                                  reference_policy, region_table)
 
     if args.baseline and args.checkpoint is not None:
         raise ConfigError("give a checkpoint or --baseline, not both")
@@ -54,9 +52,9 @@ def run_low(args: argparse.Namespace) -> int:
         raise ConfigError("--episodes must be at least 1")
     if args.out.exists() and any(args.out.iterdir()):
         raise ConfigError(f"{args.out} is not empty; evaluate into a new folder")
-    policy = None if args.baseline else PolicyLowLevel(args.checkpoint).model
+    model = None if args.baseline else PolicyLowLevel(args.checkpoint).model
     label = args.baseline or str(args.checkpoint)
-    provenance = getattr(policy, "hingelab_provenance", {}) or {}
+    provenance = getattr(model, "hingelab_provenance", {}) or {}
     trained = provenance.get("config", {})
     env_args = {"use_effort": trained.get("use_effort", True), "randomize": not args.no_randomize,
                 "max_episode_steps": trained.get("max_episode_steps", 50)}
@@ -68,23 +66,11 @@ def run_low(args: argparse.Namespace) -> int:
                    seed=args.seed, description="hingelab eval low: a low-level policy toward reachable goals")
     env = make_eval_env(env_args, record_dir=args.out)
     unwrapped = env.unwrapped
-    if args.baseline == "hold-still":
-        policy = HoldStillPolicy()
-    elif args.baseline == "synergy":
-        policy = SynergyPolicy(unwrapped.calibration, action_scale=unwrapped.action_scale)
-    goals = sampled_goals(unwrapped.calibration, unwrapped.reachable_range, args.episodes, args.seed)
-    rows = []
-    with tqdm(goals, desc="eval low", unit="episode", disable=args.no_progress) as bar:
-        for goal in bar:
-            env.extra_metadata = {"goal_region": goal["region"], "goal_opening_rad": f"{goal['opening_rad']:.5f}"}
-            rows.append(run_episode(policy, env, goal))
-            bar.set_postfix(success=f"{sum(r['success'] for r in rows) / len(rows):.2f}")
+    policy = reference_policy(args.baseline, env) if args.baseline else model
+    episodes = evaluate_sampled_goals(policy, env, args.episodes, args.seed, progress=not args.no_progress)
     env.close()
-    import pandas as pd
-
     from hingelab.analysis.documents import markdown_table
 
-    episodes = pd.DataFrame(rows)
     table = region_table(episodes)
     episodes.to_csv(args.out / "episodes.csv", index=False)
     table.to_csv(args.out / "regions.csv", index=False)

@@ -72,10 +72,14 @@ class LowLevelTrainConfig:
             raise ConfigError(f"invalid low-level training config: {', '.join(f'{b}={getattr(self, b)!r}' for b in bad)}")
         if self.offline_updates and not self.from_datasets:
             raise ConfigError("offline training (--offline N) needs datasets to learn from: add --from DATASET")
-        if (self.demo_bc_weight or self.bc_pretrain_updates) and not self.from_datasets:
+        if self.learns_from_demonstrations and not self.from_datasets:
             raise ConfigError("learning from demonstrations (--bc-weight, --bc-pretrain) needs them: add --from DATASET")
-        if (self.demo_bc_weight or self.bc_pretrain_updates) and (self.algorithm != "fast_sac" or self.her):
+        if self.learns_from_demonstrations and (self.algorithm != "fast_sac" or self.her):
             raise ConfigError("--bc-weight and --bc-pretrain work with --algorithm fast_sac and without --her")
+
+    @property
+    def learns_from_demonstrations(self) -> bool:
+        return bool(self.demo_bc_weight or self.bc_pretrain_updates)
 
     def to_dict(self) -> dict:
         out = asdict(self)

@@ -2,8 +2,10 @@
 
 An episode succeeds when its smoothed latent ends within the env's success threshold of
 the goal (``info["is_success"]`` at the last step: the tool must *stay* shaped, not pass
-through the goal). Tool drift is the privileged distance of the tool from where the
-episode started (hand frame), its maximum over the episode.
+through the goal); ``run_episode`` also gives the settled verdict (the last 0.5 s averaged)
+and the privileged tip-gap error. Tool drift is the privileged distance of the tool from
+where the episode started (hand frame), its maximum over the episode. ``HoldStillPolicy``
+and ``SynergyPolicy`` are the references (``reference_policy``).
 """
 
 from __future__ import annotations
@@ -68,6 +70,19 @@ class SynergyPolicy:
         return np.clip((targets - q) / self.action_scale, -1, 1).astype(np.float32), None
 
 
+REFERENCES = ("hold-still", "synergy")
+
+
+def reference_policy(name: str, env: gym.Env):
+    """A reference by name (``REFERENCES``) for ``env`` (a ToolShape-v0, possibly wrapped)."""
+    unwrapped = env.unwrapped
+    if name == "hold-still":
+        return HoldStillPolicy()
+    if name == "synergy":
+        return SynergyPolicy(unwrapped.calibration, action_scale=unwrapped.action_scale)
+    raise ValueError(f"unknown reference policy {name!r}; choose one of {REFERENCES}")
+
+
 SETTLE_STEPS = 10  # the last 0.5 s at 20 Hz: where the policy holds the tool, not one camera frame
 
 
@@ -97,7 +112,7 @@ def run_episode(policy, env: gym.Env, goal: dict) -> dict:
         done = terminated or truncated
     settled_z = np.mean(latents[-SETTLE_STEPS:], axis=0)
     settled_distance = float(np.linalg.norm(settled_z - np.asarray(goal["z_goal"], float)))
-    goal_gap_mm = 1000.0 * float(np.polyval(unwrapped.calibration.gap_coef, goal["opening_rad"]))
+    goal_gap_mm = float(unwrapped.calibration.tip_gap_mm_for_opening(goal["opening_rad"]))
     return {"region": goal["region"], "goal_opening_rad": goal["opening_rad"], "seed": int(goal["seed"]),
             "success": bool(info["is_success"]), "final_latent_distance": float(info["latent_distance"]),
             "settled_success": settled_distance < float(info["success_threshold"]),
@@ -152,6 +167,22 @@ def region_table(episodes: pd.DataFrame) -> pd.DataFrame:
                 "tip_gap_error_mm_median": float(part["tip_gap_error_mm"].median()),
                 "tool_drift_mm_max_median": float(part["tool_drift_mm_max"].median())}
         rows.append(row)
+    return pd.DataFrame(rows)
+
+
+def evaluate_sampled_goals(policy, env: gym.Env, episodes: int, seed: int, progress: bool = False) -> pd.DataFrame:
+    """``episodes`` reachable goals (``sampled_goals``), one episode each, in order; each episode's goal
+    region and opening go into a recording env's metadata. One row per episode (``run_episode``)."""
+    from tqdm import tqdm
+
+    unwrapped = env.unwrapped
+    goals = sampled_goals(unwrapped.calibration, unwrapped.reachable_range, episodes, seed)
+    rows = []
+    with tqdm(goals, desc="eval low", unit="episode", disable=not progress) as bar:
+        for goal in bar:
+            env.extra_metadata = {"goal_region": goal["region"], "goal_opening_rad": f"{goal['opening_rad']:.5f}"}
+            rows.append(run_episode(policy, env, goal))
+            bar.set_postfix(success=f"{sum(r['success'] for r in rows) / len(rows):.2f}")
     return pd.DataFrame(rows)
 
 

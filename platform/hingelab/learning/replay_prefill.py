@@ -154,10 +154,10 @@ def relabel_rewards(transitions: Transitions, goal_env) -> Transitions:
     if uses_effort and "effort" not in transitions.infos:
         raise DatasetError("the datasets do not record the effort term (info.effort) that this run's reward "
                            "needs; record them with RecordingWrapper, or train with --no-effort")
-    effort = transitions.infos.get("effort", np.zeros(len(transitions)))
-    infos = [{"effort": float(e)} for e in effort]
+    # one info dict of arrays: compute_reward reads info["effort"] for the whole batch at once
+    info = {"effort": transitions.infos.get("effort", np.zeros(len(transitions)))}
     transitions.rewards = np.asarray(goal_env.compute_reward(transitions.next_observations["achieved_goal"],
-                                                             transitions.observations["desired_goal"], infos),
+                                                             transitions.observations["desired_goal"], info),
                                      dtype=np.float32)
     return transitions
 
@@ -170,9 +170,16 @@ def prefill_replay_buffer(buffer, roots, progress: bool = False, goal_env=None) 
     roots = list(roots)
     t0 = time.perf_counter()
     transitions, episodes = read_transitions(roots, progress=progress)
+    return fill_from_transitions(buffer, transitions, episodes, len(roots), time.perf_counter() - t0, goal_env)
+
+
+def fill_from_transitions(buffer, transitions: Transitions, episodes: int, datasets: int, read_s: float,
+                          goal_env=None) -> PrefillStats:
+    """``prefill_replay_buffer`` for transitions already read (``read_s``: what reading them took)."""
+    t0 = time.perf_counter()
     if goal_env is not None:
         transitions = relabel_rewards(transitions, goal_env)
     t1 = time.perf_counter()
     added = insert_transitions(buffer, transitions)
     t2 = time.perf_counter()
-    return PrefillStats(len(roots), episodes, added, t1 - t0, t2 - t1)
+    return PrefillStats(datasets, episodes, added, read_s + t1 - t0, t2 - t1)

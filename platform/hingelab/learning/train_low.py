@@ -193,27 +193,30 @@ class LowLevelRun:
             self.next_eval, self.next_checkpoint = 0, self.config.checkpoint_every
             self.mid_episode = False
             self._state_rng = None
-        if self.config.from_datasets and state is None:
-            from hingelab.learning.replay_prefill import prefill_replay_buffer
-
-            # rewards recomputed with this run's reward (the datasets may be recorded with or without effort)
-            self.prefill = prefill_replay_buffer(self.model.replay_buffer, self.config.from_datasets,
-                                                 progress=self.progress, goal_env=self.eval_env.unwrapped)
-        if self.config.demo_bc_weight or self.config.bc_pretrain_updates:
-            self._set_up_demonstrations(pretrain=state is None)
+        demos = self.config.learns_from_demonstrations
+        if self.config.from_datasets and (state is None or demos):
+            self._use_datasets(prefill=state is None, demos=demos, pretrain=state is None)
         return self
 
-    def _set_up_demonstrations(self, pretrain: bool) -> None:
-        """The --from datasets as demonstrations: BC pre-training (new runs) and the actor's BC term."""
-        from hingelab.learning.demo_bc import DemoBC, pretrain_actor
-        from hingelab.learning.replay_prefill import read_transitions
+    def _use_datasets(self, prefill: bool, demos: bool, pretrain: bool) -> None:
+        """The --from datasets, read once: replay pre-fill (new runs) and demonstrations (BC
+        pre-training for new runs, the actor's BC term for every session of the run)."""
+        from hingelab.learning.replay_prefill import fill_from_transitions, read_transitions
 
-        transitions, _ = read_transitions(self.config.from_datasets)
-        demo = DemoBC.from_transitions(transitions, self.config.demo_bc_weight, q_filter=self.config.demo_q_filter)
-        if pretrain and self.config.bc_pretrain_updates:
-            losses = pretrain_actor(self.model, demo, self.config.bc_pretrain_updates, self.config.batch_size)
-            self.bc_pretrain_losses = losses
-        self.model.demo_bc = demo if self.config.demo_bc_weight else None
+        started = time.perf_counter()
+        transitions, episodes = read_transitions(self.config.from_datasets, progress=self.progress)
+        read_s = time.perf_counter() - started
+        if demos:  # before the pre-fill relabels rewards: demonstrations need only observations and actions
+            from hingelab.learning.demo_bc import DemoBC, pretrain_actor
+
+            demo = DemoBC.from_transitions(transitions, self.config.demo_bc_weight, q_filter=self.config.demo_q_filter)
+            if pretrain and self.config.bc_pretrain_updates:
+                pretrain_actor(self.model, demo, self.config.bc_pretrain_updates, self.config.batch_size)
+            self.model.demo_bc = demo if self.config.demo_bc_weight else None
+        if prefill:
+            # rewards recomputed with this run's reward (the datasets may be recorded with or without effort)
+            self.prefill = fill_from_transitions(self.model.replay_buffer, transitions, episodes,
+                                                 len(self.config.from_datasets), read_s, self.eval_env.unwrapped)
 
     # ------------------------------------------------------------------ pieces the callback calls
     def evaluate_now(self, env_steps: int, extra: dict) -> dict:

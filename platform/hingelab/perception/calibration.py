@@ -83,7 +83,11 @@ class OpeningCalibration:
 
     def tip_gap_mm(self, z) -> np.ndarray:
         """Tip gap (mm) read from latents (..., D)."""
-        return 1000.0 * np.polyval(self.gap_coef, self.opening_rad(z))
+        return self.tip_gap_mm_for_opening(self.opening_rad(z))
+
+    def tip_gap_mm_for_opening(self, opening_rad) -> np.ndarray:
+        """Tip gap (mm) of an opening in rad (the fitted opening -> gap polynomial)."""
+        return 1000.0 * np.polyval(self.gap_coef, np.asarray(opening_rad, float))
 
     # ------------------------------------------------------------------ opening -> z
     def z_for_opening(self, opening_rad) -> np.ndarray:
