@@ -52,3 +52,12 @@ def test_serialization_and_errors(curve):
     with pytest.raises(ConfigError, match="at least"):
         OpeningCalibration.fit(curve[0][:5], curve[1][:5], curve[2][:5])
     assert r_squared(np.arange(5.0), np.arange(5.0)) == 1.0
+
+
+def test_evaluate_reports_the_signed_bias(curve):
+    z, opening, gap = curve
+    calibration = OpeningCalibration.fit(z, opening, gap)
+    inner = (opening > 0.05) & (opening < 0.25)  # away from the clipped ends of the range
+    shifted = calibration.evaluate(z[inner], opening[inner] + 0.01, gap[inner])
+    assert shifted["bias_opening_rad"] == pytest.approx(-0.01, abs=0.003)  # it reads 10 mrad too closed
+    assert abs(calibration.evaluate(z, opening, gap)["bias_opening_rad"]) < 0.003

@@ -106,3 +106,28 @@ def test_seeded_and_batched(geometry):
     assert batch_a.shape == (2, 256, 3)
     with pytest.raises(ConfigError, match="removal_fraction"):
         CloudRealism(removal_fraction=1.0)
+
+
+def test_per_cloud_noise_levels(geometry):
+    """A noise level per cloud (the encoder's mixed-noise data): each cloud's spread about the
+    ideal one is its own level; the same seed gives the same clouds."""
+    rot, pos = np.repeat(np.eye(3)[None], 3, 0), np.zeros((3, 3))
+    ideal = CloudSynthesizer(geometry, IDEAL, seed=1).from_tool_pose(rot, pos, 0.1)
+    levels = np.array([0.0, 0.002, 0.006])
+    noisy = CloudSynthesizer(geometry, IDEAL, seed=1).from_tool_pose(rot, pos, 0.1, noise_std_m=levels)
+    np.testing.assert_allclose(np.std(noisy - ideal, axis=(1, 2)), levels, rtol=0.1, atol=1e-7)
+    with pytest.raises(ConfigError, match="noise levels"):
+        CloudSynthesizer(geometry, IDEAL, seed=1).from_tool_pose(rot, pos, 0.1, noise_std_m=[0.0, -0.001, 0.0])
+
+
+def test_cloud_dataset_noise_range(geometry):
+    from hingelab.perception.synthetic_dataset import CloudDatasetConfig, sample_clouds
+
+    assert CloudDatasetConfig(noise_std_m=0.002, noise_std_max_m=0.006).noise_range_m == (0.002, 0.006)
+    assert CloudDatasetConfig().noise_range_m == (0.005, 0.005)
+    with pytest.raises(ConfigError, match="noise_std_max_m"):
+        CloudDatasetConfig(noise_std_m=0.005, noise_std_max_m=0.003)
+    batch = sample_clouds(np.random.default_rng(0), 200, geometry, CloudRealism(0.0, 0.2, 0.0, 0.0),
+                          np.deg2rad(30), 0.02, noise_range_m=(0.002, 0.006))
+    assert batch["noise_std_m"].min() >= 0.002 and batch["noise_std_m"].max() <= 0.006
+    assert np.ptp(batch["noise_std_m"]) > 0.003  # it does vary

@@ -122,3 +122,25 @@ def test_shipped_z_moves_monotonically_along_its_main_axis_as_the_hinge_opens():
         z = encoder.encode(register_to_tool_frame(clouds, registration)[0])
         coordinates.append(encoder.calibration.coordinate(z.mean(axis=0)))
     assert np.all(np.diff(coordinates) > 0), np.round(coordinates, 4)
+
+
+def test_small_batches_encode_on_one_thread_and_restore_the_setting(tiny_checkpoint, monkeypatch):
+    """One cloud per env step runs on one torch thread (worker processes otherwise spin against
+    each other); the caller's thread count is back afterwards and the result is the same."""
+    from hingelab.perception import encoder as encoder_module
+
+    encoder = load_encoder(tiny_checkpoint[0])
+    cloud = np.random.default_rng(0).normal(0.06, 0.02, (256, 3))
+    before = torch.get_num_threads()
+    seen = []
+    original = encoder.model.encode
+    monkeypatch.setattr(encoder.model, "encode", lambda x: (seen.append(torch.get_num_threads()), original(x))[1])
+    torch.set_num_threads(2)
+    try:
+        z_one = encoder.encode(cloud)
+        assert seen == [1] and torch.get_num_threads() == 2
+        z_big = encoder.encode(np.repeat(cloud[None], encoder_module.ONE_THREAD_BATCH + 1, 0))
+        assert seen[-1] == 2
+    finally:
+        torch.set_num_threads(before)
+    np.testing.assert_allclose(z_big[0], z_one, atol=1e-5)

@@ -264,3 +264,21 @@ def test_learning_from_demonstrations_pretrains_and_anchors_the_actor(tiny_run, 
         replace(TINY, demo_bc_weight=1.0)
     with pytest.raises(ConfigError, match="fast_sac"):
         replace(config, algorithm="sac")
+
+
+def test_policy_records_its_encoder_and_is_refused_beside_another(tiny_run, tmp_path):
+    """A trained policy knows whose latents it learned; beside another encoder it is refused."""
+    from hingelab.envs.low_level import PolicyLowLevel
+    from hingelab.perception.encoder import PointNetVAE, ToolEncoder, load_encoder, shipped_encoder_fingerprint
+
+    run, _ = tiny_run
+    from stable_baselines3 import SAC
+
+    assert SAC.load(run / "model.zip").hingelab_provenance["encoder_fingerprint"] == shipped_encoder_fingerprint()
+    PolicyLowLevel(run / "model.zip")  # the shipped encoder: accepted
+    shipped = load_encoder()
+    torch.manual_seed(1)
+    other = ToolEncoder(PointNetVAE(shipped.model.config), shipped.calibration)
+    assert other.fingerprint != shipped.fingerprint
+    with pytest.raises(ConfigError, match="another tool encoder"):
+        PolicyLowLevel(run / "model.zip", encoder=other)

@@ -124,15 +124,17 @@ def bench_registration(n: int, rows: list, notes: list) -> dict:
             "ms_batched": (ours_ms, o3d_ms), "ms_single": (ours_single_ms, o3d_ms)}
 
 
-def bench_encoder(n: int, per_opening: int, noise_m: float, rows: list, notes: list, plot: Path | None) -> dict:
+def bench_encoder(n: int, per_opening: int, noise_m: float, rows: list, notes: list, plot: Path | None,
+                  encoder_path: Path | None = None) -> dict:
     from hingelab.perception.clouds import CloudRealism, CloudSynthesizer, ToolGeometry
     from hingelab.perception.encoder import load_encoder
     from hingelab.perception.registration import CanonicalRegistration, RegistrationConfig
     from hingelab.perception.train_encoder import mean_chamfer_mm2, register_to_tool_frame, surface_targets
 
-    encoder = load_encoder()
+    encoder = load_encoder(encoder_path)
     if encoder.calibration is None:
-        raise ConfigError("the shipped encoder has no calibration; retrain it with `hingelab train encoder`")
+        raise ConfigError(f"the encoder {encoder_path or 'shipped'} has no calibration; retrain it with "
+                          "`hingelab train encoder`")
     geometry = ToolGeometry.default()
     registration = CanonicalRegistration(geometry, RegistrationConfig(**encoder.registration_config))
     data = _in_hand_clouds(n, SEED + 1, noise_m)
@@ -159,6 +161,7 @@ def bench_encoder(n: int, per_opening: int, noise_m: float, rows: list, notes: l
     rows.append({"method": f"encoder, held-out clouds, {noise_m * 1000:g} mm noise, 20% removal",
                  "chamfer (mm^2)": chamfer, "R^2 opening": held_out["r2_opening"], "R^2 tip gap": held_out["r2_gap"],
                  "opening MAE (deg)": float(np.rad2deg(held_out["mae_opening_rad"])),
+                 "opening bias (mrad)": 1000 * held_out["bias_opening_rad"],
                  "gap MAE (mm)": held_out["mae_gap_mm"], "z spread / extent": spread_ratio})
     notes.append(f"{noise_m * 1000:g} mm noise: z along its principal axis at openings "
                  f"{', '.join(f'{t:.2f}' for t in openings)} rad: means {', '.join(f'{m:+.3f}' for m in means)}; "
@@ -166,7 +169,8 @@ def bench_encoder(n: int, per_opening: int, noise_m: float, rows: list, notes: l
                  f"noise, occlusion vary), extent over the range {extent:.3f}")
     if plot is not None:
         _plot_latents(z, data["hinge_angle"], encoder.calibration, plot)
-    return {"chamfer": chamfer, "r2": held_out["r2_opening"], "spread_ratio": spread_ratio}
+    return {"chamfer": chamfer, "r2": held_out["r2_opening"], "spread_ratio": spread_ratio,
+            "bias_mrad": 1000 * held_out["bias_opening_rad"]}
 
 
 def _plot_latents(z, opening, calibration, path) -> None:
@@ -245,22 +249,28 @@ def bench_tracking(episodes: int, steps: int, rows: list) -> dict:
     return out
 
 
-def run(quick: bool = False) -> BenchTable:
+def run(quick: bool = False, encoder: Path | None = None) -> BenchTable:
+    """``encoder``: a checkpoint to measure instead of the shipped one (the encoder rows)."""
     n = 64 if quick else 400
     rows: list[dict] = []
     notes: list[str] = []
     reg = bench_registration(n, rows, notes)
     # a quick run (tests) must not overwrite the committed plot
     plot = Path(tempfile.gettempdir()) / "hingelab_latent_space_quick.png" if quick else PLOT_PATH
-    enc = bench_encoder(200 if quick else 1000, 8 if quick else 32, 0.005, rows, notes, plot=plot)
-    runtime = bench_encoder(200 if quick else 1000, 8 if quick else 32, 0.003, rows, notes, plot=None)
+    if encoder is not None and not quick:  # the committed plot shows the shipped encoder
+        plot = ANALYSIS_DIR / "perception" / f"latent_space_{Path(encoder).stem}.png"
+    enc = bench_encoder(200 if quick else 1000, 8 if quick else 32, 0.005, rows, notes, plot=plot,
+                        encoder_path=encoder)
+    runtime = bench_encoder(200 if quick else 1000, 8 if quick else 32, 0.003, rows, notes, plot=None,
+                            encoder_path=encoder)
     speed = bench_tool_state(5 if quick else 40, rows)
     tracking = bench_tracking(2 if quick else 10, 20 if quick else 60, rows)
     notes.append(f"latent-space plot: {plot if quick else PLOT_PATH.relative_to(ANALYSIS_DIR.parent)}")
     notes.append("ratios are ours / Open3D (below 1: ours better or faster); the clouds are held out "
                  f"(seed {SEED}), {n} for registration")
     columns = ["method", "rot median (deg)", "rot p95 (deg)", "trans median (mm)", "trans p95 (mm)", "ms per cloud",
-               "chamfer (mm^2)", "R^2 opening", "R^2 tip gap", "opening MAE (deg)", "gap MAE (mm)",
+               "chamfer (mm^2)", "R^2 opening", "R^2 tip gap", "opening MAE (deg)", "opening bias (mrad)",
+               "gap MAE (mm)",
                "z spread / extent", "updates/s", "ms per update", "step rot median (deg)", "step rot p95 (deg)",
                "mean |omega_bar| (rad/s)"]
     ratios = {f"{k} ours/open3d": float(a / b) for k, (a, b) in reg.items()}
@@ -268,9 +278,11 @@ def run(quick: bool = False) -> BenchTable:
                    "encoder calibration R^2, 3 mm noise (the sim's)": float(runtime["r2"]),
                    "z spread at one opening / extent over the range, 5 mm (goal < 0.10)": enc["spread_ratio"],
                    "z spread at one opening / extent over the range, 3 mm": runtime["spread_ratio"],
+                   "opening bias (read - true), 3 mm clouds (the sim's), mrad": runtime["bias_mrad"],
                    "tool-state updates/s, 64 vs 1 cloud per update": speed[64] / speed[1],
                    "rotation change per step at rest, motion prior / frame by frame":
                        tracking["motion prior"] / tracking["frame by frame"]})
     return BenchTable(name="perception", title="Tool perception: registration vs Open3D ICP, encoder, tool state",
                       columns=columns, rows=rows, ratios=ratios, notes=notes,
-                      config={"quick": quick, "registration_clouds": n, "seed": SEED})
+                      config={"quick": quick, "registration_clouds": n, "seed": SEED,
+                              "encoder": str(encoder) if encoder else "shipped"})

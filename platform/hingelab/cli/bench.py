@@ -22,6 +22,8 @@ def add_parser(subparsers) -> None:
     )
     p.add_argument("name", help="which benchmark: " + ", ".join(BENCHMARKS))
     p.add_argument("--quick", action="store_true", help="a short run (for tests; noisier figures)")
+    p.add_argument("--encoder", type=Path, default=None,
+                   help="perception only: an encoder checkpoint to measure instead of the shipped one")
     p.add_argument("--out", type=Path, default=None,
                    help="folder for NAME.md and NAME.json (default: analysis/bench/)")
     p.set_defaults(func=run)
@@ -36,7 +38,12 @@ def run(args: argparse.Namespace) -> int:
         if exc.name == BENCHMARKS[args.name]:
             raise ConfigError(f"benchmark {args.name!r} is not built yet in this version") from exc
         raise
-    table = module.run(quick=args.quick)
+    options = {}
+    if args.encoder is not None:
+        if args.name != "perception":
+            raise ConfigError("--encoder is an option of `hingelab bench perception` only")
+        options["encoder"] = args.encoder
+    table = module.run(quick=args.quick, **options)
     print(table.markdown())
     md_path, json_path = table.write(args.out)
     print(f"wrote {md_path} and {json_path}")

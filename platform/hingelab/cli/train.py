@@ -50,6 +50,8 @@ def add_encoder_parser(learners) -> None:
     p.add_argument("--beta", type=float, default=EncoderConfig().beta,
                    help=f"KL weight of the VAE loss (default {EncoderConfig().beta})")
     p.add_argument("--seed", type=int, default=d.seed, help=f"seed of weights and batches (default {d.seed})")
+    p.add_argument("--threads", type=int, default=d.threads,
+                   help=f"torch CPU threads (default {d.threads}; 1 to train two encoders side by side)")
     p.add_argument("--out", type=Path, default=SHIPPED_CHECKPOINT,
                    help=f"checkpoint to write (default {SHIPPED_CHECKPOINT})")
     p.add_argument("--no-progress", action="store_true", help="log one JSON line per epoch instead of a bar")
@@ -60,7 +62,8 @@ def run_encoder(args: argparse.Namespace) -> int:
     from hingelab.perception.encoder import EncoderConfig
     from hingelab.perception.train_encoder import TrainEncoderConfig, train_encoder
 
-    config = TrainEncoderConfig(epochs=args.epochs, batch_size=args.batch_size, learning_rate=args.lr, seed=args.seed)
+    config = TrainEncoderConfig(epochs=args.epochs, batch_size=args.batch_size, learning_rate=args.lr, seed=args.seed,
+                                threads=args.threads)
     _, m = train_encoder(args.data, args.out, config, EncoderConfig(beta=args.beta), progress=not args.no_progress)
     print(f"Trained the tool encoder for {config.epochs} epochs on {m['train_clouds']} clouds of {args.data} "
           f"(seed {config.seed}) in {m['wall_time_s'] / 60:.1f} min and wrote {args.out}. On {m['val_clouds']} "

@@ -53,7 +53,9 @@ class PolicyLowLevel:
 
     kind = "policy"
 
-    def __init__(self, checkpoint: str | Path = SHIPPED_LOW_LEVEL, action_scale: float = 0.05):
+    def __init__(self, checkpoint: str | Path = SHIPPED_LOW_LEVEL, action_scale: float = 0.05, encoder=None):
+        """``encoder``: the ToolEncoder the env perceives with (default: the shipped one); a
+        checkpoint that recorded another encoder's fingerprint is refused."""
         path = Path(checkpoint)
         if not path.exists():
             raise ConfigError(f"low-level checkpoint {path} does not exist; train one with `hingelab train low`")
@@ -69,6 +71,15 @@ class PolicyLowLevel:
                 tuple(self.model.action_space.shape) != (9,):
             raise ConfigError(f"{path} does not match ToolShape-v0 (observation {shapes or space}, action "
                               f"{self.model.action_space.shape}); give a checkpoint from `hingelab train low`")
+        trained_with = (getattr(self.model, "hingelab_provenance", None) or {}).get("encoder_fingerprint")
+        if trained_with is not None:  # checkpoints made before the fingerprint was recorded: not checked
+            from hingelab.perception.encoder import shipped_encoder_fingerprint
+
+            current = encoder.fingerprint if encoder is not None else shipped_encoder_fingerprint()
+            if trained_with != current:
+                raise ConfigError(f"{path} learned from the latents of another tool encoder (fingerprint "
+                                  f"{trained_with}, this env's is {current}); retrain it with "
+                                  "`hingelab train low` on this encoder")
         self.action_scale = action_scale
 
     def reset(self) -> None:

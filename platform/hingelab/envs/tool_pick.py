@@ -47,7 +47,7 @@ import gymnasium as gym
 import numpy as np
 from gymnasium import spaces
 
-from hingelab.envs.low_level import PolicyLowLevel, PrivilegedLowLevel
+from hingelab.envs.low_level import SHIPPED_LOW_LEVEL, PolicyLowLevel, PrivilegedLowLevel
 from hingelab.envs.rendering import SimRenderMixin
 from hingelab.envs.rewards import HighLevelRewardConfig, high_level_terms
 from hingelab.envs.tool_perception import ToolPerception
@@ -85,7 +85,8 @@ class ToolPickEnv(SimRenderMixin, gym.Env):
         if low_level == "privileged":
             self.low_level = PrivilegedLowLevel(calibration)
         else:
-            self.low_level = PolicyLowLevel() if low_level == "policy" else PolicyLowLevel(low_level)
+            checkpoint = SHIPPED_LOW_LEVEL if low_level == "policy" else low_level
+            self.low_level = PolicyLowLevel(checkpoint, encoder=self.perception.encoder)
         self.reward_config = reward or HighLevelRewardConfig()
         self.placement_half_width = placement_half_width
         self.max_episode_steps = max_episode_steps

@@ -57,7 +57,11 @@ def algorithm_class(name: str):
 
 
 def _provenance(config: LowLevelTrainConfig, extra: dict | None = None) -> dict:
-    return {"env_id": ENV_ID, "config": config.to_dict(), "seed": config.seed, **code_version(), **(extra or {})}
+    from hingelab.perception.encoder import shipped_encoder_fingerprint
+
+    # the envs perceive through the shipped encoder: its latents are what the policy learned
+    return {"env_id": ENV_ID, "config": config.to_dict(), "seed": config.seed,
+            "encoder_fingerprint": shipped_encoder_fingerprint(), **code_version(), **(extra or {})}
 
 
 def build_model(config: LowLevelTrainConfig, env):

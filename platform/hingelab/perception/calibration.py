@@ -17,6 +17,7 @@ calibration was fitted on; ``evaluate`` gives them on other data (the bench: hel
 
 from __future__ import annotations
 
+import functools
 from dataclasses import asdict, dataclass
 
 import numpy as np
@@ -76,10 +77,15 @@ class OpeningCalibration:
     def opening_rad(self, z) -> np.ndarray:
         """Opening (hinge angle, rad) read from latents (..., D): the nearest point of the curve."""
         z = np.asarray(z, float)
-        grid = np.linspace(*self.opening_range, GRID)
-        curve = self.z_for_opening(grid)  # (GRID, D)
+        grid, curve = self._curve
         dist = ((z[..., None, :] - curve) ** 2).sum(axis=-1)
         return grid[np.argmin(dist, axis=-1)]
+
+    @functools.cached_property
+    def _curve(self) -> tuple[np.ndarray, np.ndarray]:
+        """(openings (GRID,), the curve's latents there (GRID, D)): computed once, read every step."""
+        grid = np.linspace(*self.opening_range, GRID)
+        return grid, self.z_for_opening(grid)
 
     def tip_gap_mm(self, z) -> np.ndarray:
         """Tip gap (mm) read from latents (..., D)."""
@@ -104,11 +110,12 @@ class OpeningCalibration:
 
     # ------------------------------------------------------------------ checks
     def evaluate(self, z, opening_rad, tip_gap_m) -> dict[str, float]:
-        """R^2 and mean absolute errors on other data."""
+        """R^2, mean absolute errors and the mean signed opening error (bias) on other data."""
         pred_open = self.opening_rad(z)
         pred_gap = np.polyval(self.gap_coef, pred_open)
         return {"r2_opening": r_squared(opening_rad, pred_open), "r2_gap": r_squared(tip_gap_m, pred_gap),
                 "mae_opening_rad": float(np.abs(pred_open - opening_rad).mean()),
+                "bias_opening_rad": float((pred_open - opening_rad).mean()),
                 "mae_gap_mm": float(1000 * np.abs(pred_gap - tip_gap_m).mean())}
 
     def to_dict(self) -> dict:

@@ -251,11 +251,12 @@ class CloudSynthesizer:
         d_rot, d_pos = self.perturbation
         return rot @ d_rot, pos + d_pos
 
-    def from_part_poses(self, rot_a, pos_a, rot_b, pos_b) -> np.ndarray:
+    def from_part_poses(self, rot_a, pos_a, rot_b, pos_b, noise_std_m=None) -> np.ndarray:
         """Clouds from both parts' poses in hand_base: R (B, 3, 3) or (3, 3), t (B, 3) or (3,).
 
         Returns (B, n_points, 3) or (n_points, 3) float32, metres, hand_base. The
         episode's perturbation moves leg b with leg a (it is an error of the tool pose).
+        ``noise_std_m`` (B,): a noise level per cloud instead of the realism's one.
         """
         single = np.ndim(rot_a) == 2
         rot_a, rot_b = (np.asarray(x, float).reshape(-1, 3, 3) for x in (rot_a, rot_b))
@@ -268,10 +269,10 @@ class CloudSynthesizer:
         pos_a = pos_a + d_pos
         rot_b = rot_a @ rel_rot
         pos_b = np.einsum("bij,bj->bi", rot_a, rel_pos) + pos_a
-        clouds = self._sample(rot_a, pos_a, rot_b, pos_b)
+        clouds = self._sample(rot_a, pos_a, rot_b, pos_b, noise_std_m)
         return clouds[0] if single else clouds
 
-    def from_tool_pose(self, rot, pos, hinge_angle) -> np.ndarray:
+    def from_tool_pose(self, rot, pos, hinge_angle, noise_std_m=None) -> np.ndarray:
         """Clouds from the tool (leg a) pose in hand_base and the hinge angle (rad): see ``from_part_poses``."""
         single = np.ndim(rot) == 2
         rot = np.asarray(rot, float).reshape(-1, 3, 3)
@@ -280,7 +281,7 @@ class CloudSynthesizer:
         rel_rot, rel_pos = self.geometry.leg_b_pose(theta)
         rot_b = rot @ rel_rot
         pos_b = np.einsum("bij,bj->bi", rot, rel_pos) + pos
-        clouds = self.from_part_poses(rot, pos, rot_b, pos_b)
+        clouds = self.from_part_poses(rot, pos, rot_b, pos_b, noise_std_m)
         return clouds[0] if single else clouds
 
     def from_sim(self, model: mujoco.MjModel, data: mujoco.MjData) -> np.ndarray:
@@ -296,7 +297,7 @@ class CloudSynthesizer:
             poses += [rot_h.T @ data.xmat[body].reshape(3, 3), rot_h.T @ (data.xpos[body] - pos_h)]
         return self.from_part_poses(*poses)
 
-    def _sample(self, rot_a, pos_a, rot_b, pos_b) -> np.ndarray:
+    def _sample(self, rot_a, pos_a, rot_b, pos_b, noise_std_m=None) -> np.ndarray:
         g, r, n = self.geometry, self.realism, self.n_points
         batch = len(rot_a)
         bank = len(g.bank_points)
@@ -307,7 +308,12 @@ class CloudSynthesizer:
         points = np.where(is_b,
                           np.einsum("bij,bnj->bni", rot_b, local) + pos_b[:, None],
                           np.einsum("bij,bnj->bni", rot_a, local) + pos_a[:, None])
-        if r.noise_std_m > 0:
+        if noise_std_m is not None:
+            std = np.broadcast_to(np.asarray(noise_std_m, float).reshape(-1), (batch,))
+            if std.min() < 0:
+                raise ConfigError(f"noise levels must be >= 0, got a minimum of {std.min()}")
+            points = points + self.rng.normal(0.0, 1.0, points.shape) * std[:, None, None]
+        elif r.noise_std_m > 0:
             points = points + self.rng.normal(0.0, r.noise_std_m, points.shape)
         if r.removal_fraction > 0:
             n_keep = n - int(round(r.removal_fraction * n))

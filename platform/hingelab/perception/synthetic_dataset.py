@@ -3,7 +3,12 @@
 Each cloud is the tweezer at a random opening (uniform over the hinge range) in a random
 pose in ``hand_base``: the nominal in-hand pose (the grasp keyframe of the ``tool_shape``
 scene) turned by up to ``max_angle_deg`` about each axis and shifted by up to
-``max_offset_m``, with the paper's encoder augmentation: 20% removal, 5 mm noise.
+``max_offset_m``, with the paper's encoder augmentation: 20% removal, 5 mm noise, or,
+with ``noise_std_max_m`` set, a noise level drawn per cloud uniformly between
+``noise_std_m`` and ``noise_std_max_m``. A PointNet's max pool reads the cloud's extremes,
+which grow with the noise, so an encoder trained at one noise level reads clouds at
+another as a different opening: trained at 5 mm only, it read the sim's 3 mm clouds
+20-57 mrad too closed.
 
 Episode layout (the episode contract, datasets/README.md): ``clouds_per_episode``
 clouds per episode file, one per step (log times 50 ms apart, no dynamics implied):
@@ -44,6 +49,7 @@ class CloudDatasetConfig:
     clouds_per_episode: int = 100  # clouds per episode file
     seed: int = 0  # base seed; episode k uses seed + k
     noise_std_m: float = 0.005  # per-point Gaussian noise, metres (paper: 5 mm for the encoder)
+    noise_std_max_m: float | None = None  # if set: noise per cloud uniform in [noise_std_m, this]
     removal_fraction: float = 0.2  # occlusion: fraction of points removed
     max_angle_deg: float = 30.0  # pose variation about the nominal in-hand pose, per Euler angle
     max_offset_m: float = 0.02  # pose variation, per axis, metres
@@ -53,6 +59,14 @@ class CloudDatasetConfig:
             raise ConfigError(f"n_clouds and clouds_per_episode must be >= 1, got {self.n_clouds}, "
                               f"{self.clouds_per_episode}")
         CloudRealism(self.noise_std_m, self.removal_fraction)  # validates
+        if self.noise_std_max_m is not None and self.noise_std_max_m < self.noise_std_m:
+            raise ConfigError(f"noise_std_max_m ({self.noise_std_max_m}) must be >= noise_std_m "
+                              f"({self.noise_std_m})")
+
+    @property
+    def noise_range_m(self) -> tuple[float, float]:
+        """(lowest, highest) per-cloud noise level, metres."""
+        return self.noise_std_m, self.noise_std_m if self.noise_std_max_m is None else self.noise_std_max_m
 
     @property
     def n_episodes(self) -> int:
@@ -74,20 +88,24 @@ def nominal_tool_pose() -> tuple[np.ndarray, np.ndarray]:
 
 
 def sample_clouds(rng: np.random.Generator, n: int, geometry: ToolGeometry, realism: CloudRealism,
-                  max_angle_rad: float, max_offset_m: float) -> dict[str, np.ndarray]:
+                  max_angle_rad: float, max_offset_m: float,
+                  noise_range_m: tuple[float, float] | None = None) -> dict[str, np.ndarray]:
     """``n`` clouds at uniform openings in random poses around the nominal in-hand pose.
 
+    ``noise_range_m``: draw each cloud's noise level uniformly from it (else the realism's).
     Returns {points (n, 256, 3) float32 hand_base, hinge_angle (n,) rad, rotation (n, 3, 3),
-    position (n, 3) m (the tool frame in hand_base), tip_a, tip_b (n, 3) m hand_base}.
+    position (n, 3) m (the tool frame in hand_base), tip_a, tip_b (n, 3) m hand_base,
+    noise_std_m (n,)}.
     """
     rot0, pos0 = nominal_tool_pose()
     rot = rot0 @ random_rotations(rng, n, max_angle_rad)
     pos = pos0 + rng.uniform(-max_offset_m, max_offset_m, (n, 3))
     theta = rng.uniform(*geometry.hinge_range, n)
+    noise = (np.full(n, realism.noise_std_m) if noise_range_m is None else rng.uniform(*noise_range_m, n))
     synth = CloudSynthesizer(geometry, realism, seed=int(rng.integers(2 ** 63)))  # no per-episode perturbation
-    points = synth.from_tool_pose(rot, pos, theta)
+    points = synth.from_tool_pose(rot, pos, theta, noise_std_m=noise)
     tip_a, tip_b = geometry.tips_in_tool_frame(theta)
-    return {"points": points, "hinge_angle": theta, "rotation": rot, "position": pos,
+    return {"points": points, "hinge_angle": theta, "rotation": rot, "position": pos, "noise_std_m": noise,
             "tip_a": np.einsum("bij,bj->bi", rot, tip_a) + pos, "tip_b": np.einsum("bij,bj->bi", rot, tip_b) + pos}
 
 
@@ -97,7 +115,8 @@ def write_cloud_episode(root: Path, config: CloudDatasetConfig, episode: int, ge
     seed = config.seed + episode
     realism = CloudRealism(config.noise_std_m, config.removal_fraction, 0.0, 0.0)
     batch = sample_clouds(np.random.default_rng(seed), n, geometry, realism,
-                          np.deg2rad(config.max_angle_deg), config.max_offset_m)
+                          np.deg2rad(config.max_angle_deg), config.max_offset_m,
+                          None if config.noise_std_max_m is None else config.noise_range_m)
     quat_xyzw = Rotation.from_matrix(batch["rotation"]).as_quat()
     with EpisodeWriter(root, source=SOURCE, task=TASK, seed=seed,
                        extra_metadata={"geometry_hash": geometry.geometry_hash}) as writer:

@@ -170,7 +170,7 @@ class ToolState:
                                  s[:, 6:].copy(), result.rmse_m)
         if self.encoder.calibration is not None:
             sample.opening_rad = self.encoder.calibration.opening_rad(sample.z_smoothed)
-            sample.tip_gap_mm = self.encoder.calibration.tip_gap_mm(sample.z_smoothed)
+            sample.tip_gap_mm = self.encoder.calibration.tip_gap_mm_for_opening(sample.opening_rad)
         return sample
 
 
