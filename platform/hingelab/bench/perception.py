@@ -265,7 +265,7 @@ def run(quick: bool = False, encoder: Path | None = None) -> BenchTable:
                             encoder_path=encoder)
     speed = bench_tool_state(5 if quick else 40, rows)
     tracking = bench_tracking(2 if quick else 10, 20 if quick else 60, rows)
-    notes.append(f"latent-space plot: {plot if quick else PLOT_PATH.relative_to(ANALYSIS_DIR.parent)}")
+    notes.append(f"latent-space plot: {plot if quick else plot.relative_to(ANALYSIS_DIR.parent)}")
     notes.append("ratios are ours / Open3D (below 1: ours better or faster); the clouds are held out "
                  f"(seed {SEED}), {n} for registration")
     columns = ["method", "rot median (deg)", "rot p95 (deg)", "trans median (mm)", "trans p95 (mm)", "ms per cloud",

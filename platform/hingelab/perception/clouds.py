@@ -308,13 +308,13 @@ class CloudSynthesizer:
         points = np.where(is_b,
                           np.einsum("bij,bnj->bni", rot_b, local) + pos_b[:, None],
                           np.einsum("bij,bnj->bni", rot_a, local) + pos_a[:, None])
+        std = r.noise_std_m  # one level for all, or one per cloud
         if noise_std_m is not None:
-            std = np.broadcast_to(np.asarray(noise_std_m, float).reshape(-1), (batch,))
+            std = np.broadcast_to(np.asarray(noise_std_m, float).reshape(-1), (batch,))[:, None, None]
             if std.min() < 0:
                 raise ConfigError(f"noise levels must be >= 0, got a minimum of {std.min()}")
-            points = points + self.rng.normal(0.0, 1.0, points.shape) * std[:, None, None]
-        elif r.noise_std_m > 0:
-            points = points + self.rng.normal(0.0, r.noise_std_m, points.shape)
+        if np.any(std > 0):
+            points = points + self.rng.normal(0.0, 1.0, points.shape) * std
         if r.removal_fraction > 0:
             n_keep = n - int(round(r.removal_fraction * n))
             kept = np.argsort(self.rng.random((batch, n)), axis=1)[:, :n_keep]
