@@ -14,6 +14,7 @@ import pytest
 import torch
 
 from hingelab.episodes.dataset import Dataset
+from hingelab.episodes.errors import DatasetError
 from hingelab.errors import ConfigError
 from hingelab.learning import checkpoints as ckpt
 from hingelab.learning.low_level_config import LowLevelTrainConfig
@@ -230,6 +231,19 @@ def test_prefill_relabels_rewards_with_the_runs_own_reward(tiny_run):
     distance = np.linalg.norm(recorded.next_observations["achieved_goal"] - recorded.observations["desired_goal"], axis=1)
     np.testing.assert_allclose(goal_only.rewards, np.exp(-without.reward_config.c1 * distance), rtol=1e-5)
     assert (goal_only.rewards >= recorded.rewards - 1e-6).all()  # the effort term only ever subtracts
+    # another effort weight: the tool-motion part scales with c2, from the recorded unweighted motion
+    heavy = gym.make("hingelab/ToolShape-v0", effort_weight=200.0).unwrapped
+    stiff = relabel_rewards(read_transitions([run / "dataset"])[0], heavy)
+    motion, speed = recorded.infos["tool_motion_m"], recorded.infos["finger_speed"]
+    assert motion.max() > 0
+    np.testing.assert_allclose(stiff.rewards, goal_only.rewards - 200.0 * motion - heavy.reward_config.c3 * speed,
+                               rtol=1e-5, atol=1e-6)
+    # a dataset that records only the weighted effort cannot be reweighted
+    old = read_transitions([run / "dataset"])[0]
+    del old.infos["tool_motion_m"], old.infos["finger_speed"]
+    with pytest.raises(DatasetError, match="c2 200"):
+        relabel_rewards(old, heavy)
+    np.testing.assert_allclose(relabel_rewards(old, with_effort).rewards, recorded.rewards, rtol=1e-5, atol=1e-6)
 
 
 def test_learning_from_demonstrations_pretrains_and_anchors_the_actor(tiny_run, tmp_path):

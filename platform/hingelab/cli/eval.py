@@ -39,6 +39,7 @@ def add_parser(subparsers) -> None:
 
 def run_low(args: argparse.Namespace) -> int:
     from hingelab.envs.low_level import SHIPPED_LOW_LEVEL, PolicyLowLevel
+    from hingelab.envs.rewards import LowLevelRewardConfig
     from hingelab.episodes import create_dataset
     from hingelab.errors import ConfigError
     from hingelab.learning.low_level_eval import (SETTLE_STEPS, evaluate_sampled_goals, make_eval_env,
@@ -57,6 +58,7 @@ def run_low(args: argparse.Namespace) -> int:
     provenance = getattr(model, "hingelab_provenance", {}) or {}
     trained = provenance.get("config", {})
     env_args = {"use_effort": trained.get("use_effort", True), "randomize": not args.no_randomize,
+                "effort_weight": trained.get("effort_weight", LowLevelRewardConfig().c2),
                 "max_episode_steps": trained.get("max_episode_steps", 50)}
     config = {"checkpoint": label, "episodes": args.episodes, "env": env_args,
               "checkpoint_git_commit": provenance.get("git_commit", "unknown")}

@@ -91,6 +91,9 @@ def add_low_parser(learners) -> None:
     p.add_argument("--steps", type=int, default=d.steps, help=f"environment steps in total (default {d.steps})")
     p.add_argument("--seed", type=int, default=d.seed, help=f"run seed (default {d.seed})")
     p.add_argument("--no-effort", action="store_true", help="drop the effort reward (the paper's ablation)")
+    p.add_argument("--effort-weight", type=float, default=d.effort_weight, metavar="C2",
+                   help=f"weight of the tool-motion part of the effort reward, per m of mean tool-point "
+                        f"displacement per step (default {d.effort_weight:g}; larger holds the tool stiller)")
     p.add_argument("--her", action="store_true", help="HER relabelling (future strategy, 4 goals)")
     p.add_argument("--goals", choices=("reachable", "normal"), default=d.goal_sampling,
                    help=f"training goals: latents of reachable openings, or N(0, I) as in the paper "
@@ -143,7 +146,7 @@ def run_low(args: argparse.Namespace) -> int:
     from hingelab.paths import REPO_ROOT
 
     config = LowLevelTrainConfig(
-        steps=args.steps, seed=args.seed, use_effort=not args.no_effort, her=args.her, goal_sampling=args.goals,
+        steps=args.steps, seed=args.seed, use_effort=not args.no_effort, effort_weight=args.effort_weight, her=args.her, goal_sampling=args.goals,
         randomize=not args.no_randomize, n_envs=args.envs,
         subprocess_envs=not args.in_process, algorithm=args.algorithm, batch_size=args.batch_size,
         buffer_size=args.buffer_size, learning_starts=args.learning_starts, gradient_steps=args.gradient_steps,

@@ -58,14 +58,37 @@ def _rotation_from_vector(rotvec: np.ndarray) -> np.ndarray:
     return np.eye(3) + np.sin(angle) * kx + (1 - np.cos(angle)) * kx @ kx
 
 
+def effort_quantities(v_bar: np.ndarray, w_bar: np.ndarray, qdot: np.ndarray, canonical_points: np.ndarray,
+                      control_dt: float) -> tuple[float, float]:
+    """The effort term's unweighted parts: (mean displacement of the canonical points by one
+    control step of the smoothed tool motion, m; finger speed ||qdot||, rad/s).
+
+    Envs record these in ``info`` (``tool_motion_m``, ``finger_speed``) so that a dataset's
+    rewards can be recomputed for any weights c2, c3 (``effort_from_info``)."""
+    rot = _rotation_from_vector(np.asarray(w_bar, float) * control_dt)
+    moved = canonical_points @ rot.T + np.asarray(v_bar, float) * control_dt
+    return float(np.mean(np.linalg.norm(moved - canonical_points, axis=1))), float(np.linalg.norm(qdot))
+
+
 def effort_penalty(v_bar: np.ndarray, w_bar: np.ndarray, qdot: np.ndarray, canonical_points: np.ndarray,
                    config: LowLevelRewardConfig) -> tuple[float, float]:
     """(tool-motion term, finger-speed term), both <= 0. canonical_points: (N, 3) m, tool frame."""
-    dt = config.control_dt
-    rot = _rotation_from_vector(np.asarray(w_bar, float) * dt)
-    moved = canonical_points @ rot.T + np.asarray(v_bar, float) * dt
-    motion = float(np.mean(np.linalg.norm(moved - canonical_points, axis=1)))
-    return -config.c2 * motion, -config.c3 * float(np.linalg.norm(qdot))
+    motion, speed = effort_quantities(v_bar, w_bar, qdot, canonical_points, config.control_dt)
+    return -config.c2 * motion, -config.c3 * speed
+
+
+def effort_from_info(info, config: LowLevelRewardConfig):
+    """The effort term for one info dict, a dict of arrays, or a list of dicts (HER's batches).
+
+    From the recorded ``tool_motion_m`` and ``finger_speed`` with this config's weights; an
+    info without them (recorded before they were) gives its recorded ``effort``, which is
+    right only for the weights it was recorded with (``relabel_rewards`` checks that)."""
+    if isinstance(info, dict):
+        if "tool_motion_m" in info and "finger_speed" in info:
+            return -config.c2 * np.asarray(info["tool_motion_m"], float) - config.c3 * np.asarray(
+                info["finger_speed"], float)
+        return info.get("effort", 0.0)
+    return np.array([float(effort_from_info(i, config)) for i in info], dtype=float)
 
 
 def high_level_terms(tool: np.ndarray, obj: np.ndarray, target: np.ndarray, table_collision: bool,

@@ -50,7 +50,8 @@ only if the tool leaves the hand (more than 3 cm from its start: ``info["dropped
 ``use_effort`` (True), ``goal_sampling`` ("normal"), ``randomize`` (True: delays up to 150
 ms, gains 60-150%, friction 0.2-1 per finger segment), ``success_threshold`` (None:
 calibrated), ``action_scale`` (0.05), ``encoder_path`` (None: shipped), ``realistic_clouds``
-(True: 3 mm noise, 20% occlusion, per-episode pose error), ``smoothing_alpha`` (0.9: the EMA
+(True: 3 mm noise, 20% occlusion, per-episode pose error), ``effort_weight`` (None: c2 = 50 per m of
+mean point displacement per step; the weight of the tool-motion part of the effort), ``smoothing_alpha`` (0.9: the EMA
 weight of the newest v, omega, z; 0.1 smooths over ~10 steps and cuts the latent's
 frame-to-frame jitter from 0.04-0.10 to about a quarter of that), ``terminate_on_drop`` (True).
 
@@ -65,7 +66,7 @@ import numpy as np
 from gymnasium import spaces
 
 from hingelab.envs.rendering import SimRenderMixin
-from hingelab.envs.rewards import LowLevelRewardConfig, effort_penalty, goal_reward
+from hingelab.envs.rewards import LowLevelRewardConfig, effort_from_info, effort_quantities, goal_reward
 from hingelab.envs.tool_perception import ToolPerception
 from hingelab.errors import ConfigError
 from hingelab.perception.clouds import ToolGeometry
@@ -86,7 +87,7 @@ class ToolShapeEnv(SimRenderMixin, gym.Env):
                  success_threshold: float | None = None, action_scale: float = 0.05,
                  encoder_path: str | None = None, realistic_clouds: bool = True,
                  reward: LowLevelRewardConfig | None = None, render_mode: str | None = None,
-                 smoothing_alpha: float = 0.9, terminate_on_drop: bool = True):
+                 smoothing_alpha: float = 0.9, terminate_on_drop: bool = True, effort_weight: float | None = None):
         if goal_sampling not in GOAL_SAMPLERS:
             raise ConfigError(f"goal_sampling {goal_sampling!r} is unknown; choose one of {GOAL_SAMPLERS}")
         if not 0 < action_scale <= 0.5:
@@ -103,6 +104,10 @@ class ToolShapeEnv(SimRenderMixin, gym.Env):
         self.reward_config = reward or LowLevelRewardConfig(use_effort=use_effort, control_dt=self.sim.control_dt)
         if reward is not None and reward.use_effort != use_effort:
             self.reward_config = LowLevelRewardConfig(**{**reward.__dict__, "use_effort": use_effort})
+        if effort_weight is not None:
+            if not effort_weight >= 0:
+                raise ConfigError(f"effort_weight (c2) must be >= 0, got {effort_weight}")
+            self.reward_config = LowLevelRewardConfig(**{**self.reward_config.__dict__, "c2": float(effort_weight)})
         self.goal_sampling = goal_sampling
         self.action_scale = action_scale
         self.terminate_on_drop = terminate_on_drop
@@ -146,14 +151,14 @@ class ToolShapeEnv(SimRenderMixin, gym.Env):
         obs = self._observation()
         qdot = self.sim.hand.qdot(self.sim.data)
         goal = float(goal_reward(obs["achieved_goal"], self.goal, self.reward_config.c1))
-        if self.reward_config.use_effort:
-            tool_term, finger_term = effort_penalty(self.sample.velocity_smoothed[0],
-                                                    self.sample.angular_velocity_smoothed[0], qdot,
-                                                    self.canonical_points, self.reward_config)
-        else:
-            tool_term = finger_term = 0.0
+        c = self.reward_config
+        motion, speed = effort_quantities(self.sample.velocity_smoothed[0], self.sample.angular_velocity_smoothed[0],
+                                          qdot, self.canonical_points, c.control_dt)
+        tool_term, finger_term = (-c.c2 * motion, -c.c3 * speed) if c.use_effort else (0.0, 0.0)
         terms = {"goal": goal, "effort_tool": tool_term, "effort_fingers": finger_term}
         info = self._info(terms)
+        # unweighted, so that recorded rewards can be recomputed for other weights (relabel_rewards)
+        info["tool_motion_m"], info["finger_speed"] = motion, speed
         info["diverged"] = result.diverged
         reward = goal + tool_term + finger_term
         terminated = bool(info["dropped"]) and not result.diverged and self.terminate_on_drop
@@ -168,11 +173,9 @@ class ToolShapeEnv(SimRenderMixin, gym.Env):
     def compute_reward(self, achieved_goal, desired_goal, info):
         """Vectorized: (B, 2) goals and a list/array of info dicts (or one dict) -> (B,) rewards."""
         goal = goal_reward(achieved_goal, desired_goal, self.reward_config.c1)
-        if isinstance(info, dict):
-            effort = info.get("effort", 0.0)
-        else:
-            effort = np.array([i.get("effort", 0.0) for i in info], dtype=float)
-        return goal + (effort if self.reward_config.use_effort else 0.0)
+        if not self.reward_config.use_effort:
+            return goal
+        return goal + effort_from_info(info, self.reward_config)
 
     def _camera(self):
         return self.sim.data.body("hand_base").xpos, 0.45, 120, -20

@@ -22,6 +22,7 @@ class LowLevelTrainConfig:
     steps: int = 200_000  # environment steps (transitions) in total, over all envs
     seed: int = 0
     use_effort: bool = True  # False: the paper's ablation without the effort reward
+    effort_weight: float = 50.0  # c2: reward per m of mean tool-point displacement per step (LowLevelRewardConfig)
     her: bool = False  # HER relabelling ("future", 4 goals per transition)
     goal_sampling: str = "reachable"  # training goals; see ToolShape-v0 "Goals"
     randomize: bool = True  # delays, gains, friction (paper)
@@ -65,7 +66,7 @@ class LowLevelTrainConfig:
             "eval_goals_per_region": self.eval_goals_per_region >= 1, "torch_threads": self.torch_threads >= 1,
             "goal_sampling": self.goal_sampling in ("normal", "reachable"),
             "algorithm": self.algorithm in ("sac", "fast_sac"),
-            "demo_bc_weight": self.demo_bc_weight >= 0, "bc_pretrain_updates": self.bc_pretrain_updates >= 0,
+            "demo_bc_weight": self.demo_bc_weight >= 0, "effort_weight": self.effort_weight >= 0, "bc_pretrain_updates": self.bc_pretrain_updates >= 0,
         }
         bad = [name for name, ok in checks.items() if not ok]
         if bad:
@@ -108,5 +109,6 @@ class LowLevelTrainConfig:
 
     def env_arguments(self) -> dict:
         """Keyword arguments of ``gymnasium.make(ENV_ID, ...)`` for this run."""
-        return {"use_effort": self.use_effort, "goal_sampling": self.goal_sampling, "randomize": self.randomize,
+        return {"use_effort": self.use_effort, "effort_weight": self.effort_weight,
+                "goal_sampling": self.goal_sampling, "randomize": self.randomize,
                 "max_episode_steps": self.max_episode_steps, **self.env_kwargs}

@@ -22,6 +22,7 @@ from pathlib import Path
 
 import numpy as np
 
+from hingelab.envs.rewards import LowLevelRewardConfig
 from hingelab.episodes.dataset import Dataset
 from hingelab.episodes.errors import DatasetError
 from hingelab.episodes.transitions import Transitions, concat_transitions, episode_transitions
@@ -146,16 +147,31 @@ def _insert_her(buffer, tr: Transitions) -> int:
 
 def relabel_rewards(transitions: Transitions, goal_env) -> Transitions:
     """The learner's own rewards for recorded transitions: ``goal_env.compute_reward`` on the
-    recorded goals and the recorded goal-free ``effort`` info. A dataset recorded with another
-    reward setting (the effort term on or off) then trains this run with this run's reward."""
+    recorded goals and the recorded goal-free effort. A dataset recorded with another reward
+    setting (the effort term on or off, other weights) then trains this run with this run's
+    reward: from the unweighted ``tool_motion_m`` and ``finger_speed`` where the dataset has
+    them; datasets recorded before those were can give only their ``effort`` as recorded, so
+    they are refused for a run whose effort weights are not the defaults it was recorded with."""
     if not transitions.is_dict:
         raise ConfigError("reward relabelling needs goal (Dict) observations")
-    uses_effort = getattr(getattr(goal_env, "reward_config", None), "use_effort", False)
-    if uses_effort and "effort" not in transitions.infos:
-        raise DatasetError("the datasets do not record the effort term (info.effort) that this run's reward "
-                           "needs; record them with RecordingWrapper, or train with --no-effort")
-    # one info dict of arrays: compute_reward reads info["effort"] for the whole batch at once
-    info = {"effort": transitions.infos.get("effort", np.zeros(len(transitions)))}
+    config = getattr(goal_env, "reward_config", None)
+    uses_effort = getattr(config, "use_effort", False)
+    infos = transitions.infos
+    unweighted = "tool_motion_m" in infos and "finger_speed" in infos
+    if uses_effort and not unweighted:
+        if "effort" not in infos:
+            raise DatasetError("the datasets do not record the effort term (info.effort) that this run's reward "
+                               "needs; record them with RecordingWrapper, or train with --no-effort")
+        default = LowLevelRewardConfig()
+        if (config.c2, config.c3) != (default.c2, default.c3):
+            raise DatasetError(f"the datasets record the effort only as weighted when recorded (c2 {default.c2}, "
+                               f"c3 {default.c3}), not the tool motion and finger speed that this run's weights "
+                               f"(c2 {config.c2}, c3 {config.c3}) need; re-record them with this hingelab")
+    # one info dict of arrays: compute_reward reads the whole batch at once
+    if unweighted:
+        info = {"tool_motion_m": infos["tool_motion_m"], "finger_speed": infos["finger_speed"]}
+    else:
+        info = {"effort": infos.get("effort", np.zeros(len(transitions)))}
     transitions.rewards = np.asarray(goal_env.compute_reward(transitions.next_observations["achieved_goal"],
                                                              transitions.observations["desired_goal"], info),
                                      dtype=np.float32)
