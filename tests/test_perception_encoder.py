@@ -53,6 +53,11 @@ def test_checkpoint_round_trip(tiny_checkpoint):
         expected = model.encode(torch.from_numpy(cloud[None]))[0].numpy()[0]
     np.testing.assert_allclose(encoder.encode(cloud), expected, rtol=1e-6)
     assert encoder.info["seed"] == 0
+    # a batch past the one-thread size: the same latent means as the module
+    clouds = np.stack([cloud + 0.001 * k for k in range(12)]).astype(np.float32)
+    with torch.no_grad():
+        expected = model.encode(torch.from_numpy(clouds))[0].numpy()
+    np.testing.assert_allclose(encoder.encode(clouds), expected, rtol=1e-5, atol=1e-6)
 
 
 def _rewrite(path, **changes):
@@ -133,8 +138,8 @@ def test_small_batches_encode_on_one_thread_and_restore_the_setting(tiny_checkpo
     cloud = np.random.default_rng(0).normal(0.06, 0.02, (256, 3))
     before = torch.get_num_threads()
     seen = []
-    original = encoder.model.encode
-    monkeypatch.setattr(encoder.model, "encode", lambda x: (seen.append(torch.get_num_threads()), original(x))[1])
+    original = encoder._latent_mean
+    monkeypatch.setattr(encoder, "_latent_mean", lambda x: (seen.append(torch.get_num_threads()), original(x))[1])
     torch.set_num_threads(2)
     try:
         z_one = encoder.encode(cloud)

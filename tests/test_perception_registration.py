@@ -91,3 +91,84 @@ def test_bad_clouds_are_refused_in_one_line(registration, cloud, message):
 def test_bad_prior_is_refused(registration, in_hand_clouds):
     with pytest.raises(ConfigError, match="not a rotation"):
         registration.register(in_hand_clouds[0][0], prior=(np.eye(3) * 2, np.zeros(3)))
+
+
+def test_compiled_tracking_matches_the_numpy_reference(registration, in_hand_clouds):
+    """track (the compiled loop) and its numpy reference give the same poses, openings and
+    residuals on one tool, and a batch gives what each tool gives alone (each stops on its own)."""
+    from hingelab.perception.registration import TrackingConfig
+
+    clouds, rot, pos, theta = in_hand_clouds
+    rng = np.random.default_rng(3)
+    rot_p = Rotation.from_rotvec(rng.normal(0, 0.03, (len(rot), 3))).as_matrix() @ rot
+    pos_p = pos + rng.normal(0, 0.002, pos.shape)
+    hinge = theta + rng.normal(0, 0.02, len(theta))
+    for config in (TrackingConfig(), TrackingConfig(max_iterations=6, rotation_prior_m=0.0)):
+        for i in range(len(clouds)):
+            args = (clouds[i:i + 1], rot_p[i:i + 1], pos_p[i:i + 1], hinge[i:i + 1], config)
+            fast, reference = registration.track(*args), registration.numpy_reference().track(*args)
+            for name in ("rotation", "translation", "euler_xyz", "hinge_angle", "rmse_m"):
+                np.testing.assert_allclose(getattr(fast, name), getattr(reference, name), atol=1e-9, err_msg=name)
+        batch = registration.track(clouds, rot_p, pos_p, hinge, config)
+        alone = [registration.track(clouds[i:i + 1], rot_p[i:i + 1], pos_p[i:i + 1], hinge[i:i + 1], config)
+                 for i in range(len(clouds))]
+        np.testing.assert_allclose(batch.rotation, np.concatenate([a.rotation for a in alone]), atol=1e-12)
+        np.testing.assert_allclose(batch.hinge_angle, np.concatenate([a.hinge_angle for a in alone]), atol=1e-12)
+    trimmed = registration.with_search(trim_fraction=0.1)
+    args = (clouds[:2], rot_p[:2], pos_p[:2], hinge[:2])
+    np.testing.assert_allclose(trimmed.track(*args).translation, trimmed.numpy_reference().track(*args).translation,
+                               atol=1e-9)
+
+
+def test_closed_form_rotation_conversions_match_scipy():
+    from hingelab.perception.registration import euler_xyz, matrix_to_rotvec, rotvec_to_matrix
+
+    rng = np.random.default_rng(0)
+    for scale in (1e-9, 1e-5, 0.05, 1.0, 3.1):  # frame-to-frame turns up to nearly half a turn
+        axis = rng.normal(size=(500, 3))
+        vec = axis / np.linalg.norm(axis, axis=1, keepdims=True) * rng.uniform(0, scale, (500, 1))
+        mat = Rotation.from_rotvec(vec).as_matrix()
+        np.testing.assert_allclose(matrix_to_rotvec(mat), vec, atol=1e-10)
+        np.testing.assert_allclose(rotvec_to_matrix(vec), mat, atol=1e-12)
+    mat = Rotation.random(2000, random_state=1).as_matrix()
+    np.testing.assert_allclose(euler_xyz(mat), Rotation.from_matrix(mat).as_euler("xyz"), atol=1e-10)
+    np.testing.assert_allclose(matrix_to_rotvec(mat), Rotation.from_matrix(mat).as_rotvec(), atol=1e-9)
+    locked = Rotation.from_euler("xyz", [[0.3, np.pi / 2, -0.2], [0.1, -np.pi / 2, 0.4]]).as_matrix()
+    with pytest.warns(UserWarning, match="Gimbal lock"):  # scipy's, for the angles it cannot tell apart
+        np.testing.assert_allclose(euler_xyz(locked), Rotation.from_matrix(locked).as_euler("xyz"), atol=1e-12)
+
+
+def test_compiled_registration_matches_the_numpy_reference(registration, in_hand_clouds):
+    """register's compiled iterations (voxel-map and exact nearest neighbours) give the numpy
+    path's poses, openings and residuals, from the in-hand prior and from the global hypotheses."""
+    clouds, rot, *_ = in_hand_clouds
+    reference = registration.numpy_reference()
+    for prior in (nominal_tool_pose(), None):
+        fast, slow = registration.register(clouds[:12], prior=prior), reference.register(clouds[:12], prior=prior)
+        for name in ("rotation", "translation", "hinge_angle", "rmse_m"):
+            np.testing.assert_allclose(getattr(fast, name), getattr(slow, name), atol=1e-9, err_msg=name)
+    rigid = registration.with_search(trim_fraction=0.1)
+    np.testing.assert_allclose(rigid.register(clouds[:4]).translation,
+                               rigid.numpy_reference().register(clouds[:4]).translation, atol=1e-9)
+
+
+def test_exact_nearest_neighbours_match_a_kd_tree(registration):
+    """The compiled exact search (cell lists seeded by the voxel map) finds the k-d tree's nearest
+    model point, near the legs and far from them."""
+    from scipy.spatial import cKDTree
+
+    from hingelab.perception import registration_kernels
+    from hingelab.perception.registration import EXACT_CELL_M
+
+    model = registration.leg_a
+    cells = registration_kernels.cell_lists(model, EXACT_CELL_M, registration.config.grid_margin_m)
+    rng = np.random.default_rng(0)
+    queries = np.concatenate([model[rng.integers(0, len(model), 300)] + rng.normal(0, 0.004, (300, 3)),
+                              rng.uniform(model.min(0) - 0.05, model.max(0) + 0.05, (300, 3))])
+    dist, index = cKDTree(model).query(queries)
+    grid = registration._grid_a
+    for q, d, i in zip(queries, dist, index):
+        d_grid, i_grid = grid.query(q[None])
+        d_exact, i_exact = registration_kernels._exact_nearest(q, model, *cells, EXACT_CELL_M, float(d_grid[0]),
+                                                          int(i_grid[0]))
+        assert i_exact == i and abs(d_exact - d) < 1e-12

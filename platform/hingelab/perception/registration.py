@@ -26,6 +26,9 @@ many clouds at once. What makes it reliable and fast on the tweezer:
   are precomputed once on a voxel grid (an O(1) lookup per point); the last
   iterations use exact k-d tree queries (scipy ``cKDTree``).
 * Trimmed: the worst ``trim_fraction`` of pairs are left out of each SVD.
+* **Compiled**: the iterations of ``register`` (without reverse pairs) and of ``track`` run in
+  numba kernels (``hingelab.perception.registration_kernels``; exact neighbours there come from
+  cell lists seeded by the voxel map); ``numpy_reference()`` gives the same results in numpy.
 * **Tracking** (``track``, used by ``ToolState`` between resets): one hypothesis, started at
   the pose predicted from the previous frame, with a motion prior. A single frame pins the
   roll about the long axis down only to ~3-4 degrees (the legs are 16 mm tall, the noise 3 mm),
@@ -54,6 +57,7 @@ from scipy.spatial.transform import Rotation
 from hingelab.errors import ConfigError
 from hingelab.perception.clouds import ToolGeometry, _even_subset
 
+EXACT_CELL_M = 0.005  # cells of the compiled loops' exact nearest-neighbour search (2 and 3 mm were slower)
 MIN_POINTS = 32  # fewer points than this cannot pin down a 6-DoF pose of a long thin tool
 EULER_SEQUENCE = "xyz"  # scipy's lower case: extrinsic axes
 
@@ -268,6 +272,8 @@ class CanonicalRegistration:
         self._hinge_perp = m0 - np.outer(m0 @ self._axis, self._axis)
         self._skew = _skew(geometry._axis)
         self._normals = None  # tracking's model normals, made on first use
+        self._cells = None  # exact nearest-neighbour cell lists of the compiled loops, made on first use
+        self.compiled = True  # iterate in the compiled loops (registration_kernels); False: numpy (numpy_reference)
 
     def with_search(self, **changes) -> "CanonicalRegistration":
         """A copy sharing the precomputed model and maps, with other search settings
@@ -279,6 +285,41 @@ class CanonicalRegistration:
         other = copy.copy(self)
         other.config = replace(self.config, **changes)
         return other
+
+    def numpy_reference(self) -> "CanonicalRegistration":
+        """A copy that iterates in numpy, batched (the reference the compiled loops are tested
+        against; also the path with ``reverse_weight > 0``, which the compiled loop does not do)."""
+        other = copy.copy(self)
+        other.compiled = False
+        return other
+
+    def _kernel_model(self) -> tuple:
+        """The model arrays the compiled loops take, in their argument order."""
+        from hingelab.perception import registration_kernels
+
+        if self._cells is None:
+            c = self.config
+            self._cells = tuple(registration_kernels.cell_lists(model, EXACT_CELL_M, c.grid_margin_m)
+                                for model in (self.leg_a, self.leg_b_local))
+        ga, gb = self._grid_a, self._grid_b
+        return (self.leg_a, ga.index, ga.origin, self.leg_b_local, gb.index, gb.origin, float(ga.resolution),
+                self._cells[0], self._cells[1], EXACT_CELL_M, self._hinge_cross, self._hinge_perp, self._anchor,
+                self._skew, self.geometry._b_rot, self.geometry._b_pos, self.geometry._anchor,
+                float(self._hinge_bounds[0]), float(self._hinge_bounds[1]), bool(self.config.articulated),
+                float(self.config.reference_opening_rad), float(self.config.trim_fraction))
+
+    def _iterate(self, points, rot, pos, theta, iterations: int, reverse, exact: bool):
+        """``iterations`` ICP steps (``_step``) on C candidates: (rot, pos, theta, score)."""
+        if self.compiled and self.config.reverse_weight == 0:
+            from hingelab.perception import registration_kernels
+
+            return registration_kernels.icp_iterations(
+                np.ascontiguousarray(points), np.ascontiguousarray(rot), np.ascontiguousarray(pos),
+                np.ascontiguousarray(theta, dtype=float), int(iterations), bool(exact), *self._kernel_model())
+        score = None
+        for _ in range(iterations):
+            rot, pos, theta, score = self._step(points, rot, pos, theta, reverse, exact)
+        return rot, pos, theta, score
 
     def _model_subset(self, n: int) -> tuple[np.ndarray, np.ndarray]:
         """(points (n, 3) in their part frames, is_leg_b (n,)) spread evenly over both parts."""
@@ -304,18 +345,16 @@ class CanonicalRegistration:
             raise ConfigError("the hinge prior for registration has NaN or Inf; pass hinge_prior=None")
         rot, pos, theta, n_keep = self._hypotheses(points, prior, np.clip(start, *self._hinge_bounds))
         candidates = np.repeat(points, n_keep, axis=0)
-        for _ in range(c.fine_iterations):
-            rot, pos, theta, score = self._step(candidates, rot, pos, theta, self._reverse, exact=False)
+        rot, pos, theta, score = self._iterate(candidates, rot, pos, theta, c.fine_iterations, self._reverse,
+                                               exact=False)
         if n_keep > 1:  # each cloud's best surviving hypothesis
             best = np.argmin(score.reshape(n_batch, n_keep), axis=1) + np.arange(n_batch) * n_keep
             rot, pos, theta = rot[best], pos[best], theta[best]
-        for _ in range(c.exact_iterations):
-            rot, pos, theta, score = self._step(points, rot, pos, theta, self._reverse, exact=True)
+        rot, pos, theta, score = self._iterate(points, rot, pos, theta, c.exact_iterations, self._reverse, exact=True)
         # the residual of the last iteration's pairs (before its small final update)
         rmse = np.sqrt(score) if c.exact_iterations and c.reverse_weight == 0 else self._forward_rmse(
             points, rot, pos, theta)
-        euler = Rotation.from_matrix(rot).as_euler(EULER_SEQUENCE)
-        result = Registration(rot, pos, euler, theta if c.articulated else np.full(n_batch, np.nan), rmse)
+        result = Registration(rot, pos, euler_xyz(rot), theta if c.articulated else np.full(n_batch, np.nan), rmse)
         if single:
             result = Registration(*(getattr(result, f)[0] for f in result.__dataclass_fields__))
         return result
@@ -332,13 +371,50 @@ class CanonicalRegistration:
         fraction of the way per iteration, which a warm start with few iterations would turn
         into lag. Iterates until no tool moved more than the tolerances. ``rmse_m``: the
         last pairs' point-to-point residual.
+
+        Runs the compiled loop (``hingelab.perception.registration_kernels``, the same arithmetic;
+        each tool stops iterating on its own); ``numpy_reference().track`` is this loop in numpy.
         """
+        if not self.compiled:
+            return self._track_numpy(clouds, rotation, translation, hinge, config)
+        from hingelab.perception import registration_kernels
+
         points, single = check_clouds(clouds)
-        c, n_batch = self.config, len(points)
+        c = self.config
+        rot_p, pos_p, theta = self._track_start(points, rotation, translation, hinge)
+        normals_a, normals_b = self._model_normals()
+        ga, gb = self._grid_a, self._grid_b
+        rot, pos, theta, score = registration_kernels.track_batch(
+            points, rot_p, pos_p, theta, self.leg_a, normals_a, ga.index, ga.origin, self.leg_b_local, normals_b,
+            gb.index, gb.origin, float(ga.resolution), self._hinge_cross, self._hinge_perp, self._anchor,
+            self._skew, self.geometry._b_rot, self.geometry._b_pos, self.geometry._anchor,
+            float(self._hinge_bounds[0]), float(self._hinge_bounds[1]), bool(c.articulated), float(c.trim_fraction),
+            float(config.rotation_prior_m ** 2), float(config.translation_prior), int(config.max_iterations),
+            float(config.tolerance_rad), float(config.tolerance_m))
+        return self._tracked(rot, pos, theta, score, single)
+
+    def _track_start(self, points, rotation, translation, hinge):
+        n_batch = len(points)
         rot_p = np.broadcast_to(np.asarray(rotation, float), (n_batch, 3, 3)).copy()
         pos_p = np.broadcast_to(np.asarray(translation, float), (n_batch, 3)).copy()
         _check_prior(rot_p, pos_p)
         theta = np.clip(np.broadcast_to(np.asarray(hinge, float), (n_batch,)), *self._hinge_bounds)
+        return rot_p, pos_p, theta
+
+    def _tracked(self, rot, pos, theta, score, single: bool) -> Registration:
+        n_batch = len(rot)
+        euler = euler_xyz(rot)
+        result = Registration(rot, pos, euler, theta if self.config.articulated else np.full(n_batch, np.nan),
+                              np.sqrt(score))
+        if single:
+            result = Registration(*(getattr(result, f)[0] for f in result.__dataclass_fields__))
+        return result
+
+    def _track_numpy(self, clouds, rotation, translation, hinge, config: TrackingConfig) -> Registration:
+        """``track`` in numpy, batched: the whole batch iterates until no tool moves."""
+        points, single = check_clouds(clouds)
+        c, n_batch = self.config, len(points)
+        rot_p, pos_p, theta = self._track_start(points, rotation, translation, hinge)
         normals_a, normals_b = self._model_normals()
         k_r, k_t = config.rotation_prior_m ** 2, config.translation_prior
         rot, pos = rot_p, pos_p
@@ -364,11 +440,7 @@ class CanonicalRegistration:
                 theta = self._track_hinge(points, rot, pos, theta, index_b, w * on_b)
             if np.abs(omega).max() < config.tolerance_rad and moved < config.tolerance_m:
                 break
-        euler = Rotation.from_matrix(rot).as_euler(EULER_SEQUENCE)
-        result = Registration(rot, pos, euler, theta if c.articulated else np.full(n_batch, np.nan), np.sqrt(score))
-        if single:
-            result = Registration(*(getattr(result, f)[0] for f in result.__dataclass_fields__))
-        return result
+        return self._tracked(rot, pos, theta, score, single)
 
     def _model_normals(self) -> tuple[np.ndarray, np.ndarray]:
         """Surface normals of leg a's (tool frame) and leg b's (own frame) model points, by PCA
@@ -437,8 +509,8 @@ class CanonicalRegistration:
             return rot, pos, theta, 1
         sub = points[:, np.linspace(0, n_points - 1, min(c.coarse_points, n_points)).astype(int)]
         sub = np.repeat(sub, n_hyp, axis=0)
-        for _ in range(max(c.coarse_iterations, 1)):
-            rot, pos, theta, score = self._step(sub, rot, pos, theta, self._reverse_coarse, exact=False)
+        rot, pos, theta, score = self._iterate(sub, rot, pos, theta, max(c.coarse_iterations, 1),
+                                               self._reverse_coarse, exact=False)
         n_keep = min(c.keep_hypotheses, n_hyp)
         keep = (np.argsort(score.reshape(n_batch, n_hyp), axis=1)[:, :n_keep]
                 + np.arange(n_batch)[:, None] * n_hyp).ravel()
@@ -533,14 +605,31 @@ def _skew(v: np.ndarray) -> np.ndarray:
     return out
 
 
-def _rotvec_to_matrix(rotvec: np.ndarray) -> np.ndarray:
-    """Rodrigues' formula, (B, 3) -> (B, 3, 3)."""
+def rotvec_to_matrix(rotvec: np.ndarray) -> np.ndarray:
+    """Rodrigues' formula, (B, 3) -> (B, 3, 3) (scipy's ``from_rotvec``, without its per-call cost)."""
     angle = np.linalg.norm(rotvec, axis=1)[:, None, None]
     k = _skew(rotvec)
     small = angle < 1e-8
     a = np.where(small, 1.0, np.sin(angle) / np.where(small, 1.0, angle))
     b = np.where(small, 0.5, (1 - np.cos(angle)) / np.where(small, 1.0, angle) ** 2)
     return np.eye(3) + a * k + b * (k @ k)
+
+
+def matrix_to_rotvec(rot: np.ndarray) -> np.ndarray:
+    """Rotation vectors (B, 3) of rotations (B, 3, 3): scipy's ``as_rotvec``, in closed form for
+    the frame-to-frame turns it is used on; turns within ~0.6 degrees of 180 go to scipy."""
+    rot = np.asarray(rot, float)
+    cos = np.clip((np.trace(rot, axis1=1, axis2=2) - 1) / 2, -1.0, 1.0)
+    angle = np.arccos(cos)
+    skew = np.stack([rot[:, 2, 1] - rot[:, 1, 2], rot[:, 0, 2] - rot[:, 2, 0], rot[:, 1, 0] - rot[:, 0, 1]], axis=1)
+    sin = np.sin(angle)
+    # angle / (2 sin angle), with its limit 1/2 (+ angle^2 / 12) for small angles
+    factor = np.where(angle < 1e-4, 0.5 + angle ** 2 / 12, angle / (2 * np.where(angle < 1e-4, 1.0, sin)))
+    out = factor[:, None] * skew
+    near_pi = cos < -0.99995
+    if near_pi.any():
+        out[near_pi] = Rotation.from_matrix(rot[near_pi]).as_rotvec()
+    return out
 
 
 def _plane_step(points, model, normals, w, rot, pos, rot_p, pos_p, k_r: float, k_t: float):
@@ -569,7 +658,7 @@ def _plane_step(points, model, normals, w, rot, pos, rot_p, pos_p, k_r: float, k
     grad[:, :3] -= k_r * e_r
     step = np.linalg.solve(hess, grad[..., None])[..., 0]
     omega, tau = step[:, :3], step[:, 3:]
-    turn = _rotvec_to_matrix(omega)
+    turn = rotvec_to_matrix(omega)
     return omega, turn, centre + np.einsum("bij,bj->bi", turn, pos - centre) + tau
 
 
@@ -580,6 +669,20 @@ def _check_prior(rot: np.ndarray, pos: np.ndarray) -> None:
         raise ConfigError("the prior rotation for registration is not a rotation matrix (R R^T != I)")
 
 
+def euler_xyz(rot: np.ndarray) -> np.ndarray:
+    """Extrinsic x-y-z Euler angles (rad) of rotations (B, 3, 3): scipy's ``as_euler("xyz")``,
+    in closed form (a scipy Rotation costs ~0.1 ms per call, a tenth of a tracking step);
+    near gimbal lock (pitch within ~0.8 degrees of +-90) scipy's convention is used."""
+    rot = np.asarray(rot, float)
+    out = np.stack([np.arctan2(rot[:, 2, 1], rot[:, 2, 2]),
+                    np.arcsin(np.clip(-rot[:, 2, 0], -1.0, 1.0)),
+                    np.arctan2(rot[:, 1, 0], rot[:, 0, 0])], axis=1)
+    locked = np.abs(rot[:, 2, 0]) > 0.9999
+    if locked.any():
+        out[locked] = Rotation.from_matrix(rot[locked]).as_euler(EULER_SEQUENCE)
+    return out
+
+
 def rotation_error_rad(rot_est: np.ndarray, rot_true: np.ndarray) -> np.ndarray:
     """Angle of R_est^T R_true, radians: (..., 3, 3) x2 -> (...)."""
     rel = np.einsum("...ji,...jk->...ik", rot_est, rot_true)
@@ -588,4 +691,4 @@ def rotation_error_rad(rot_est: np.ndarray, rot_true: np.ndarray) -> np.ndarray:
 
 
 __all__ = ["CanonicalRegistration", "MIN_POINTS", "Registration", "RegistrationConfig", "TrackingConfig",
-           "check_clouds", "kabsch", "rotation_error_rad"]
+           "check_clouds", "euler_xyz", "kabsch", "matrix_to_rotvec", "rotation_error_rad", "rotvec_to_matrix"]

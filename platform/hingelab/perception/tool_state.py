@@ -32,12 +32,11 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.spatial.transform import Rotation
 
 from hingelab.errors import ConfigError
 from hingelab.perception.encoder import ToolEncoder, load_encoder
 from hingelab.perception.registration import (CanonicalRegistration, Registration, RegistrationConfig, TrackingConfig,
-                                              check_clouds)
+                                              check_clouds, matrix_to_rotvec, rotvec_to_matrix)
 
 ALPHA = 0.9  # the paper's smoothing
 CONTROL_DT_S = 0.05  # 20 Hz
@@ -119,7 +118,7 @@ class ToolState:
     def _predicted_pose(self) -> tuple[np.ndarray, np.ndarray]:
         """The previous poses moved by ``predict_motion`` times the last step's motion: R (B, 3, 3), t (B, 3)."""
         share = self.tracking.predict_motion * self.dt
-        turn = Rotation.from_rotvec(share * self._motion[:, 3:]).as_matrix()
+        turn = rotvec_to_matrix(share * self._motion[:, 3:])
         return turn @ self._rot, self._pos + share * self._motion[:, :3]
 
     def _register(self, points: np.ndarray, fresh: np.ndarray) -> Registration:
@@ -155,8 +154,7 @@ class ToolState:
         rot, pos = result.rotation, result.translation
         velocity = np.where(fresh[:, None], 0.0, (pos - self._pos) / self.dt)
         previous = np.where(fresh[:, None, None], rot, self._rot)  # fresh tools: no motion yet
-        delta = Rotation.from_matrix(rot @ np.swapaxes(previous, 1, 2))
-        omega = np.where(fresh[:, None], 0.0, delta.as_rotvec() / self.dt)
+        omega = np.where(fresh[:, None], 0.0, matrix_to_rotvec(rot @ np.swapaxes(previous, 1, 2)) / self.dt)
         z = self.encoder.encode(result.to_tool_frame(points).astype(np.float32))
         raw = np.concatenate([velocity, omega, z], axis=1)
         self._smoothed = np.where(fresh[:, None], raw, self.alpha * raw + (1 - self.alpha) * self._smoothed)
