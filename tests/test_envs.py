@@ -173,3 +173,30 @@ def test_tool_pick_with_the_shipped_low_level_policy_follows_the_goal():
     env.close()
     assert max(distance.values()) < 3 * threshold, (distance, threshold)
     assert hinge[0.18] - hinge[0.03] > 0.08, hinge
+
+
+def test_bench_envs_replays_the_same_steps_as_its_raw_baseline(shape_env):
+    """The bench's baseline is bare mj_step on the 1-worker run's own steps: replaying them from
+    their recorded start states and controls reproduces the env's physics exactly."""
+    import mujoco
+
+    from hingelab.bench.envs import PHYSICS, _OneWorker
+
+    worker = _OneWorker(TOOL_SHAPE_ID)
+    assert worker.rate(15) > 0
+    states, controls = worker.replay
+    assert len(states) == len(controls) >= 10
+    model, sim = worker.sim.model, worker.sim
+    # the last replayed step ends where the env's last step ended
+    data = mujoco.MjData(model)
+    mujoco.mj_setState(model, data, states[-1], PHYSICS)
+    data.ctrl[:] = controls[-1]
+    for _ in range(sim.n_substeps):
+        mujoco.mj_step(model, data)
+    end = np.empty(mujoco.mj_stateSize(model, PHYSICS))
+    mujoco.mj_getState(model, sim.data, end, PHYSICS)
+    replayed = np.empty_like(end)
+    mujoco.mj_getState(model, data, replayed, PHYSICS)
+    np.testing.assert_allclose(replayed, end, atol=1e-12)  # 15 steps of a 50-step episode: no reset came
+    assert worker.replayed_raw_rate() > 0
+    worker.env.close()
