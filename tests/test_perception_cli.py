@@ -71,7 +71,11 @@ def test_bench_perception_quick(tmp_path, capsys):
     assert "tool state, 64 clouds per update" in text
 
 
-def test_bench_perception_without_open3d_says_how_to_install(monkeypatch):
+@pytest.mark.parametrize("failure, advice", [
+    ("No module named 'open3d'", r"pip install 'hingelab\[bench\]'"),
+    ("libusb-1.0.so.0: cannot open shared object file: No such file or directory", "apt-get install libusb-1.0-0"),
+])
+def test_bench_perception_without_open3d_says_how_to_install(monkeypatch, failure, advice):
     import builtins
 
     from hingelab.bench import perception
@@ -81,9 +85,9 @@ def test_bench_perception_without_open3d_says_how_to_install(monkeypatch):
 
     def no_open3d(name, *args, **kwargs):
         if name == "open3d":
-            raise ImportError("No module named 'open3d'")
+            raise ImportError(failure)
         return real_import(name, *args, **kwargs)
 
     monkeypatch.setattr(builtins, "__import__", no_open3d)
-    with pytest.raises(ConfigError, match=r"pip install 'hingelab\[bench\]'"):
+    with pytest.raises(ConfigError, match=advice):
         perception._require_open3d()

@@ -38,6 +38,9 @@ def _require_open3d():
     try:
         import open3d
     except ImportError as exc:
+        if "libusb" in str(exc):  # open3d's wheel links the system's libusb (for its RealSense support)
+            raise ConfigError("Open3D is installed but needs the system library libusb-1.0, which is missing; "
+                              "on Debian or Ubuntu: apt-get install libusb-1.0-0") from exc
         raise ConfigError("the perception bench compares with Open3D's ICP, which is not installed; "
                           "pip install 'hingelab[bench]' (the open3d-cpu package)") from exc
     return open3d
