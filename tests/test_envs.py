@@ -59,7 +59,7 @@ def test_reachable_goals_lie_on_the_calibration_curve():
     calibration = env.unwrapped.calibration
     for seed in range(5):
         obs, _ = env.reset(seed=seed)
-        opening = calibration.opening_rad(obs["desired_goal"])
+        opening = calibration.project_opening(obs["desired_goal"])
         back = calibration.z_for_opening(opening)
         assert np.linalg.norm(back - obs["desired_goal"]) < 0.05 * max(1e-3, env.unwrapped.success_threshold) + 1e-3
     env.close()

@@ -29,8 +29,25 @@ def test_fit_predicts_opening_and_gap(curve):
     assert np.abs(calibration.opening_rad(z) - opening).mean() < 0.005
     # the axis is oriented so that the coordinate grows with the opening
     assert np.corrcoef(calibration.coordinate(z), opening)[0, 1] > 0.99
-    metrics = calibration.evaluate(z, opening, gap)
-    assert metrics["r2_opening"] == pytest.approx(calibration.r2_opening)
+    metrics = calibration.evaluate(z, opening, gap)  # reads with the least-squares reader
+    assert metrics["r2_opening"] == pytest.approx(calibration.reader_r2_opening)
+    # r2_opening is the curve projection's; the reader fits the openings at least as well here
+    assert r_squared(opening, calibration.project_opening(z)) == pytest.approx(calibration.r2_opening)
+    assert calibration.reader_r2_opening >= calibration.r2_opening - 1e-3
+
+
+def test_a_calibration_without_a_reader_reads_by_projection(curve):
+    """Calibrations recorded before readers existed load and read as they did."""
+    z, opening, gap = curve
+    calibration = OpeningCalibration.fit(z, opening, gap)
+    old = {k: v for k, v in calibration.to_dict().items() if k not in ("reader_coef", "reader_r2_opening")}
+    legacy = OpeningCalibration.from_dict(old)
+    assert legacy.reader_coef is None
+    np.testing.assert_array_equal(legacy.opening_rad(z), calibration.project_opening(z))
+    again = legacy.with_reader(z, opening)
+    assert again.z_coef == legacy.z_coef and again.reader_coef == pytest.approx(calibration.reader_coef)
+    with pytest.raises(ConfigError, match="at least 40"):
+        legacy.with_reader(z[:10], opening[:10])
 
 
 def test_inverse_round_trip(curve):

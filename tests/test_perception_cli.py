@@ -44,6 +44,24 @@ def test_generate_then_train(tmp_path, capsys):
     assert encoder.calibration is not None and encoder.encode(clouds["points"][:4]).shape == (4, 2)
     raw = torch.load(out, weights_only=False)
     assert raw["train_config"]["epochs"] == 1 and raw["registration_config"]["articulated"] is True
+    assert encoder.calibration.reader_coef is not None  # new trainings fit the reader too
+
+    # --recalibrate: a checkpoint from before readers gets one; weights, curve and fingerprint stay
+    raw["calibration"] = {k: v for k, v in raw["calibration"].items() if k not in ("reader_coef", "reader_r2_opening")}
+    torch.save(raw, out)
+    before = load_encoder(out)
+    assert before.calibration.reader_coef is None
+    assert main(["train", "encoder", "--data", str(data), "--recalibrate", "--out", str(out), "--no-progress"]) == 0
+    assert "(unchanged)" in capsys.readouterr().out
+    after = load_encoder(out)
+    assert after.fingerprint == before.fingerprint and after.calibration.reader_coef is not None
+    assert after.calibration.z_coef == before.calibration.z_coef and "reader" in after.info
+    z = after.encode(clouds["points"][:16])
+    np.testing.assert_array_equal(after.calibration.project_opening(z), before.calibration.opening_rad(z))
+    lo, hi = after.calibration.opening_range
+    assert ((after.calibration.opening_rad(z) >= lo) & (after.calibration.opening_rad(z) <= hi)).all()
+    assert main(["train", "encoder", "--data", str(again), "--recalibrate", "--out", str(out)]) == 1
+    assert "is not the dataset" in _one_line_error(capsys)
 
 
 def test_generate_refuses_a_used_folder_and_train_a_missing_dataset(tmp_path, capsys):

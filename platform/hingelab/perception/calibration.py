@@ -8,6 +8,14 @@ which works whether the curve is straight or bent. The tip gap (m) is a polynomi
 the opening fitted on the same data, so users and the heuristic can speak in
 millimetres: ``z_for_tip_gap_mm(12.0)`` is a latent goal.
 
+**Reading** an opening off a latent: the projection minimizes the distance in latent space,
+not the opening's error, and noisy latents scatter off the curve unevenly along it. A
+calibration may also carry a *reader*: the opening as a cubic polynomial of z fitted by least
+squares (``with_reader``); ``opening_rad`` then uses it (clipped to the fitted range). On the
+shipped encoder's held-out 5 mm clouds it gave R^2 0.951 where the projection gave 0.947. The
+curve is unchanged by it: goals (``z_for_opening``) and the env's success threshold
+(``project_opening``) stay what they were, and so does ``ToolEncoder.fingerprint``.
+
 The principal axis u of the latents (oriented so the opening grows along +u) gives a
 coordinate s = u . (z - mean) for plots and for the monotonicity check.
 
@@ -27,6 +35,15 @@ from hingelab.errors import ConfigError
 DEGREE = 5  # of the latent curve z(opening)
 GAP_DEGREE = 3  # of the tip gap as a function of the opening
 GRID = 1024  # openings searched when projecting a latent onto the curve
+READER_DEGREE = 3  # of the opening as a polynomial of z (4 and 5 gained < 0.001 R^2 on held-out clouds)
+READER_FIELDS = ("reader_coef", "reader_r2_opening")  # not part of what a latent means (fingerprint)
+
+
+def _monomials(z: np.ndarray, degree: int = READER_DEGREE) -> np.ndarray:
+    """(..., 2) latents -> (..., K) products z0^i z1^j, i + j <= degree."""
+    z = np.asarray(z, float)
+    return np.stack([z[..., 0] ** i * z[..., 1] ** j for i in range(degree + 1) for j in range(degree + 1 - i)],
+                    axis=-1)
 
 
 def r_squared(truth: np.ndarray, predicted: np.ndarray) -> float:
@@ -45,8 +62,10 @@ class OpeningCalibration:
     opening_range: tuple[float, float]  # rad, of the fitting data
     mean: tuple[float, ...]  # latent mean
     axis: tuple[float, ...]  # unit principal axis of the latents, the opening grows along it
-    r2_opening: float
+    r2_opening: float  # of the curve projection, on the fitting data
     r2_gap: float
+    reader_coef: tuple[float, ...] | None = None  # opening = _monomials(z) @ coef (see the module docstring)
+    reader_r2_opening: float | None = None  # of the reader, on the data it was fitted on
 
     @classmethod
     def fit(cls, z: np.ndarray, opening_rad: np.ndarray, tip_gap_m: np.ndarray) -> "OpeningCalibration":
@@ -67,7 +86,19 @@ class OpeningCalibration:
                       opening_range=(float(opening.min()), float(opening.max())),
                       mean=tuple(mean), axis=tuple(axis), r2_opening=float("nan"), r2_gap=float("nan"))
         fitted = partial.evaluate(z, opening, gap)
-        return cls(**{**partial.to_dict(), "r2_opening": fitted["r2_opening"], "r2_gap": fitted["r2_gap"]})
+        curve = cls(**{**partial.to_dict(), "r2_opening": fitted["r2_opening"], "r2_gap": fitted["r2_gap"]})
+        return curve.with_reader(z, opening) if z.shape[1] == 2 else curve
+
+    def with_reader(self, z: np.ndarray, opening_rad: np.ndarray) -> "OpeningCalibration":
+        """A copy with the least-squares reader fitted on (z (M, 2), openings (M,)); the curve is kept."""
+        z, opening = np.asarray(z, float), np.asarray(opening_rad, float)
+        if z.ndim != 2 or z.shape[1] != 2 or len(z) != len(opening) or len(z) < 40:
+            raise ConfigError(f"the reader needs at least 40 2-D latents and as many openings, got {z.shape}, "
+                              f"{opening.shape}")
+        coef, *_ = np.linalg.lstsq(_monomials(z), opening, rcond=None)
+        with_coef = OpeningCalibration(**{**self.to_dict(), "reader_coef": tuple(float(c) for c in coef)})
+        r2 = r_squared(opening, with_coef.opening_rad(z))
+        return OpeningCalibration(**{**with_coef.to_dict(), "reader_r2_opening": r2})
 
     # ------------------------------------------------------------------ z -> opening
     def coordinate(self, z) -> np.ndarray:
@@ -75,7 +106,14 @@ class OpeningCalibration:
         return (np.asarray(z, float) - np.asarray(self.mean)) @ np.asarray(self.axis)
 
     def opening_rad(self, z) -> np.ndarray:
-        """Opening (hinge angle, rad) read from latents (..., D): the nearest point of the curve."""
+        """Opening (hinge angle, rad) read from latents (..., D): the reader's, clipped to the fitted
+        range, if the calibration has one, else the nearest point of the curve."""
+        if self.reader_coef is None:
+            return self.project_opening(z)
+        return np.clip(_monomials(z) @ np.asarray(self.reader_coef), *self.opening_range)
+
+    def project_opening(self, z) -> np.ndarray:
+        """Opening (rad) of the nearest point of the curve to latents (..., D)."""
         z = np.asarray(z, float)
         grid, curve = self._curve
         dist = ((z[..., None, :] - curve) ** 2).sum(axis=-1)
@@ -126,9 +164,10 @@ class OpeningCalibration:
         try:
             return cls(**{k: (tuple(tuple(x) for x in v) if k == "z_coef" else
                               tuple(v) if isinstance(v, (list, tuple)) else v) for k, v in raw.items()})
+            # a calibration recorded before readers existed has no reader fields: it reads by projection
         except TypeError as exc:
             raise ConfigError(f"calibration record does not match this hingelab version ({exc}); retrain the "
                               "encoder with `hingelab train encoder`") from exc
 
 
-__all__ = ["OpeningCalibration", "r_squared"]
+__all__ = ["OpeningCalibration", "READER_FIELDS", "r_squared"]

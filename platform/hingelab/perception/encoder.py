@@ -171,8 +171,11 @@ class ToolEncoder:
         for name, tensor in sorted(self.model.state_dict().items()):
             digest.update(name.encode())
             digest.update(tensor.detach().cpu().numpy().tobytes())
-        if self.calibration is not None:
-            digest.update(json.dumps(self.calibration.to_dict(), sort_keys=True).encode())
+        if self.calibration is not None:  # the curve, not the reader (it changes no latent and no goal)
+            from hingelab.perception.calibration import READER_FIELDS
+
+            curve = {k: v for k, v in self.calibration.to_dict().items() if k not in READER_FIELDS}
+            digest.update(json.dumps(curve, sort_keys=True).encode())
         return digest.hexdigest()[:16]
 
     @torch.no_grad()

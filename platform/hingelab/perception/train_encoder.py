@@ -119,6 +119,56 @@ def mean_chamfer_mm2(model: PointNetVAE, clouds: np.ndarray, targets: np.ndarray
     return 1e6 * total / len(clouds)
 
 
+def _split(data: dict, val_fraction: float) -> tuple[np.ndarray, np.ndarray]:
+    """(training, held-out) cloud indices: the last ``val_fraction`` of the episodes are held out."""
+    episodes = np.unique(data["episode"])
+    n_val = max(1, int(round(val_fraction * len(episodes)))) if len(episodes) > 1 else 0
+    is_val = np.isin(data["episode"], episodes[len(episodes) - n_val:])
+    tr, va = np.flatnonzero(~is_val), np.flatnonzero(is_val)
+    return tr, (tr if n_val == 0 else va)  # one episode: validate on the training clouds
+
+
+def recalibrate_encoder(data_dir, checkpoint, progress: bool = True) -> tuple[ToolEncoder, dict]:
+    """Fit the latent -> opening reader (``OpeningCalibration.with_reader``) of a trained checkpoint
+    on the training split of the dataset it was trained on, and rewrite the checkpoint.
+
+    The weights and the calibration curve are kept, so ``ToolEncoder.fingerprint`` and every
+    latent goal stay the same; the reader's held-out R^2 and where it was fitted go into the
+    checkpoint's ``reader`` record. Returns (encoder, metrics)."""
+    from hingelab.perception.encoder import load_encoder
+
+    started = time.perf_counter()
+    checkpoint = Path(checkpoint)
+    encoder = load_encoder(checkpoint)
+    if encoder.calibration is None:
+        raise ConfigError(f"{checkpoint} has no calibration to add a reader to; retrain it with `hingelab train encoder`")
+    data = load_cloud_dataset(data_dir, progress=progress)
+    trained_on = (encoder.info.get("data") or {}).get("config_hash")
+    from hingelab.episodes import load_card
+
+    card = load_card(data_dir)
+    if trained_on is not None and card.config_hash != trained_on:
+        raise ConfigError(f"{data_dir} (config {card.config_hash}) is not the dataset {checkpoint} was trained on "
+                          f"(config {trained_on}); regenerate it with the command in the checkpoint's README")
+    registration = CanonicalRegistration(ToolGeometry.default(), RegistrationConfig(**encoder.registration_config))
+    clouds, _ = register_to_tool_frame(data["points"], registration, progress=progress)
+    train = TrainEncoderConfig(**{k: v for k, v in (encoder.info.get("train_config") or {}).items()
+                                  if k in TrainEncoderConfig.__dataclass_fields__})
+    tr, va = _split(data, train.val_fraction)
+    calibration = encoder.calibration.with_reader(encode_all(encoder.model, clouds[tr]), data["hinge_angle"][tr])
+    held_out = calibration.evaluate(encode_all(encoder.model, clouds[va]), data["hinge_angle"][va],
+                                    data["tip_gap_m"][va])
+    metrics = {"reader_r2_opening_train": calibration.reader_r2_opening,
+               **{f"{k}_val": v for k, v in held_out.items()}, "wall_time_s": time.perf_counter() - started}
+    kept = {k: v for k, v in encoder.info.items()
+            if k not in ("format", "format_version", "geometry_hash", "registration_config")}
+    kept["reader"] = {"data": str(Path(data_dir).resolve()), "config_hash": card.config_hash,
+                      "code_version": code_version(), "metrics": metrics}
+    save_checkpoint(checkpoint, encoder.model, geometry_hash=ToolGeometry.default().geometry_hash,
+                    registration_config=encoder.registration_config, calibration=calibration.to_dict(), info=kept)
+    return load_encoder(checkpoint), metrics
+
+
 def train_encoder(data_dir, out_path, train: TrainEncoderConfig = TrainEncoderConfig(),
                   encoder: EncoderConfig = EncoderConfig(), registration_config: RegistrationConfig = RegistrationConfig(),
                   progress: bool = True, log=print) -> tuple[ToolEncoder, dict]:
@@ -135,12 +185,7 @@ def train_encoder(data_dir, out_path, train: TrainEncoderConfig = TrainEncoderCo
     registration = CanonicalRegistration(geometry, registration_config)
     clouds, _ = register_to_tool_frame(data["points"], registration, train.register_batch, progress)
     targets = surface_targets(geometry, data["hinge_angle"], encoder.target_points)
-    episodes = np.unique(data["episode"])
-    n_val = max(1, int(round(train.val_fraction * len(episodes)))) if len(episodes) > 1 else 0
-    is_val = np.isin(data["episode"], episodes[len(episodes) - n_val:])
-    tr, va = np.flatnonzero(~is_val), np.flatnonzero(is_val)
-    if n_val == 0:  # one episode: validate on the training clouds
-        va = tr
+    tr, va = _split(data, train.val_fraction)
     model = PointNetVAE(encoder)
     optimizer = torch.optim.Adam(model.parameters(), lr=train.learning_rate)
     scheduler = torch.optim.lr_scheduler.CosineAnnealingLR(optimizer, T_max=train.epochs)
@@ -194,5 +239,5 @@ def train_encoder(data_dir, out_path, train: TrainEncoderConfig = TrainEncoderCo
     return ToolEncoder(model, calibration, asdict(registration_config), info), metrics
 
 
-__all__ = ["TrainEncoderConfig", "encode_all", "mean_chamfer_mm2", "register_to_tool_frame", "surface_targets",
-           "train_encoder"]
+__all__ = ["TrainEncoderConfig", "encode_all", "mean_chamfer_mm2", "recalibrate_encoder", "register_to_tool_frame",
+           "surface_targets", "train_encoder"]
