@@ -62,7 +62,8 @@ class SynergyPolicy:
     def predict(self, obs, deterministic: bool = True):
         goal = np.asarray(obs["desired_goal"], float)
         if self.command is None:
-            self.command = float(self.calibration.opening_rad(goal))
+            # goals are points of the calibration curve: their own opening (as the demonstrations were made)
+            self.command = float(self.calibration.project_opening(goal))
         error = float(self.calibration.coordinate(goal) - self.calibration.coordinate(obs["achieved_goal"]))
         self.command = float(np.clip(self.command + self.feedback * error / self.per_rad, *self.bounds))
         targets = self.synergy.targets(self.command - self.squeeze)
