@@ -48,3 +48,15 @@ def test_unknown_benchmark_is_a_one_line_error():
     result = hingelab("bench", "nope", check=False)
     assert result.returncode == 1
     assert result.stderr.strip().count("\n") == 0 and "unknown benchmark 'nope'" in result.stderr
+
+
+def test_output_into_a_closed_pipe_stops_quietly(tmp_path):
+    """`hingelab datasets info X | head -1`: the reader leaves early; no traceback, exit 141."""
+    data = tmp_path / "clouds"
+    hingelab("generate", "clouds", "--n", "40", "--per-episode", "20", "--out", str(data), "--no-progress")
+    proc = subprocess.Popen([sys.executable, "-m", "hingelab.cli.main", "datasets", "info", str(data)],
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE)
+    proc.stdout.close()  # nobody reads: the first flush fails with a broken pipe
+    _, err = proc.communicate(timeout=120)
+    assert b"Traceback" not in err and b"BrokenPipe" not in err, err.decode()
+    assert proc.returncode == 141
