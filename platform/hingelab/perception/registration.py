@@ -24,7 +24,7 @@ many clouds at once. What makes it reliable and fast on the tweezer:
   the plain rigid registration against the reference-opening cloud.
 * **Nearest neighbours**: the canonical parts are fixed, so their nearest-point maps
   are precomputed once on a voxel grid (an O(1) lookup per point); the last
-  iterations use exact k-d tree queries (scipy ``cKDTree``).
+  iterations use exact queries (the numpy path: scipy ``cKDTree``; compiled: below).
 * Trimmed: the worst ``trim_fraction`` of pairs are left out of each SVD.
 * **Compiled**: the iterations of ``register`` (without reverse pairs) and of ``track`` run in
   numba kernels (``hingelab.perception.registration_kernels``; exact neighbours there come from
