@@ -21,6 +21,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from hingelab.perception.registration import rotvec_to_matrix
 
 
 @dataclass(frozen=True)
@@ -48,16 +49,6 @@ def goal_reward(z_bar: np.ndarray, z_goal: np.ndarray, c1: float) -> np.ndarray:
     return np.exp(-c1 * np.linalg.norm(np.asarray(z_bar) - np.asarray(z_goal), axis=-1))
 
 
-def _rotation_from_vector(rotvec: np.ndarray) -> np.ndarray:
-    """Rodrigues: rotation matrix of a rotation vector (rad)."""
-    angle = float(np.linalg.norm(rotvec))
-    if angle < 1e-12:
-        return np.eye(3)
-    k = rotvec / angle
-    kx = np.array([[0, -k[2], k[1]], [k[2], 0, -k[0]], [-k[1], k[0], 0]])
-    return np.eye(3) + np.sin(angle) * kx + (1 - np.cos(angle)) * kx @ kx
-
-
 def effort_quantities(v_bar: np.ndarray, w_bar: np.ndarray, qdot: np.ndarray, canonical_points: np.ndarray,
                       control_dt: float) -> tuple[float, float]:
     """The effort term's unweighted parts: (mean displacement of the canonical points by one
@@ -65,16 +56,14 @@ def effort_quantities(v_bar: np.ndarray, w_bar: np.ndarray, qdot: np.ndarray, ca
 
     Envs record these in ``info`` (``tool_motion_m``, ``finger_speed``) so that a dataset's
     rewards can be recomputed for any weights c2, c3 (``effort_from_info``)."""
-    rot = _rotation_from_vector(np.asarray(w_bar, float) * control_dt)
+    rot = rotvec_to_matrix(np.asarray(w_bar, float)[None] * control_dt)[0]
     moved = canonical_points @ rot.T + np.asarray(v_bar, float) * control_dt
     return float(np.mean(np.linalg.norm(moved - canonical_points, axis=1))), float(np.linalg.norm(qdot))
 
 
-def effort_penalty(v_bar: np.ndarray, w_bar: np.ndarray, qdot: np.ndarray, canonical_points: np.ndarray,
-                   config: LowLevelRewardConfig) -> tuple[float, float]:
-    """(tool-motion term, finger-speed term), both <= 0. canonical_points: (N, 3) m, tool frame."""
-    motion, speed = effort_quantities(v_bar, w_bar, qdot, canonical_points, config.control_dt)
-    return -config.c2 * motion, -config.c3 * speed
+def effort_terms(tool_motion_m, finger_speed, config: LowLevelRewardConfig):
+    """(tool-motion term, finger-speed term), both <= 0, from the unweighted quantities (scalars or arrays)."""
+    return -config.c2 * tool_motion_m, -config.c3 * finger_speed
 
 
 def effort_from_info(info, config: LowLevelRewardConfig):
@@ -85,8 +74,9 @@ def effort_from_info(info, config: LowLevelRewardConfig):
     right only for the weights it was recorded with (``relabel_rewards`` checks that)."""
     if isinstance(info, dict):
         if "tool_motion_m" in info and "finger_speed" in info:
-            return -config.c2 * np.asarray(info["tool_motion_m"], float) - config.c3 * np.asarray(
-                info["finger_speed"], float)
+            tool, fingers = effort_terms(np.asarray(info["tool_motion_m"], float),
+                                         np.asarray(info["finger_speed"], float), config)
+            return tool + fingers
         return info.get("effort", 0.0)
     return np.array([float(effort_from_info(i, config)) for i in info], dtype=float)
 

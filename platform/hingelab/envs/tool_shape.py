@@ -66,7 +66,8 @@ import numpy as np
 from gymnasium import spaces
 
 from hingelab.envs.rendering import SimRenderMixin
-from hingelab.envs.rewards import LowLevelRewardConfig, effort_from_info, effort_quantities, goal_reward
+from hingelab.envs.rewards import (LowLevelRewardConfig, effort_from_info, effort_quantities, effort_terms,
+                                   goal_reward)
 from hingelab.envs.tool_perception import ToolPerception
 from hingelab.errors import ConfigError
 from hingelab.perception.clouds import ToolGeometry
@@ -154,7 +155,7 @@ class ToolShapeEnv(SimRenderMixin, gym.Env):
         c = self.reward_config
         motion, speed = effort_quantities(self.sample.velocity_smoothed[0], self.sample.angular_velocity_smoothed[0],
                                           qdot, self.canonical_points, c.control_dt)
-        tool_term, finger_term = (-c.c2 * motion, -c.c3 * speed) if c.use_effort else (0.0, 0.0)
+        tool_term, finger_term = effort_terms(motion, speed, c) if c.use_effort else (0.0, 0.0)
         terms = {"goal": goal, "effort_tool": tool_term, "effort_fingers": finger_term}
         info = self._info(terms)
         # unweighted, so that recorded rewards can be recomputed for other weights (relabel_rewards)

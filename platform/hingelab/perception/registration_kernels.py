@@ -55,6 +55,48 @@ def _leg_b_pose(theta, skew, b_rot, b_pos, g_anchor):
 
 
 @njit(cache=True)
+def _to_tool_frames(p, rot, pos, rot_b, pos_b, local, local_b):
+    """A cloud point p (3,) in hand_base into the tool frame (local = R^T (p - t)) and leg b's frame."""
+    for k in range(3):
+        local[k] = rot[0, k] * (p[0] - pos[0]) + rot[1, k] * (p[1] - pos[1]) + rot[2, k] * (p[2] - pos[2])
+    for k in range(3):
+        local_b[k] = (rot_b[0, k] * (local[0] - pos_b[0]) + rot_b[1, k] * (local[1] - pos_b[1])
+                      + rot_b[2, k] * (local[2] - pos_b[2]))
+
+
+@njit(cache=True)
+def _trim_weights(dist, trim_fraction, w):
+    """w = 1 for the pairs kept, 0 for the worst ``trim_fraction`` (registration._trim_weights)."""
+    if trim_fraction > 0:
+        cutoff = np.sort(dist)[int(np.floor((1 - trim_fraction) * dist.shape[0])) - 1]
+        for i in range(dist.shape[0]):
+            w[i] = 1.0 if dist[i] <= cutoff else 0.0
+    else:
+        w[:] = 1.0
+
+
+@njit(cache=True)
+def _hinge_update(points, rot, pos, theta, on_b, w, index_b, hinge_cross, hinge_perp, anchor, theta_lo, theta_hi):
+    """The hinge's 2-D Procrustes on leg b's pairs in the (new) tool frame: the opening that turns
+    the matched leg-b model points onto the cloud (registration._update_hinge / _track_hinge);
+    theta unchanged with fewer than 3 leg-b pairs."""
+    cross, dot, count = 0.0, 0.0, 0
+    q = np.empty(3)
+    for i in range(points.shape[0]):
+        if on_b[i] and w[i] > 0:
+            count += 1
+            for k in range(3):  # R^T (p - t) - anchor
+                q[k] = (rot[0, k] * (points[i, 0] - pos[0]) + rot[1, k] * (points[i, 1] - pos[1])
+                        + rot[2, k] * (points[i, 2] - pos[2]) - anchor[k])
+            ib = index_b[i]
+            cross += w[i] * (q[0] * hinge_cross[ib, 0] + q[1] * hinge_cross[ib, 1] + q[2] * hinge_cross[ib, 2])
+            dot += w[i] * (q[0] * hinge_perp[ib, 0] + q[1] * hinge_perp[ib, 1] + q[2] * hinge_perp[ib, 2])
+    if count >= 3:
+        return min(max(np.arctan2(cross, dot), theta_lo), theta_hi)
+    return theta
+
+
+@njit(cache=True)
 def track_one(points, rot_p, pos_p, theta, model_a, normals_a, grid_a, origin_a, model_b, normals_b, grid_b,
               origin_b, resolution, hinge_cross, hinge_perp, anchor, skew, b_rot, b_pos, g_anchor, theta_lo,
               theta_hi, articulated, trim_fraction, k_r, k_t, max_iterations, tolerance_rad, tolerance_m):
@@ -77,12 +119,7 @@ def track_one(points, rot_p, pos_p, theta, model_a, normals_a, grid_a, origin_a,
     for _ in range(max_iterations):
         rot_b, pos_b = _leg_b_pose(theta, skew, b_rot, b_pos, g_anchor)
         for i in range(n):
-            for k in range(3):  # local = R^T (p - t), the tool frame
-                local[k] = (rot[0, k] * (points[i, 0] - pos[0]) + rot[1, k] * (points[i, 1] - pos[1])
-                            + rot[2, k] * (points[i, 2] - pos[2]))
-            for k in range(3):  # leg b's frame
-                local_b[k] = (rot_b[0, k] * (local[0] - pos_b[0]) + rot_b[1, k] * (local[1] - pos_b[1])
-                              + rot_b[2, k] * (local[2] - pos_b[2]))
+            _to_tool_frames(points[i], rot, pos, rot_b, pos_b, local, local_b)
             da, ia = _grid_lookup(local, origin_a, resolution, grid_a, model_a)
             db, ib = _grid_lookup(local_b, origin_b, resolution, grid_b, model_b)
             index_b[i] = ib
@@ -100,14 +137,8 @@ def track_one(points, rot_p, pos_p, theta, model_a, normals_a, grid_a, origin_a,
                 for k in range(3):
                     model[i, k] = model_a[ia, k]
                     normal[i, k] = normals_a[ia, k]
-        # trimmed weights (the worst trim_fraction of the pairs left out), normalized to sum 1
-        if trim_fraction > 0:
-            cutoff = np.sort(dist)[int(np.floor((1 - trim_fraction) * n)) - 1]
-            for i in range(n):
-                w[i] = 1.0 if dist[i] <= cutoff else 0.0
-        else:
-            w[:] = 1.0
-        w /= w.sum()
+        _trim_weights(dist, trim_fraction, w)
+        w /= w.sum()  # normalized to sum 1
         score = 0.0
         centre = np.zeros(3)
         for i in range(n):
@@ -160,20 +191,9 @@ def track_one(points, rot_p, pos_p, theta, model_a, normals_a, grid_a, origin_a,
         rot = turn @ rot
         moved = np.abs(new_pos - pos).max()
         pos = new_pos
-        if articulated:  # the hinge's 2-D Procrustes on leg b's pairs (registration._track_hinge)
-            cross, dot, count = 0.0, 0.0, 0
-            q = np.empty(3)
-            for i in range(n):
-                if on_b[i] and w[i] > 0:
-                    count += 1
-                    for k in range(3):  # R^T (p - t) - anchor
-                        q[k] = (rot[0, k] * (points[i, 0] - pos[0]) + rot[1, k] * (points[i, 1] - pos[1])
-                                + rot[2, k] * (points[i, 2] - pos[2]) - anchor[k])
-                    ib = index_b[i]
-                    cross += w[i] * (q[0] * hinge_cross[ib, 0] + q[1] * hinge_cross[ib, 1] + q[2] * hinge_cross[ib, 2])
-                    dot += w[i] * (q[0] * hinge_perp[ib, 0] + q[1] * hinge_perp[ib, 1] + q[2] * hinge_perp[ib, 2])
-            if count >= 3:
-                theta = min(max(np.arctan2(cross, dot), theta_lo), theta_hi)
+        if articulated:
+            theta = _hinge_update(points, rot, pos, theta, on_b, w, index_b, hinge_cross, hinge_perp, anchor,
+                                  theta_lo, theta_hi)
         if np.abs(step[:3]).max() < tolerance_rad and moved < tolerance_m:
             break
     return rot, pos, theta, score
@@ -291,19 +311,13 @@ def icp_iterations(points, rot0, pos0, theta0, iterations, exact, model_a, grid_
     w = np.empty(n)
     local = np.empty(3)
     local_b = np.empty(3)
-    q = np.empty(3)
     for c in range(n_cand):
         rot, pos, theta = rot0[c].copy(), pos0[c].copy(), theta0[c]
         p = points[c]
         for _ in range(iterations):
             rot_b, pos_b = _leg_b_pose(theta if articulated else reference_opening, skew, b_rot, b_pos, g_anchor)
             for i in range(n):
-                for k in range(3):
-                    local[k] = rot[0, k] * (p[i, 0] - pos[0]) + rot[1, k] * (p[i, 1] - pos[1]) + rot[2, k] * (
-                        p[i, 2] - pos[2])
-                for k in range(3):
-                    local_b[k] = (rot_b[0, k] * (local[0] - pos_b[0]) + rot_b[1, k] * (local[1] - pos_b[1])
-                                  + rot_b[2, k] * (local[2] - pos_b[2]))
+                _to_tool_frames(p[i], rot, pos, rot_b, pos_b, local, local_b)
                 da, ia = _grid_lookup(local, origin_a, resolution, grid_a, model_a)
                 db, ib = _grid_lookup(local_b, origin_b, resolution, grid_b, model_b)
                 if exact:  # refine the voxel maps' answers; leg b only matters if nearer than leg a
@@ -329,31 +343,15 @@ def icp_iterations(points, rot0, pos0, theta0, iterations, exact, model_a, grid_
                     dist[i] = da
                     for k in range(3):
                         model[i, k] = model_a[ia, k]
-            if trim_fraction > 0:
-                cutoff = np.sort(dist)[int(np.floor((1 - trim_fraction) * n)) - 1]
-                for i in range(n):
-                    w[i] = 1.0 if dist[i] <= cutoff else 0.0
-            else:
-                w[:] = 1.0
+            _trim_weights(dist, trim_fraction, w)
             score = 0.0
             for i in range(n):
                 score += w[i] * dist[i] * dist[i]
             score /= w.sum()
             rot, pos = _kabsch(model, p, w)
-            if articulated:  # the hinge's 2-D Procrustes in the new tool frame (_update_hinge)
-                cross, dot, count = 0.0, 0.0, 0
-                for i in range(n):
-                    if on_b[i] and w[i] > 0:
-                        count += 1
-                        for k in range(3):
-                            q[k] = (rot[0, k] * (p[i, 0] - pos[0]) + rot[1, k] * (p[i, 1] - pos[1])
-                                    + rot[2, k] * (p[i, 2] - pos[2]) - anchor[k])
-                        ib = index_b[i]
-                        cross += w[i] * (q[0] * hinge_cross[ib, 0] + q[1] * hinge_cross[ib, 1]
-                                         + q[2] * hinge_cross[ib, 2])
-                        dot += w[i] * (q[0] * hinge_perp[ib, 0] + q[1] * hinge_perp[ib, 1] + q[2] * hinge_perp[ib, 2])
-                if count >= 3:
-                    theta = min(max(np.arctan2(cross, dot), theta_lo), theta_hi)
+            if articulated:  # in the new tool frame, as _update_hinge
+                theta = _hinge_update(p, rot, pos, theta, on_b, w, index_b, hinge_cross, hinge_perp, anchor,
+                                      theta_lo, theta_hi)
             score_out[c] = score
         rot_out[c], pos_out[c], theta_out[c] = rot, pos, theta
     return rot_out, pos_out, theta_out, score_out
