@@ -54,17 +54,18 @@ def _leg_b_pose(theta, skew, b_rot, b_pos, g_anchor):
     return rot, b_rot @ g_anchor + b_pos - rot @ g_anchor
 
 
-@njit(cache=True)
-def _to_tool_frames(p, rot, pos, rot_b, pos_b, local, local_b):
-    """A cloud point p (3,) in hand_base into the tool frame (local = R^T (p - t)) and leg b's frame."""
+@njit(cache=True, inline="always")  # in the per-point loops: inlined, as if written there
+def _to_tool_frames(points, i, rot, pos, rot_b, pos_b, local, local_b):
+    """Cloud point i (hand_base) into the tool frame (local = R^T (p - t)) and leg b's frame."""
     for k in range(3):
-        local[k] = rot[0, k] * (p[0] - pos[0]) + rot[1, k] * (p[1] - pos[1]) + rot[2, k] * (p[2] - pos[2])
+        local[k] = (rot[0, k] * (points[i, 0] - pos[0]) + rot[1, k] * (points[i, 1] - pos[1])
+                    + rot[2, k] * (points[i, 2] - pos[2]))
     for k in range(3):
         local_b[k] = (rot_b[0, k] * (local[0] - pos_b[0]) + rot_b[1, k] * (local[1] - pos_b[1])
                       + rot_b[2, k] * (local[2] - pos_b[2]))
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def _trim_weights(dist, trim_fraction, w):
     """w = 1 for the pairs kept, 0 for the worst ``trim_fraction`` (registration._trim_weights)."""
     if trim_fraction > 0:
@@ -75,7 +76,7 @@ def _trim_weights(dist, trim_fraction, w):
         w[:] = 1.0
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def _hinge_update(points, rot, pos, theta, on_b, w, index_b, hinge_cross, hinge_perp, anchor, theta_lo, theta_hi):
     """The hinge's 2-D Procrustes on leg b's pairs in the (new) tool frame: the opening that turns
     the matched leg-b model points onto the cloud (registration._update_hinge / _track_hinge);
@@ -119,7 +120,7 @@ def track_one(points, rot_p, pos_p, theta, model_a, normals_a, grid_a, origin_a,
     for _ in range(max_iterations):
         rot_b, pos_b = _leg_b_pose(theta, skew, b_rot, b_pos, g_anchor)
         for i in range(n):
-            _to_tool_frames(points[i], rot, pos, rot_b, pos_b, local, local_b)
+            _to_tool_frames(points, i, rot, pos, rot_b, pos_b, local, local_b)
             da, ia = _grid_lookup(local, origin_a, resolution, grid_a, model_a)
             db, ib = _grid_lookup(local_b, origin_b, resolution, grid_b, model_b)
             index_b[i] = ib
@@ -317,7 +318,7 @@ def icp_iterations(points, rot0, pos0, theta0, iterations, exact, model_a, grid_
         for _ in range(iterations):
             rot_b, pos_b = _leg_b_pose(theta if articulated else reference_opening, skew, b_rot, b_pos, g_anchor)
             for i in range(n):
-                _to_tool_frames(p[i], rot, pos, rot_b, pos_b, local, local_b)
+                _to_tool_frames(p, i, rot, pos, rot_b, pos_b, local, local_b)
                 da, ia = _grid_lookup(local, origin_a, resolution, grid_a, model_a)
                 db, ib = _grid_lookup(local_b, origin_b, resolution, grid_b, model_b)
                 if exact:  # refine the voxel maps' answers; leg b only matters if nearer than leg a
