@@ -172,3 +172,30 @@ def test_exact_nearest_neighbours_match_a_kd_tree(registration):
         d_exact, i_exact = registration_kernels._exact_nearest(q, model, *cells, EXACT_CELL_M, float(d_grid[0]),
                                                           int(i_grid[0]))
         assert i_exact == i and abs(d_exact - d) < 1e-12
+
+
+def test_compiled_pose_kernels_match_their_numpy_formulas():
+    """The per-step kernels (cloud placement, the effort term's mean displacement, the prior's
+    check) give the numpy formulas they replaced."""
+    from hingelab.perception import pose_kernels
+
+    rng = np.random.default_rng(3)
+    rot = Rotation.random(4, random_state=2).as_matrix()
+    pos = rng.normal(size=(4, 3))
+    local = rng.normal(size=(2, 50, 3))
+    on_b = rng.random((2, 50)) < 0.5
+    expected = np.where(on_b[..., None], np.einsum("bij,bnj->bni", rot[2:], local) + pos[2:, None],
+                        np.einsum("bij,bnj->bni", rot[:2], local) + pos[:2, None])
+    np.testing.assert_allclose(pose_kernels.place_parts(local, on_b, rot[:2], pos[:2], rot[2:], pos[2:]),
+                               expected, rtol=0, atol=1e-14)  # einsum sums in another order: float64 rounding
+    points, shift = rng.normal(size=(256, 3)), rng.normal(size=3) * 0.01
+    moved = points @ rot[0].T + shift
+    assert pose_kernels.mean_displacement(points, rot[0], shift) == pytest.approx(
+        np.linalg.norm(moved - points, axis=1).mean(), rel=1e-12)
+    finite, error = pose_kernels.pose_check(rot, pos)
+    assert finite and error < 1e-12
+    skewed = rot.copy()
+    skewed[1, 0, 0] += 0.01
+    bad_pos = pos.copy()
+    bad_pos[3, 1] = np.nan
+    assert pose_kernels.pose_check(skewed, pos)[1] > 0.005 and not pose_kernels.pose_check(rot, bad_pos)[0]

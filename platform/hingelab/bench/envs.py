@@ -27,7 +27,8 @@ WARMUP_STEPS = 20  # untimed steps first, in every worker
 # the replayed steps' start: positions, velocities, time and the solver's warm start (without it the
 # replay's contact solver starts elsewhere and drifts by ~1e-7)
 PHYSICS = mujoco.mjtState.mjSTATE_FULLPHYSICS | mujoco.mjtState.mjSTATE_WARMSTART
-ROUNDS = 5  # raw, 1 worker and 2 workers take turns: a slower spell of the machine hits all three
+ROUNDS = 10  # raw, 1 worker and 2 workers take turns: a slower spell of the machine hits all three
+# (these shared machines drift by +-30% within minutes: many short rounds, medians of their ratios)
 
 
 def _raw_rate(model: mujoco.MjModel, control_steps: int, n_substeps: int) -> float:
@@ -110,7 +111,7 @@ class _Workers:
 
 
 def run(quick: bool = False) -> BenchTable:
-    steps = 40 if quick else 2000
+    steps = 40 if quick else 4000
     rounds = 2 if quick else ROUNDS
     block = steps // rounds
     rows, ratios = [], {}

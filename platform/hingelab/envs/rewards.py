@@ -21,6 +21,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from hingelab.perception import pose_kernels
 from hingelab.perception.registration import rotvec_to_matrix
 
 
@@ -57,8 +58,9 @@ def effort_quantities(v_bar: np.ndarray, w_bar: np.ndarray, qdot: np.ndarray, ca
     Envs record these in ``info`` (``tool_motion_m``, ``finger_speed``) so that a dataset's
     rewards can be recomputed for any weights c2, c3 (``effort_from_info``)."""
     rot = rotvec_to_matrix(np.asarray(w_bar, float)[None] * control_dt)[0]
-    moved = canonical_points @ rot.T + np.asarray(v_bar, float) * control_dt
-    return float(np.mean(np.linalg.norm(moved - canonical_points, axis=1))), float(np.linalg.norm(qdot))
+    shift = np.asarray(v_bar, float) * control_dt
+    moved = pose_kernels.mean_displacement(np.ascontiguousarray(canonical_points, dtype=float), rot, shift)
+    return float(moved), float(np.linalg.norm(qdot))
 
 
 def effort_terms(tool_motion_m, finger_speed, config: LowLevelRewardConfig):

@@ -39,11 +39,14 @@ READER_DEGREE = 3  # of the opening as a polynomial of z (4 and 5 gained < 0.001
 READER_FIELDS = ("reader_coef", "reader_r2_opening")  # not part of what a latent means (fingerprint)
 
 
-def _monomials(z: np.ndarray, degree: int = READER_DEGREE) -> np.ndarray:
-    """(..., 2) latents -> (..., K) products z0^i z1^j, i + j <= degree."""
+_READER_POWERS = np.array([(i, j) for i in range(READER_DEGREE + 1) for j in range(READER_DEGREE + 1 - i)], float)
+
+
+def _monomials(z: np.ndarray) -> np.ndarray:
+    """(..., 2) latents -> (..., K) products z0^i z1^j, i + j <= READER_DEGREE (read every env step:
+    two array powers, not a stack of K products)."""
     z = np.asarray(z, float)
-    return np.stack([z[..., 0] ** i * z[..., 1] ** j for i in range(degree + 1) for j in range(degree + 1 - i)],
-                    axis=-1)
+    return z[..., :1] ** _READER_POWERS[:, 0] * z[..., 1:2] ** _READER_POWERS[:, 1]
 
 
 def r_squared(truth: np.ndarray, predicted: np.ndarray) -> float:

@@ -32,6 +32,7 @@ from scipy.spatial.transform import Rotation
 
 from hingelab.errors import AssetError, ConfigError
 from hingelab.paths import ASSETS_DIR
+from hingelab.perception import pose_kernels
 from hingelab.sim import names
 
 TWEEZER_XML = ASSETS_DIR / "tweezer" / "tweezer.xml"
@@ -304,10 +305,8 @@ class CloudSynthesizer:
         # each cloud: n distinct bank points (argsort of uniforms = a random permutation per row)
         index = np.argpartition(self.rng.random((batch, bank)), n, axis=1)[:, :n]
         local = g.bank_points[index]  # (B, n, 3), part frames
-        is_b = g.bank_part[index][..., None] == 1
-        points = np.where(is_b,
-                          np.einsum("bij,bnj->bni", rot_b, local) + pos_b[:, None],
-                          np.einsum("bij,bnj->bni", rot_a, local) + pos_a[:, None])
+        points = pose_kernels.place_parts(local, g.bank_part[index] == 1, *(np.ascontiguousarray(x, dtype=float)
+                                                                              for x in (rot_a, pos_a, rot_b, pos_b)))
         std = r.noise_std_m  # one level for all, or one per cloud
         if noise_std_m is not None:
             std = np.broadcast_to(np.asarray(noise_std_m, float).reshape(-1), (batch,))[:, None, None]

@@ -55,6 +55,7 @@ from scipy.spatial import cKDTree
 from scipy.spatial.transform import Rotation
 
 from hingelab.errors import ConfigError
+from hingelab.perception import pose_kernels
 from hingelab.perception.clouds import ToolGeometry, _even_subset
 
 EXACT_CELL_M = 0.005  # cells of the compiled loops' exact nearest-neighbour search (2 and 3 mm were slower)
@@ -147,7 +148,8 @@ class Registration:
 
 
 def check_clouds(clouds, min_points: int = MIN_POINTS) -> tuple[np.ndarray, bool]:
-    """Validate clouds: (N, 3) or (B, N, 3), finite, N >= min_points. Returns ((B, N, 3) float64, single)."""
+    """Validate clouds: (N, 3) or (B, N, 3), finite, N >= min_points. Returns ((B, N, 3) float64, single):
+    a view of the caller's array when it is float64 already (callers read it, never write it)."""
     arr = np.asarray(clouds)
     if arr.ndim not in (2, 3) or arr.shape[-1] != 3:
         raise ConfigError(f"a tool cloud must have shape (N, 3) or (B, N, 3), got {arr.shape}")
@@ -156,7 +158,7 @@ def check_clouds(clouds, min_points: int = MIN_POINTS) -> tuple[np.ndarray, bool
                           "to register it (check the segmentation or the occlusion setting)")
     if not np.issubdtype(arr.dtype, np.number):
         raise ConfigError(f"a tool cloud must be numeric, got dtype {arr.dtype}")
-    arr = arr.astype(np.float64)
+    arr = arr.astype(np.float64, copy=False)
     if not np.isfinite(arr).all():
         bad = int((~np.isfinite(arr)).any(axis=-1).sum())
         raise ConfigError(f"a tool cloud has {bad} points with NaN or Inf coordinates; drop them before "
@@ -606,27 +608,17 @@ def _skew(v: np.ndarray) -> np.ndarray:
 
 
 def rotvec_to_matrix(rotvec: np.ndarray) -> np.ndarray:
-    """Rodrigues' formula, (B, 3) -> (B, 3, 3) (scipy's ``from_rotvec``, without its per-call cost)."""
-    angle = np.linalg.norm(rotvec, axis=1)[:, None, None]
-    k = _skew(rotvec)
-    small = angle < 1e-8
-    a = np.where(small, 1.0, np.sin(angle) / np.where(small, 1.0, angle))
-    b = np.where(small, 0.5, (1 - np.cos(angle)) / np.where(small, 1.0, angle) ** 2)
-    return np.eye(3) + a * k + b * (k @ k)
+    """Rodrigues' formula, (B, 3) -> (B, 3, 3) (scipy's ``from_rotvec``, without its per-call cost;
+    compiled: ``pose_kernels``)."""
+    return pose_kernels.rotvecs_to_matrices(np.ascontiguousarray(rotvec, dtype=float))
 
 
 def matrix_to_rotvec(rot: np.ndarray) -> np.ndarray:
     """Rotation vectors (B, 3) of rotations (B, 3, 3): scipy's ``as_rotvec``, in closed form for
-    the frame-to-frame turns it is used on; turns within ~0.6 degrees of 180 go to scipy."""
-    rot = np.asarray(rot, float)
-    cos = np.clip((np.trace(rot, axis1=1, axis2=2) - 1) / 2, -1.0, 1.0)
-    angle = np.arccos(cos)
-    skew = np.stack([rot[:, 2, 1] - rot[:, 1, 2], rot[:, 0, 2] - rot[:, 2, 0], rot[:, 1, 0] - rot[:, 0, 1]], axis=1)
-    sin = np.sin(angle)
-    # angle / (2 sin angle), with its limit 1/2 (+ angle^2 / 12) for small angles
-    factor = np.where(angle < 1e-4, 0.5 + angle ** 2 / 12, angle / (2 * np.where(angle < 1e-4, 1.0, sin)))
-    out = factor[:, None] * skew
-    near_pi = cos < -0.99995
+    the frame-to-frame turns it is used on (compiled: ``pose_kernels``); turns within ~0.6 degrees
+    of 180 go to scipy."""
+    rot = np.ascontiguousarray(rot, dtype=float)
+    out, near_pi = pose_kernels.matrices_to_rotvecs(rot)
     if near_pi.any():
         out[near_pi] = Rotation.from_matrix(rot[near_pi]).as_rotvec()
     return out
@@ -663,21 +655,21 @@ def _plane_step(points, model, normals, w, rot, pos, rot_p, pos_p, k_r: float, k
 
 
 def _check_prior(rot: np.ndarray, pos: np.ndarray) -> None:
-    if not (np.isfinite(rot).all() and np.isfinite(pos).all()):
+    finite, orthonormality = pose_kernels.pose_check(np.ascontiguousarray(rot, dtype=float),
+                                                     np.ascontiguousarray(pos, dtype=float))
+    if not finite:
         raise ConfigError("the prior pose for registration has NaN or Inf; pass prior=None for a global start")
-    if np.abs(np.einsum("bij,bkj->bik", rot, rot) - np.eye(3)).max() > 1e-3:
+    if orthonormality > 1e-3:
         raise ConfigError("the prior rotation for registration is not a rotation matrix (R R^T != I)")
 
 
 def euler_xyz(rot: np.ndarray) -> np.ndarray:
     """Extrinsic x-y-z Euler angles (rad) of rotations (B, 3, 3): scipy's ``as_euler("xyz")``,
-    in closed form (a scipy Rotation costs ~0.1 ms per call, a tenth of a tracking step);
-    near gimbal lock (pitch within ~0.8 degrees of +-90) scipy's convention is used."""
-    rot = np.asarray(rot, float)
-    out = np.stack([np.arctan2(rot[:, 2, 1], rot[:, 2, 2]),
-                    np.arcsin(np.clip(-rot[:, 2, 0], -1.0, 1.0)),
-                    np.arctan2(rot[:, 1, 0], rot[:, 0, 0])], axis=1)
-    locked = np.abs(rot[:, 2, 0]) > 0.9999
+    in closed form (a scipy Rotation costs ~0.1 ms per call, a tenth of a tracking step;
+    compiled: ``pose_kernels``); near gimbal lock (pitch within ~0.8 degrees of +-90) scipy's
+    convention is used."""
+    rot = np.ascontiguousarray(rot, dtype=float)
+    out, locked = pose_kernels.euler_angles_xyz(rot)
     if locked.any():
         out[locked] = Rotation.from_matrix(rot[locked]).as_euler(EULER_SEQUENCE)
     return out

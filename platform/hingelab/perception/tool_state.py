@@ -128,10 +128,10 @@ class ToolState:
             if fresh.all():
                 return start
         rot, pos = self._predicted_pose()
+        if not fresh.any():
+            return self.registration.track(points, rot, pos, self._hinge, self.tracking)
         tracked = self.registration.track(points[~fresh], rot[~fresh], pos[~fresh], self._hinge[~fresh],
                                           self.tracking)
-        if not fresh.any():
-            return tracked
         out = Registration(*(np.empty((len(points),) + getattr(start, f).shape[1:])
                              for f in Registration.__dataclass_fields__))
         for name in Registration.__dataclass_fields__:
@@ -152,15 +152,21 @@ class ToolState:
             for name in ("rotation", "translation", "euler_xyz", "hinge_angle", "rmse_m"):
                 getattr(result, name)[lost] = getattr(again, name)
         rot, pos = result.rotation, result.translation
-        velocity = np.where(fresh[:, None], 0.0, (pos - self._pos) / self.dt)
-        previous = np.where(fresh[:, None, None], rot, self._rot)  # fresh tools: no motion yet
-        omega = np.where(fresh[:, None], 0.0, matrix_to_rotvec(rot @ np.swapaxes(previous, 1, 2)) / self.dt)
+        any_fresh = fresh.any()  # the masks are for resets; between them (every env step) they are skipped
+        if any_fresh:
+            velocity = np.where(fresh[:, None], 0.0, (pos - self._pos) / self.dt)
+            previous = np.where(fresh[:, None, None], rot, self._rot)  # fresh tools: no motion yet
+            omega = np.where(fresh[:, None], 0.0, matrix_to_rotvec(rot @ np.swapaxes(previous, 1, 2)) / self.dt)
+        else:
+            velocity = (pos - self._pos) / self.dt
+            omega = matrix_to_rotvec(rot @ np.swapaxes(self._rot, 1, 2)) / self.dt
         z = self.encoder.encode(result.to_tool_frame(points).astype(np.float32))
         raw = np.concatenate([velocity, omega, z], axis=1)
-        self._smoothed = np.where(fresh[:, None], raw, self.alpha * raw + (1 - self.alpha) * self._smoothed)
+        smoothed = self.alpha * raw + (1 - self.alpha) * self._smoothed
+        self._smoothed = np.where(fresh[:, None], raw, smoothed) if any_fresh else smoothed
         self._rot, self._pos, self._fresh = rot, pos, np.zeros(self.n_tools, bool)
         # a re-registered tool's jump is not motion to carry into the next prediction
-        self._motion = np.where(lost[:, None], 0.0, raw[:, :6])
+        self._motion = np.where(lost[:, None], 0.0, raw[:, :6]) if lost.any() else raw[:, :6]
         if self.registration.config.articulated:
             self._hinge = result.hinge_angle.copy()
         s = self._smoothed
