@@ -65,6 +65,19 @@ def test_reachable_goals_lie_on_the_calibration_curve():
     env.close()
 
 
+def test_open_weighted_goals_put_more_of_them_at_the_open_end():
+    from hingelab.envs.tool_shape import OPEN_SHARE
+
+    env = gym.make(TOOL_SHAPE_ID, goal_sampling="reachable_open").unwrapped
+    env.np_random = np.random.default_rng(0)
+    low, high = env.reachable_range
+    openings = np.array([env.calibration.project_opening(env._sample_goal()) for _ in range(400)])
+    assert openings.min() >= low - 1e-3 and openings.max() <= high + 1e-3
+    in_open_part = np.mean(openings > high - OPEN_SHARE * (high - low))
+    assert 0.6 < in_open_part < 0.8  # half of them, plus the uniform half's 40%
+    env.close()
+
+
 def test_same_seed_same_episode():
     def run():
         env = gym.make(TOOL_SHAPE_ID)

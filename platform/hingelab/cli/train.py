@@ -108,8 +108,9 @@ def add_low_parser(learners) -> None:
                    help=f"weight of the tool-motion part of the effort reward, per m of mean tool-point "
                         f"displacement per step (default {d.effort_weight:g}; larger holds the tool stiller)")
     p.add_argument("--her", action="store_true", help="HER relabelling (future strategy, 4 goals)")
-    p.add_argument("--goals", choices=("reachable", "normal"), default=d.goal_sampling,
-                   help=f"training goals: latents of reachable openings, or N(0, I) as in the paper "
+    p.add_argument("--goals", choices=("reachable", "reachable_open", "normal"), default=d.goal_sampling,
+                   help=f"training goals: latents of reachable openings, the same with half of them in the "
+                        f"open 40%% of the range (reachable_open), or N(0, I) as in the paper "
                         f"(default {d.goal_sampling})")
     p.add_argument("--no-randomize", action="store_true", help="turn domain randomization off")
     p.add_argument("--envs", type=int, default=d.n_envs, help=f"parallel rollout processes (default {d.n_envs})")

@@ -31,7 +31,9 @@ reach. Why it matters: the encoder's latents of real tweezer shapes lie near a 1
 in the 2-D plane; most N(0, I) goals are off that curve, so no finger motion achieves
 them and success (a small latent distance) is impossible for them: training spends most
 episodes on unreachable goals and success rates measure the goal sampler as much as the
-policy. HER relabels with achieved (hence reachable) latents either way.
+policy. HER relabels with achieved (hence reachable) latents either way. ``"reachable_open"``:
+as ``"reachable"``, but half of the openings are drawn from the open 40% of the range, where
+the grasp holds the tool most loosely (a training option: more practice where goals are missed).
 
 ## Success
 ``||z_bar - z_goal|| < success_threshold``. The default is the latent distance that 2 mm
@@ -75,7 +77,8 @@ from hingelab.sim.core import SimCore
 from hingelab.sim.finger_synergy import FingerSynergy
 from hingelab.sim.randomization import RandomizationConfig
 
-GOAL_SAMPLERS = ("normal", "reachable")
+GOAL_SAMPLERS = ("normal", "reachable", "reachable_open")
+OPEN_SHARE = 0.4  # "reachable_open": the top part of the reachable range that gets half of the goals
 DROP_DISTANCE_M = 0.03
 SUCCESS_GAP_MM = 2.0
 CANONICAL_OPENING = 0.15  # rad: the canonical cloud the effort term moves
@@ -185,7 +188,10 @@ class ToolShapeEnv(SimRenderMixin, gym.Env):
     def _sample_goal(self) -> np.ndarray:
         if self.goal_sampling == "normal":
             return self.np_random.normal(size=2)
-        opening = self.np_random.uniform(*self.reachable_range)
+        low, high = self.reachable_range
+        if self.goal_sampling == "reachable_open" and self.np_random.random() < 0.5:
+            low = high - OPEN_SHARE * (high - low)
+        opening = self.np_random.uniform(low, high)
         return np.asarray(self.calibration.z_for_opening(opening), float)
 
     def _observation(self) -> dict:
