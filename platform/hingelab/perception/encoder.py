@@ -178,7 +178,9 @@ class ToolEncoder:
 
     Attributes: model (PointNetVAE, eval mode), calibration (OpeningCalibration or None),
     registration_config (dict, what the training clouds were registered with), info (the
-    checkpoint's provenance: data, seed, code version, metrics).
+    checkpoint's provenance: data, seed, code version, metrics). The weights are read once
+    (the fingerprint, the numpy copy for small batches): wrap a trained model, do not train it
+    through this object.
     """
 
     def __init__(self, model: PointNetVAE, calibration=None, registration_config: dict | None = None,
