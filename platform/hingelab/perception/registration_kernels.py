@@ -21,6 +21,8 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
+from hingelab.perception.pose_kernels import rotvecs_to_matrices
+
 
 @njit(cache=True)
 def _grid_lookup(q, origin, resolution, index, points):
@@ -31,19 +33,6 @@ def _grid_lookup(q, origin, resolution, index, points):
     i = index[c0, c1, c2]
     d0, d1, d2 = q[0] - points[i, 0], q[1] - points[i, 1], q[2] - points[i, 2]
     return np.sqrt(d0 * d0 + d1 * d1 + d2 * d2), i
-
-
-@njit(cache=True)
-def _rodrigues(v):
-    angle = np.sqrt(v[0] * v[0] + v[1] * v[1] + v[2] * v[2])
-    k = np.zeros((3, 3))
-    k[0, 1], k[0, 2], k[1, 2] = -v[2], v[1], -v[0]
-    k[1, 0], k[2, 0], k[2, 1] = v[2], -v[1], v[0]
-    if angle < 1e-8:
-        a, b = 1.0, 0.5
-    else:
-        a, b = np.sin(angle) / angle, (1 - np.cos(angle)) / angle ** 2
-    return np.eye(3) + a * k + b * (k @ k)
 
 
 @njit(cache=True)
@@ -187,7 +176,7 @@ def track_one(points, rot_p, pos_p, theta, model_a, normals_a, grid_a, origin_a,
         grad -= k_t * (lever.T @ (pos - pos_p))
         grad[:3] -= k_r * e_r
         step = np.linalg.solve(hess, grad)
-        turn = _rodrigues(step[:3])
+        turn = rotvecs_to_matrices(step[None, :3])[0]
         new_pos = centre + turn @ (pos - centre) + step[3:]
         rot = turn @ rot
         moved = np.abs(new_pos - pos).max()
