@@ -246,6 +246,45 @@ def test_prefill_relabels_rewards_with_the_runs_own_reward(tiny_run):
     np.testing.assert_allclose(relabel_rewards(old, with_effort).rewards, recorded.rewards, rtol=1e-5, atol=1e-6)
 
 
+def test_drift_weight_charges_the_tools_true_drift_beyond_5mm(tiny_run):
+    """--drift-weight: the env's reward and compute_reward agree, recorded transitions relabel
+    from their recorded drift, and transitions without it are refused for such a run."""
+    import gymnasium as gym
+
+    from hingelab.learning.replay_prefill import read_transitions, relabel_rewards
+
+    env = gym.make("hingelab/ToolShape-v0", drift_weight=400.0, goal_sampling="reachable").unwrapped
+    env.reset(seed=3)
+    drift_terms = []
+    for k in range(30):
+        # squeeze and release hard: the tool moves in the hand
+        _, reward, _, _, info = env.step(np.full(9, 1.0 if k % 10 < 5 else -1.0))
+        expected = -400.0 * max(0.0, info["tool_drift_m"] - 0.005)
+        assert info["reward_terms"]["drift"] == pytest.approx(expected)
+        assert reward == pytest.approx(sum(info["reward_terms"].values()))
+        recomputed = env.compute_reward(env.sample.z_smoothed[0][None], env.goal[None], [info])[0]
+        assert recomputed == pytest.approx(reward, rel=1e-6, abs=1e-9)
+        drift_terms.append(expected)
+    assert min(drift_terms) < 0  # the hard squeezes moved the tool more than 5 mm
+    assert gym.make("hingelab/ToolShape-v0").unwrapped.reward_config.c4 == 0  # off by default: the paper's reward
+
+    run, _ = tiny_run
+    plain = gym.make("hingelab/ToolShape-v0").unwrapped
+    base = relabel_rewards(read_transitions([run / "dataset"])[0], plain)
+    drifting = relabel_rewards(read_transitions([run / "dataset"])[0], env)
+    drift = read_transitions([run / "dataset"])[0].infos["tool_drift_m"]
+    np.testing.assert_allclose(drifting.rewards, base.rewards - 400.0 * np.maximum(0, drift - 0.005),
+                               rtol=1e-5, atol=1e-6)
+    old = read_transitions([run / "dataset"])[0]
+    del old.infos["tool_drift_m"]
+    with pytest.raises(DatasetError, match="tool_drift_m"):
+        relabel_rewards(old, env)
+    with pytest.raises(ConfigError, match="drift_weight"):
+        gym.make("hingelab/ToolShape-v0", drift_weight=-1.0)
+    with pytest.raises(ConfigError, match="drift"):
+        replace(TINY, use_effort=False, drift_weight=60.0)
+
+
 def test_learning_from_demonstrations_pretrains_and_anchors_the_actor(tiny_run, tmp_path):
     """--bc-pretrain fits the actor to the --from episodes' actions; --bc-weight keeps a
     Q-filtered BC term in the actor loss; the checkpoint does not carry the demonstrations."""

@@ -59,6 +59,7 @@ def run_low(args: argparse.Namespace) -> int:
     trained = provenance.get("config", {})
     env_args = {"use_effort": trained.get("use_effort", True), "randomize": not args.no_randomize,
                 "effort_weight": trained.get("effort_weight", LowLevelRewardConfig().c2),
+                "drift_weight": trained.get("drift_weight", 0.0),
                 "max_episode_steps": trained.get("max_episode_steps", 50)}
     config = {"checkpoint": label, "episodes": args.episodes, "env": env_args,
               "checkpoint_git_commit": provenance.get("git_commit", "unknown")}

@@ -107,6 +107,10 @@ def add_low_parser(learners) -> None:
     p.add_argument("--effort-weight", type=float, default=d.effort_weight, metavar="C2",
                    help=f"weight of the tool-motion part of the effort reward, per m of mean tool-point "
                         f"displacement per step (default {d.effort_weight:g}; larger holds the tool stiller)")
+    p.add_argument("--drift-weight", type=float, default=d.drift_weight, metavar="C4",
+                   help="add a training-only penalty on the tool's true drift in the hand (privileged state): "
+                        "C4 per m beyond 5 mm, per step (default 0: off, the paper's reward); e.g. 60 makes "
+                        "1 cm of drift cost 0.3 per step")
     p.add_argument("--her", action="store_true", help="HER relabelling (future strategy, 4 goals)")
     p.add_argument("--goals", choices=("reachable", "reachable_open", "normal"), default=d.goal_sampling,
                    help=f"training goals: latents of reachable openings, the same with half of them in the "
@@ -160,7 +164,8 @@ def run_low(args: argparse.Namespace) -> int:
     from hingelab.paths import REPO_ROOT
 
     config = LowLevelTrainConfig(
-        steps=args.steps, seed=args.seed, use_effort=not args.no_effort, effort_weight=args.effort_weight, her=args.her, goal_sampling=args.goals,
+        steps=args.steps, seed=args.seed, use_effort=not args.no_effort, effort_weight=args.effort_weight,
+        drift_weight=args.drift_weight, her=args.her, goal_sampling=args.goals,
         randomize=not args.no_randomize, n_envs=args.envs,
         subprocess_envs=not args.in_process, algorithm=args.algorithm, batch_size=args.batch_size,
         buffer_size=args.buffer_size, learning_starts=args.learning_starts, gradient_steps=args.gradient_steps,

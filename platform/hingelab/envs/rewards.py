@@ -3,10 +3,15 @@
 Low level (paper eq. 3-5):
     r_goal   = exp(-c1 ||z_bar - z_goal||)
     r_effort = -c2 mean_i ||T(v_bar, w_bar) p_i - p_i|| - c3 ||qdot||
+              [- c4 max(0, drift - drift_free)]  (not the paper's: off unless c4 > 0)
 where T moves the canonical cloud's points p_i by one control step of the smoothed tool
 velocity (v in m/s, w in rad/s, both hand frame). The paper sums over the points; we
 average (the sum is N times the mean, N = 256: c2 absorbs it) so c2 does not depend on
-the cloud size.
+the cloud size. The optional drift term is a training-time shaping on privileged state: the
+true distance of the tool from where the episode started it in the hand (``info["tool_drift_m"]``),
+the quantity the low level's "tool < 1 cm" goal measures. The paper's motion term sees only
+the perceived, noisy per-step velocity; the drift term charges what accumulates. The policy's
+observation is unchanged.
 
 High level (paper eq. 8-10):
     r = c_h1 [success] + exp(-c_h2 ||tool - object||) + c_h3 exp(-c_h4 ||object - target||)
@@ -21,6 +26,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from hingelab.errors import ConfigError
 from hingelab.perception import pose_kernels
 from hingelab.perception.registration import rotvec_to_matrix
 
@@ -30,7 +36,9 @@ class LowLevelRewardConfig:
     c1: float = 5.0  # 1/latent unit: goal term exp(-c1 d); d = 0.1 -> 0.61
     c2: float = 50.0  # 1/m: a mean point displacement of 1 mm per step costs 0.05
     c3: float = 0.05  # s/rad: fingers at 1 rad/s cost 0.05
-    use_effort: bool = True  # the paper's ablation switches the effort term off
+    c4: float = 0.0  # 1/m: tool drift beyond drift_free_m costs c4 per m per step (0: off, the paper's reward)
+    drift_free_m: float = 0.005  # drift up to this is free: the grasp settles by a few mm on its own
+    use_effort: bool = True  # the paper's ablation switches the effort term off (the drift term with it)
     control_dt: float = 0.05
 
 
@@ -68,16 +76,28 @@ def effort_terms(tool_motion_m, finger_speed, config: LowLevelRewardConfig):
     return -config.c2 * tool_motion_m, -config.c3 * finger_speed
 
 
-def effort_from_info(info, config: LowLevelRewardConfig):
-    """The effort term for one info dict, a dict of arrays, or a list of dicts (HER's batches).
+def drift_term(tool_drift_m, config: LowLevelRewardConfig):
+    """The drift term, <= 0: ``-c4 max(0, drift - drift_free_m)`` (scalar or array of drifts, m)."""
+    return -config.c4 * np.maximum(0.0, np.asarray(tool_drift_m, float) - config.drift_free_m)
 
-    From the recorded ``tool_motion_m`` and ``finger_speed`` with this config's weights; an
-    info without them (recorded before they were) gives its recorded ``effort``, which is
-    right only for the weights it was recorded with (``relabel_rewards`` checks that)."""
+
+def effort_from_info(info, config: LowLevelRewardConfig):
+    """The effort term (with the drift term when c4 > 0) for one info dict, a dict of arrays,
+    or a list of dicts (HER's batches).
+
+    From the recorded ``tool_motion_m`` and ``finger_speed`` (and ``tool_drift_m``) with this
+    config's weights; an info without them (recorded before they were) gives its recorded
+    ``effort``, which is right only for the weights it was recorded with (``relabel_rewards``
+    checks that)."""
     if isinstance(info, dict):
         if "tool_motion_m" in info and "finger_speed" in info:
             tool, fingers = effort_terms(np.asarray(info["tool_motion_m"], float),
                                          np.asarray(info["finger_speed"], float), config)
+            if config.c4 > 0:
+                if "tool_drift_m" not in info:
+                    raise ConfigError("the drift term (drift weight c4 > 0) needs the tool drift (info "
+                                      "'tool_drift_m'), which these transitions do not record")
+                return tool + fingers + drift_term(info["tool_drift_m"], config)
             return tool + fingers
         return info.get("effort", 0.0)
     return np.array([float(effort_from_info(i, config)) for i in info], dtype=float)

@@ -21,7 +21,9 @@ episode's sensor delay, tool v_bar (3, m/s) and omega_bar (3, rad/s) in hand_bas
 ## Rewards
 ``exp(-c1 ||z_bar - z_goal||)`` (goal) plus the effort term ``-c2 mean ||T(v_bar, omega_bar)
 p - p|| - c3 ||qdot||`` over the canonical cloud's points (``use_effort=False`` drops it: the
-paper's ablation). See ``hingelab.envs.rewards``. ``compute_reward`` is vectorized over
+paper's ablation). ``drift_weight`` c4 > 0 adds ``-c4 max(0, drift - 5 mm)`` on the privileged
+drift of the tool from its start in the hand (training shaping, not the paper's; off by default).
+See ``hingelab.envs.rewards``. ``compute_reward`` is vectorized over
 goals (HER relabels with it; the effort is goal-free and read back from ``info``).
 
 ## Goals
@@ -53,7 +55,8 @@ only if the tool leaves the hand (more than 3 cm from its start: ``info["dropped
 ms, gains 60-150%, friction 0.2-1 per finger segment), ``success_threshold`` (None:
 calibrated), ``action_scale`` (0.05), ``encoder_path`` (None: shipped), ``realistic_clouds``
 (True: 3 mm noise, 20% occlusion, per-episode pose error), ``effort_weight`` (None: c2 = 50 per m of
-mean point displacement per step; the weight of the tool-motion part of the effort), ``smoothing_alpha`` (0.9: the EMA
+mean point displacement per step; the weight of the tool-motion part of the effort), ``drift_weight`` (0:
+off; c4 per m of tool drift beyond 5 mm, per step), ``smoothing_alpha`` (0.9: the EMA
 weight of the newest v, omega, z; 0.1 smooths over ~10 steps and cuts the latent's
 frame-to-frame jitter from 0.04-0.10 to about a quarter of that), ``terminate_on_drop`` (True).
 
@@ -68,8 +71,8 @@ import numpy as np
 from gymnasium import spaces
 
 from hingelab.envs.rendering import SimRenderMixin
-from hingelab.envs.rewards import (LowLevelRewardConfig, effort_from_info, effort_quantities, effort_terms,
-                                   goal_reward)
+from hingelab.envs.rewards import (LowLevelRewardConfig, drift_term, effort_from_info, effort_quantities,
+                                   effort_terms, goal_reward)
 from hingelab.envs.tool_perception import ToolPerception
 from hingelab.errors import ConfigError
 from hingelab.perception.clouds import ToolGeometry
@@ -91,7 +94,8 @@ class ToolShapeEnv(SimRenderMixin, gym.Env):
                  success_threshold: float | None = None, action_scale: float = 0.05,
                  encoder_path: str | None = None, realistic_clouds: bool = True,
                  reward: LowLevelRewardConfig | None = None, render_mode: str | None = None,
-                 smoothing_alpha: float = 0.9, terminate_on_drop: bool = True, effort_weight: float | None = None):
+                 smoothing_alpha: float = 0.9, terminate_on_drop: bool = True, effort_weight: float | None = None,
+                 drift_weight: float = 0.0):
         if goal_sampling not in GOAL_SAMPLERS:
             raise ConfigError(f"goal_sampling {goal_sampling!r} is unknown; choose one of {GOAL_SAMPLERS}")
         if not 0 < action_scale <= 0.5:
@@ -112,6 +116,10 @@ class ToolShapeEnv(SimRenderMixin, gym.Env):
             if not effort_weight >= 0:
                 raise ConfigError(f"effort_weight (c2) must be >= 0, got {effort_weight}")
             self.reward_config = LowLevelRewardConfig(**{**self.reward_config.__dict__, "c2": float(effort_weight)})
+        if drift_weight:
+            if not drift_weight > 0:
+                raise ConfigError(f"drift_weight (c4) must be >= 0, got {drift_weight}")
+            self.reward_config = LowLevelRewardConfig(**{**self.reward_config.__dict__, "c4": float(drift_weight)})
         self.goal_sampling = goal_sampling
         self.action_scale = action_scale
         self.terminate_on_drop = terminate_on_drop
@@ -161,10 +169,13 @@ class ToolShapeEnv(SimRenderMixin, gym.Env):
         tool_term, finger_term = effort_terms(motion, speed, c) if c.use_effort else (0.0, 0.0)
         terms = {"goal": goal, "effort_tool": tool_term, "effort_fingers": finger_term}
         info = self._info(terms)
+        if c.use_effort and c.c4 > 0:  # a term of its own, so that recorded terms still sum to the reward
+            terms["drift"] = float(drift_term(info["tool_drift_m"], c))
+            info["effort"] += terms["drift"]
         # unweighted, so that recorded rewards can be recomputed for other weights (relabel_rewards)
         info["tool_motion_m"], info["finger_speed"] = motion, speed
         info["diverged"] = result.diverged
-        reward = goal + tool_term + finger_term
+        reward = goal + tool_term + finger_term + terms.get("drift", 0.0)
         terminated = bool(info["dropped"]) and not result.diverged and self.terminate_on_drop
         truncated = bool(result.diverged)  # a void episode, not a task outcome
         if result.diverged:

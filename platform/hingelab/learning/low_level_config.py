@@ -23,6 +23,7 @@ class LowLevelTrainConfig:
     seed: int = 0
     use_effort: bool = True  # False: the paper's ablation without the effort reward
     effort_weight: float = 50.0  # c2: reward per m of mean tool-point displacement per step (LowLevelRewardConfig)
+    drift_weight: float = 0.0  # c4: reward per m of privileged tool drift beyond 5 mm, per step (0: off, the paper's)
     her: bool = False  # HER relabelling ("future", 4 goals per transition)
     goal_sampling: str = "reachable"  # training goals; see ToolShape-v0 "Goals"
     randomize: bool = True  # delays, gains, friction (paper)
@@ -66,11 +67,14 @@ class LowLevelTrainConfig:
             "eval_goals_per_region": self.eval_goals_per_region >= 1, "torch_threads": self.torch_threads >= 1,
             "goal_sampling": self.goal_sampling in ("normal", "reachable", "reachable_open"),
             "algorithm": self.algorithm in ("sac", "fast_sac"),
-            "demo_bc_weight": self.demo_bc_weight >= 0, "effort_weight": self.effort_weight >= 0, "bc_pretrain_updates": self.bc_pretrain_updates >= 0,
+            "demo_bc_weight": self.demo_bc_weight >= 0, "effort_weight": self.effort_weight >= 0,
+            "drift_weight": self.drift_weight >= 0, "bc_pretrain_updates": self.bc_pretrain_updates >= 0,
         }
         bad = [name for name, ok in checks.items() if not ok]
         if bad:
             raise ConfigError(f"invalid low-level training config: {', '.join(f'{b}={getattr(self, b)!r}' for b in bad)}")
+        if self.drift_weight and not self.use_effort:
+            raise ConfigError("--drift-weight adds to the effort term, which --no-effort switches off: drop one")
         if self.offline_updates and not self.from_datasets:
             raise ConfigError("offline training (--offline N) needs datasets to learn from: add --from DATASET")
         if self.learns_from_demonstrations and not self.from_datasets:
@@ -109,6 +113,6 @@ class LowLevelTrainConfig:
 
     def env_arguments(self) -> dict:
         """Keyword arguments of ``gymnasium.make(ENV_ID, ...)`` for this run."""
-        return {"use_effort": self.use_effort, "effort_weight": self.effort_weight,
+        return {"use_effort": self.use_effort, "effort_weight": self.effort_weight, "drift_weight": self.drift_weight,
                 "goal_sampling": self.goal_sampling, "randomize": self.randomize,
                 "max_episode_steps": self.max_episode_steps, **self.env_kwargs}

@@ -168,8 +168,14 @@ def relabel_rewards(transitions: Transitions, goal_env) -> Transitions:
                                f"c3 {default.c3}), not the tool motion and finger speed that this run's weights "
                                f"(c2 {config.c2}, c3 {config.c3}) need; re-record them with this hingelab")
     # one info dict of arrays: compute_reward reads the whole batch at once
+    if uses_effort and getattr(config, "c4", 0) > 0 and not (unweighted and "tool_drift_m" in infos):
+        raise DatasetError("this run's drift term (--drift-weight) needs the tool drift, tool motion and finger "
+                           "speed per step (info.tool_drift_m, info.tool_motion_m, info.finger_speed), which these "
+                           "datasets do not record; re-record them with this hingelab, or train without it")
     if unweighted:
         info = {"tool_motion_m": infos["tool_motion_m"], "finger_speed": infos["finger_speed"]}
+        if "tool_drift_m" in infos:
+            info["tool_drift_m"] = infos["tool_drift_m"]
     else:
         info = {"effort": infos.get("effort", np.zeros(len(transitions)))}
     transitions.rewards = np.asarray(goal_env.compute_reward(transitions.next_observations["achieved_goal"],
