@@ -8,6 +8,7 @@ from pathlib import Path
 
 from hingelab.bench import BENCHMARKS
 from hingelab.errors import ConfigError
+from hingelab.provenance import code_version
 
 
 def add_parser(subparsers) -> None:
@@ -43,6 +44,9 @@ def run(args: argparse.Namespace) -> int:
         if args.name != "perception":
             raise ConfigError("--encoder is an option of `hingelab bench perception` only")
         options["encoder"] = args.encoder
+    # the code version as the run starts (git_commit is cached): the bench's own figures and
+    # plots, written into the checkout while it runs, must not mark the code "+dirty"
+    code_version()
     table = module.run(quick=args.quick, **options)
     print(table.markdown())
     md_path, json_path = table.write(args.out)
