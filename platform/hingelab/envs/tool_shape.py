@@ -61,7 +61,8 @@ weight of the newest v, omega, z; 0.1 smooths over ~10 steps and cuts the latent
 frame-to-frame jitter from 0.04-0.10 to about a quarter of that), ``terminate_on_drop`` (True).
 
 ## Version History
-v0: first version.
+v0: first version (later options that default to v0's behaviour: ``effort_weight``,
+``drift_weight``, ``goal_sampling="reachable_open"``).
 """
 
 from __future__ import annotations
