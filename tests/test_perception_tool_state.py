@@ -125,3 +125,23 @@ def test_tracking_follows_a_moving_tool(parts, axis_tool):
 def test_tracking_config_is_validated():
     with pytest.raises(ConfigError, match="tracking config"):
         TrackingConfig(predict_motion=1.5)
+
+
+def test_the_encoder_reads_only_the_distinct_points_with_the_same_latent(parts):
+    """The occlusion refills a cloud with repeats, put last (``n_distinct``): the encoder's max pool
+    gives the same latent from the distinct points alone, and the registration still sees them all."""
+    encoder, registration = parts
+    synth = CloudSynthesizer(ToolGeometry.default(), CloudRealism(), seed=3)
+    synth.new_episode(3)
+    n_keep = synth.n_distinct
+    assert n_keep == 256 - round(0.2 * 256)
+    rot, pos = nominal_tool_pose()
+    cloud = synth.from_tool_pose(rot, pos, 0.15)
+    kept = {tuple(p) for p in cloud[:n_keep]}
+    assert len(kept) == n_keep and all(tuple(p) in kept for p in cloud[n_keep:])  # the tail only repeats
+    full, distinct = (ToolState(encoder, registration, n_tools=1) for _ in range(2))
+    a, b = full.update(cloud[None]), distinct.update(cloud[None], n_distinct=n_keep)
+    np.testing.assert_allclose(b.z, a.z, atol=1e-6)
+    np.testing.assert_array_equal(b.position, a.position)
+    with pytest.raises(ConfigError, match="n_distinct"):
+        distinct.update(cloud[None], n_distinct=0)

@@ -200,3 +200,20 @@ def test_scene_without_interface_is_rejected(tmp_path):
     bare.write_text("<mujoco><worldbody><body name='b'><freejoint/><geom size='0.1'/></body></worldbody></mujoco>")
     with pytest.raises(AssetError, match="lacks body 'hand_base'"):
         load_scene(str(bare))
+
+
+def test_contact_counts_match_a_count_by_hand():
+    """The compiled contact bookkeeping against the categories of every active contact."""
+    from hingelab.sim import privileged as pv
+
+    sim = SimCore("tool_shape", randomization=RandomizationConfig(enabled=False))
+    sim.reset(seed=0)
+    for _ in range(3):
+        sim.step(hand_action=np.zeros(9))
+    reader, d = sim.reader, sim.data
+    pairs = [sorted(reader.geom_category[g] for g in d.contact.geom[i]) for i in range(d.ncon)]
+    hand_tool = sum(p == [pv.HAND, pv.TOOL] for p in pairs)
+    assert hand_tool > 0
+    expected = (d.ncon, hand_tool, sum(p == [pv.TOOL, pv.OBJECT] for p in pairs),
+                any(p[1] == pv.TABLE and p[0] in (pv.ARM, pv.HAND, pv.TOOL) for p in pairs))
+    assert reader.contact_counts(d) == expected

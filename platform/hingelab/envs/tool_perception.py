@@ -30,7 +30,7 @@ class ToolPerception:
 
     def observe(self, sim: SimCore) -> ToolStateSample:
         self.cloud = self.synthesizer.from_sim(sim.model, sim.data)
-        return self.tool_state.update(self.cloud[None])
+        return self.tool_state.update(self.cloud[None], n_distinct=self.synthesizer.n_distinct)
 
     @property
     def calibration(self):

@@ -239,6 +239,13 @@ class CloudSynthesizer:
         self.perturbation = (np.eye(3), np.zeros(3))  # (R, t) applied to the tool pose
         self._sim_ids: tuple | None = None
 
+    @property
+    def n_distinct(self) -> int:
+        """How many points of each cloud are distinct: the occlusion removes a share and refills the
+        cloud to ``n_points`` with repeats of the kept ones, which ``_sample`` puts last."""
+        r = self.realism
+        return self.n_points - int(round(r.removal_fraction * self.n_points)) if r.removal_fraction > 0 else self.n_points
+
     def new_episode(self, seed: int | None = None) -> None:
         """Draw this episode's pose perturbation (and reseed if ``seed`` is given)."""
         if seed is not None:
@@ -315,7 +322,7 @@ class CloudSynthesizer:
         if np.any(std > 0):
             points = points + self.rng.normal(0.0, 1.0, points.shape) * std
         if r.removal_fraction > 0:
-            n_keep = n - int(round(r.removal_fraction * n))
+            n_keep = self.n_distinct
             kept = np.argsort(self.rng.random((batch, n)), axis=1)[:, :n_keep]
             refill = kept[np.arange(batch)[:, None], self.rng.integers(0, n_keep, (batch, n - n_keep))]
             order = np.concatenate([kept, refill], axis=1)

@@ -400,7 +400,9 @@ class CanonicalRegistration:
         rot_p = np.broadcast_to(np.asarray(rotation, float), (n_batch, 3, 3)).copy()
         pos_p = np.broadcast_to(np.asarray(translation, float), (n_batch, 3)).copy()
         _check_prior(rot_p, pos_p)
-        theta = np.clip(np.broadcast_to(np.asarray(hinge, float), (n_batch,)), *self._hinge_bounds)
+        low, high = self._hinge_bounds
+        # np.clip's dispatch cost more than the arithmetic here (a step's B is 1)
+        theta = np.minimum(np.maximum(np.broadcast_to(np.asarray(hinge, float), (n_batch,)), low), high)
         return rot_p, pos_p, theta
 
     def _tracked(self, rot, pos, theta, score, single: bool) -> Registration:

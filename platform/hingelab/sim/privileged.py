@@ -11,6 +11,7 @@ from dataclasses import asdict, dataclass
 
 import mujoco
 import numpy as np
+from numba import njit
 
 from hingelab.sim import names
 
@@ -45,6 +46,23 @@ class PrivilegedState:
         return out
 
 
+@njit(cache=True)
+def _count_contacts(geom_pairs, category):
+    """(hand-tool contacts, tool-object contacts, any arm/hand/tool-table contact) of (n, 2) geom ids."""
+    hand_tool = tool_object = 0
+    table = False
+    for i in range(geom_pairs.shape[0]):
+        a, b = category[geom_pairs[i, 0]], category[geom_pairs[i, 1]]
+        low, high = min(a, b), max(a, b)
+        if low == HAND and high == TOOL:
+            hand_tool += 1
+        elif low == TOOL and high == OBJECT:
+            tool_object += 1
+        elif high == TABLE and (low == ARM or low == HAND or low == TOOL):
+            table = True
+    return hand_tool, tool_object, table
+
+
 class PrivilegedReader:
     """Reads ``PrivilegedState`` from MjData; the by-name lookups are done once here."""
 
@@ -56,7 +74,6 @@ class PrivilegedReader:
         self.hinge_qpos = model.jnt_qposadr[model.joint(names.TOOL_HINGE).id]
         self.object_body = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_BODY, names.OBJECT_BODY)
         self.geom_category = self._categorize(model)
-        self._table_codes = np.array([8 * ARM + TABLE, 8 * HAND + TABLE, 8 * TOOL + TABLE])
 
     def _categorize(self, model: mujoco.MjModel) -> np.ndarray:
         category = np.full(model.ngeom, OTHER, dtype=np.int8)
@@ -79,11 +96,9 @@ class PrivilegedReader:
         n = data.ncon
         if n == 0:
             return 0, 0, 0, False
-        # one code per unordered category pair: 8 * low + high
-        pairs = self.geom_category[data.contact.geom[:n]]  # (n, 2) categories
-        codes = np.bincount(8 * pairs.min(axis=1) + pairs.max(axis=1), minlength=64)
-        table = bool(codes[self._table_codes].any())
-        return n, int(codes[8 * HAND + TOOL]), int(codes[8 * TOOL + OBJECT]), table
+        # compiled: read every control step, and numpy's bincount path cost ~30 us of it
+        hand_tool, tool_object, table = _count_contacts(data.contact.geom[:n], self.geom_category)
+        return n, int(hand_tool), int(tool_object), bool(table)
 
     def read(self, data: mujoco.MjData) -> PrivilegedState:
         rot_h = data.xmat[self.hand_body].reshape(3, 3)
