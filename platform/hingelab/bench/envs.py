@@ -1,7 +1,8 @@
 """``hingelab bench envs``: env steps per second with perception on, vs raw ``mj_step``.
 
-For both envs: ``env.step`` with random actions in one process (1 worker), and a
-stable-baselines3 ``SubprocVecEnv`` of 2 envs (2 workers, total steps per second); the
+For both envs: ``env.step`` with random actions in one process (1 worker), and 2 env processes
+stepped in lockstep by ``PinnedVecEnv`` (2 workers, total steps per second; what ``hingelab
+train low --envs 2`` uses), with stable-baselines3's ``SubprocVecEnv`` beside it; the
 baseline is the same model's bare ``mj_step`` on one core, in control steps (25 physics
 steps each), replaying the 1-worker run's own steps (start states with the solver's warm
 start, and controls): the same physics work, so the ratio is what the env adds to it. The
@@ -89,13 +90,14 @@ class _OneWorker:
 
 
 class _Workers:
-    """A stable-baselines3 SubprocVecEnv of ``n_envs`` spawned processes: total steps per second."""
+    """``n_envs`` spawned env processes in a vec env (PinnedVecEnv or SB3's SubprocVecEnv): total steps/s."""
 
-    def __init__(self, env_id: str, n_envs: int):
+    def __init__(self, env_id: str, n_envs: int, vec_env_cls=None):
         from stable_baselines3.common.env_util import make_vec_env
-        from stable_baselines3.common.vec_env import SubprocVecEnv
 
-        self.vec = make_vec_env(env_id, n_envs=n_envs, seed=0, vec_env_cls=SubprocVecEnv,
+        from hingelab.envs.vec_env import PinnedVecEnv
+
+        self.vec = make_vec_env(env_id, n_envs=n_envs, seed=0, vec_env_cls=vec_env_cls or PinnedVecEnv,
                                 vec_env_kwargs={"start_method": "spawn"})
         self.vec.reset()
         self.n_envs = n_envs
@@ -111,21 +113,25 @@ class _Workers:
 
 
 def run(quick: bool = False) -> BenchTable:
+    from stable_baselines3.common.vec_env import SubprocVecEnv
+
     steps = 40 if quick else 4000
     rounds = 2 if quick else ROUNDS
     block = steps // rounds
     rows, ratios = [], {}
     for env_id in (TOOL_SHAPE_ID, TOOL_PICK_ID):
-        one, two = _OneWorker(env_id), _Workers(env_id, 2)
-        raw_r, rest_r, one_r, two_r = [], [], [], []
+        one, two, stock = _OneWorker(env_id), _Workers(env_id, 2), _Workers(env_id, 2, SubprocVecEnv)
+        raw_r, rest_r, one_r, two_r, stock_r = [], [], [], [], []
         for _ in range(rounds):
             one_r.append(one.rate(block))
             raw_r.append(one.replayed_raw_rate())
             rest_r.append(_raw_rate(one.sim.model, block, one.sim.n_substeps))
             two_r.append(two.rate(block // 2))
+            stock_r.append(stock.rate(block // 2))
         one.env.close()
         two.vec.close()
-        raw_r, rest_r, one_r, two_r = (np.array(x) for x in (raw_r, rest_r, one_r, two_r))
+        stock.vec.close()
+        raw_r, rest_r, one_r, two_r, stock_r = (np.array(x) for x in (raw_r, rest_r, one_r, two_r, stock_r))
         row = {"env": env_id, "raw mj_step, same steps (control steps/s)": float(np.median(raw_r)),
                "raw mj_step, at rest (control steps/s)": float(np.median(rest_r)),
                "1 worker (steps/s)": float(np.median(one_r)), "2 workers (steps/s)": float(np.median(two_r)),
@@ -133,10 +139,13 @@ def run(quick: bool = False) -> BenchTable:
                "1 worker / raw, range over rounds": f"{(one_r / raw_r).min():.2f}-{(one_r / raw_r).max():.2f}",
                "2 workers / raw, range over rounds": f"{(two_r / raw_r).min():.2f}-{(two_r / raw_r).max():.2f}",
                "1 worker / raw at rest": float(np.median(one_r / rest_r)),
-               "2 workers / (2 x raw), per core": float(np.median(two_r / (2 * raw_r)))}
+               "2 workers / (2 x raw), per core": float(np.median(two_r / (2 * raw_r))),
+               "2 workers, SubprocVecEnv (steps/s)": float(np.median(stock_r)),
+               "2 workers, SubprocVecEnv / raw": float(np.median(stock_r / raw_r))}
         rows.append(row)
         ratios[f"{env_id}: 1 worker / raw"] = row["1 worker / raw"]
         ratios[f"{env_id}: 2 workers / raw"] = row["2 workers / raw"]
+        ratios[f"{env_id}: 2 workers, PinnedVecEnv / SubprocVecEnv"] = float(np.median(two_r / stock_r))
     return BenchTable(
         name="envs",
         title="Env steps per second with perception on vs raw mj_step of the same model",
@@ -151,10 +160,11 @@ def run(quick: bool = False) -> BenchTable:
                "steps (25 physics steps); the physics of a moving hand, arm and object costs more than at rest.",
                "Raw, at rest: the same loop from the grasp keyframe with the controls left alone (the baseline "
                "of earlier runs of this bench; ToolPick-v0's arm and object cost more physics when they move).",
-               "2 workers: SubprocVecEnv of 2 envs (spawned processes), total steps per second; '2 workers / "
-               "raw' divides them by one core's raw rate (the issue's figure), '2 workers / (2 x raw), per core' "
-               "by two cores' (what each core keeps of its physics rate; SubprocVecEnv steps the two in lockstep "
-               "and its pipes cost the main process ~0.5 ms per vector step, so two independent env processes "
-               "reach more than it)."],
+               "2 workers: PinnedVecEnv of 2 envs (spawned processes, each held to one core, observations, actions, "
+               "rewards and dones in shared memory; hingelab train low's vec env), total steps per second; '2 "
+               "workers / raw' divides them by one core's raw rate (the issue's figure), '2 workers / (2 x raw), "
+               "per core' by two cores' (what each core keeps of its physics rate; the two envs step in lockstep, "
+               "so each vector step waits for the slower one). SubprocVecEnv: stable-baselines3's, the same 2 "
+               "envs, taking turns with the others in every round."],
         config={"steps": steps, "rounds": rounds},
     )

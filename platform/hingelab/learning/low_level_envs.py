@@ -54,15 +54,18 @@ def _make_training_env(config_dict: dict, dataset_dir: str | None, env_index: in
 
 
 def make_training_vec_env(config: LowLevelTrainConfig, dataset_dir: Path | None):
-    """``n_envs`` seeded envs: one process each (spawned), or all in this process (one env, or asked to)."""
-    from stable_baselines3.common.vec_env import DummyVecEnv, SubprocVecEnv
+    """``n_envs`` seeded envs: one process each (spawned, each held to a core, arrays through shared
+    memory: ``PinnedVecEnv``), or all in this process (one env, or asked to)."""
+    from stable_baselines3.common.vec_env import DummyVecEnv
+
+    from hingelab.envs.vec_env import PinnedVecEnv
 
     factories = [functools.partial(_make_training_env, config.to_dict(),
                                    None if dataset_dir is None else str(dataset_dir), i)
                  for i in range(config.n_envs)]
     if config.n_envs == 1 or not config.subprocess_envs:
         return DummyVecEnv(factories)
-    return SubprocVecEnv(factories, start_method="spawn")
+    return PinnedVecEnv(factories, start_method="spawn")
 
 
 def episode_counts(vec_env) -> list[int]:
