@@ -59,6 +59,11 @@ class PolicyLowLevel:
         path = Path(checkpoint)
         if not path.exists():
             raise ConfigError(f"low-level checkpoint {path} does not exist; train one with `hingelab train low`")
+        if path.is_dir():  # a run folder or one of its checkpoints/step_* folders: the model.zip inside
+            if not (path / "model.zip").is_file():
+                raise ConfigError(f"{path} is a folder without a model.zip; give a run folder, a checkpoints/step_* "
+                                  "folder or a .zip from `hingelab train low`")
+            path = path / "model.zip"
         from stable_baselines3 import SAC
 
         try:
