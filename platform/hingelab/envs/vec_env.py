@@ -170,12 +170,14 @@ class PinnedVecEnv(VecEnv):
     Args:
         env_fns: callables that build the envs (run in the workers).
         start_method: multiprocessing start method (default "spawn": safe with torch and MuJoCo).
-        pin: hold worker i to core i mod (cores this process may use); False: the scheduler places them.
+        pin: hold worker i to core i mod (cores this process may use; Linux only); False: the scheduler
+            places them.
     """
 
     def __init__(self, env_fns: Sequence[Callable[[], gym.Env]], start_method: str = "spawn", pin: bool = True):
         ctx = mp.get_context(start_method)
-        cores = sorted(os.sched_getaffinity(0))
+        pin = pin and hasattr(os, "sched_setaffinity")  # Linux; elsewhere the scheduler places them
+        cores = sorted(os.sched_getaffinity(0)) if pin else []
         self.remotes, self.processes = [], []
         for i, fn in enumerate(env_fns):
             remote, work_remote = ctx.Pipe()
