@@ -76,3 +76,21 @@ def test_a_worker_error_names_the_env():
             vec.step(np.zeros((2, 1), np.float32))
     finally:
         vec.close()
+
+
+class _BrokenMethod(_Broken):
+    def step(self, action):
+        return np.zeros(2, np.float32), 0.0, False, False, {}
+
+    def explode(self):
+        raise ValueError("explode")
+
+
+def test_an_error_in_one_env_names_that_env():
+    vec = PinnedVecEnv([_BrokenMethod, _BrokenMethod], pin=False)
+    try:
+        vec.reset()
+        with pytest.raises(RuntimeError, match="env worker 1 failed: ValueError: explode"):
+            vec.env_method("explode", indices=[1])
+    finally:
+        vec.close()

@@ -23,10 +23,12 @@ from __future__ import annotations
 
 import multiprocessing as mp
 import os
+import pickle
 import traceback
 from collections.abc import Callable, Sequence
 from multiprocessing import shared_memory
 
+import cloudpickle
 import gymnasium as gym
 import numpy as np
 from gymnasium import spaces
@@ -50,8 +52,8 @@ class _Buffers:
     """The shared arrays of all envs: obs per key (n, ...), actions (n, ...), rewards (n,), dones (n,)."""
 
     def __init__(self, n_envs: int, obs_space: gym.Space, action_space: gym.Space, names: dict | None = None):
-        self.layout = {"obs": _obs_layout(obs_space)}
-        fields = {f"obs:{k}": ((n_envs, *shape), dtype) for k, (shape, dtype) in self.layout["obs"].items()}
+        self.obs_layout = _obs_layout(obs_space)
+        fields = {f"obs:{k}": ((n_envs, *shape), dtype) for k, (shape, dtype) in self.obs_layout.items()}
         fields["action"] = ((n_envs, *action_space.shape), np.dtype(action_space.dtype))
         fields["reward"] = ((n_envs,), np.dtype(np.float64))
         fields["done"] = ((n_envs,), np.dtype(bool))
@@ -69,11 +71,11 @@ class _Buffers:
         return {name: memory.name for name, memory in self.memory.items()}
 
     def write_obs(self, index: int, obs) -> None:
-        for key in self.layout["obs"]:
+        for key in self.obs_layout:
             self.arrays[f"obs:{key}"][index] = obs if key is None else obs[key]
 
     def read_obs(self):
-        copies = {key: self.arrays[f"obs:{key}"].copy() for key in self.layout["obs"]}
+        copies = {key: self.arrays[f"obs:{key}"].copy() for key in self.obs_layout}
         return copies[None] if None in copies else copies
 
     def close(self) -> None:
@@ -117,7 +119,7 @@ def _worker(remote, parent_remote, env_fn: CloudpickleWrapper, index: int, core:
                 buffers.arrays["done"][index] = done
                 remote.send(("ok", (info, reset_info)))
                 continue
-            cmd, data = _loads(message)
+            cmd, data = pickle.loads(message)
             if cmd == "reset":
                 seed, options = data
                 observation, reset_info = env.reset(seed=seed, **({"options": options} if options else {}))
@@ -155,18 +157,6 @@ def _worker(remote, parent_remote, env_fn: CloudpickleWrapper, index: int, core:
         buffers.close()
 
 
-def _loads(message: bytes):
-    import pickle
-
-    return pickle.loads(message)
-
-
-def _dumps(obj) -> bytes:
-    import cloudpickle
-
-    return cloudpickle.dumps(obj)
-
-
 class PinnedVecEnv(VecEnv):
     """``n`` env processes stepped in lockstep (see the module docstring).
 
@@ -201,10 +191,12 @@ class PinnedVecEnv(VecEnv):
         super().__init__(len(env_fns), obs_space, action_space)  # asks the workers for render_mode
 
     # ------------------------------------------------------------------ plumbing
-    def _gather(self, remotes=None) -> list:
-        """The workers' answers; a worker's error is raised here with its env index."""
+    def _gather(self, indices=None) -> list:
+        """The answers of the workers of ``indices`` (default all); a worker's error is raised here with
+        its env index."""
         out = []
-        for i, remote in enumerate(remotes or self.remotes):
+        for i in (range(len(self.remotes)) if indices is None else self._get_indices(indices)):
+            remote = self.remotes[i]
             try:
                 status, value = remote.recv()
             except EOFError:
@@ -215,11 +207,10 @@ class PinnedVecEnv(VecEnv):
         return out
 
     def _call(self, cmd: str, data=None, indices=None) -> list:
-        remotes = [self.remotes[i] for i in self._get_indices(indices)]
-        message = _dumps((cmd, data))
-        for remote in remotes:
-            remote.send_bytes(message)
-        return self._gather(remotes)
+        message = cloudpickle.dumps((cmd, data))
+        for i in self._get_indices(indices):
+            self.remotes[i].send_bytes(message)
+        return self._gather(indices)
 
     # ------------------------------------------------------------------ VecEnv API
     def step_async(self, actions: np.ndarray) -> None:
@@ -239,7 +230,7 @@ class PinnedVecEnv(VecEnv):
     def reset(self):
         data = [(self._seeds[i], self._options[i]) for i in range(self.num_envs)]
         for remote, item in zip(self.remotes, data):
-            remote.send_bytes(_dumps(("reset", item)))
+            remote.send_bytes(cloudpickle.dumps(("reset", item)))
         self.reset_infos = self._gather()
         self._reset_seeds()
         self._reset_options()
@@ -251,7 +242,7 @@ class PinnedVecEnv(VecEnv):
         self.closed = True
         for remote in self.remotes:
             try:
-                remote.send_bytes(_dumps(("close", None)))
+                remote.send_bytes(cloudpickle.dumps(("close", None)))
                 remote.recv()
             except (EOFError, BrokenPipeError, OSError):
                 pass
