@@ -109,3 +109,30 @@ def test_bench_perception_without_open3d_says_how_to_install(monkeypatch, failur
     monkeypatch.setattr(builtins, "__import__", no_open3d)
     with pytest.raises(ConfigError, match=advice):
         perception._require_open3d()
+
+
+def test_recalibrate_curve_fits_the_tracked_latents_and_keeps_old_policies(tmp_path, capsys):
+    """--recalibrate-curve: the curve moves onto the latents the envs perceive (closer at the shut
+    end than the training curve), the weights stay, and the old fingerprint is still accepted."""
+    import shutil
+
+    from hingelab.perception.encoder import SHIPPED_CHECKPOINT
+    from hingelab.perception.sim_calibration import curve_offsets, tracked_sweep_latents
+
+    out = tmp_path / "encoder.pt"
+    shutil.copy(SHIPPED_CHECKPOINT, out)
+    before = load_encoder(out)
+    assert main(["train", "encoder", "--recalibrate-curve", "--sweeps", "4", "--seed", "100", "--out", str(out),
+                 "--no-progress"]) == 0
+    assert "Refitted the calibration curve" in capsys.readouterr().out
+    after = load_encoder(out)
+    for name, tensor in before.model.state_dict().items():
+        assert torch.equal(tensor, after.model.state_dict()[name])
+    assert after.fingerprint != before.fingerprint
+    assert after.accepts(before.fingerprint) and after.accepts(after.fingerprint) and not after.accepts("0" * 16)
+    assert before.fingerprint in after.info["curve"]["replaces"] and after.info["curve"]["seed"] == 100
+    check = tracked_sweep_latents(after, sweeps=2, seed=500, progress=False)  # sweeps neither curve saw
+    old_shut, new_shut = (curve_offsets(c, check)[0]["offset"] for c in (before.calibration, after.calibration))
+    assert new_shut < 0.5 * old_shut, (old_shut, new_shut)
+    assert main(["train", "encoder", "--out", str(out)]) == 1
+    assert "needs --data" in _one_line_error(capsys)

@@ -45,7 +45,7 @@ def add_clouds_parser(sources) -> None:
         "clouds",
         help="synthetic tweezer point clouds over the hinge range (the encoder's training data)",
         description="Tweezer clouds at uniform openings in random poses around the in-hand pose, with the "
-                    "paper's encoder augmentation (20%% removal, 5 mm noise), ground-truth opening, tip gap "
+                    "paper's encoder augmentation (20% removal, 5 mm noise), ground-truth opening, tip gap "
                     "and pose on /sim/privileged; clouds are grouped per episode file.",
     )
     p.add_argument("--n", type=int, default=d.n_clouds, help=f"number of clouds (default {d.n_clouds})")

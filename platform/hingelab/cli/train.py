@@ -13,6 +13,8 @@ import argparse
 import importlib
 from pathlib import Path
 
+from hingelab.errors import ConfigError
+
 LEARNERS = {
     "encoder": "hingelab.cli.train:add_encoder_parser",
     "low": "hingelab.cli.train:add_low_parser",
@@ -43,7 +45,7 @@ def add_encoder_parser(learners) -> None:
         description="Register every cloud of the dataset, train the PointNet VAE (Chamfer + beta KL) on the "
                     "clouds in the tool frame, fit the latent <-> opening calibration and write a checkpoint.",
     )
-    p.add_argument("--data", type=Path, required=True, help="a cloud dataset folder (hingelab generate clouds)")
+    p.add_argument("--data", type=Path, help="a cloud dataset folder (hingelab generate clouds); not with --recalibrate-curve")
     p.add_argument("--epochs", type=int, default=d.epochs, help=f"training epochs (default {d.epochs})")
     p.add_argument("--batch-size", type=int, default=d.batch_size, help=f"clouds per step (default {d.batch_size})")
     p.add_argument("--lr", type=float, default=d.learning_rate, help=f"Adam learning rate (default {d.learning_rate})")
@@ -59,6 +61,13 @@ def add_encoder_parser(learners) -> None:
                    help="do not train: fit the latent -> opening reader of the checkpoint --out on the training "
                         "split of --data (the dataset it was trained on) and rewrite it; weights, calibration "
                         "curve and fingerprint stay")
+    p.add_argument("--recalibrate-curve", action="store_true",
+                   help="do not train: refit the calibration curve and reader of the checkpoint --out on the "
+                        "latents the envs perceive (tracked hinge sweeps of 3 mm clouds; no --data) and rewrite "
+                        "it; the weights stay, the fingerprint changes, and low-level policies trained beside "
+                        "the old one still load")
+    p.add_argument("--sweeps", type=int, default=40,
+                   help="with --recalibrate-curve: hinge sweeps to fit on, and as many more to check on (default 40)")
     p.set_defaults(func=run_encoder)
 
 
@@ -66,6 +75,10 @@ def run_encoder(args: argparse.Namespace) -> int:
     from hingelab.perception.encoder import EncoderConfig
     from hingelab.perception.train_encoder import TrainEncoderConfig, train_encoder
 
+    if args.recalibrate_curve:
+        return run_curve_recalibration(args)
+    if args.data is None:
+        raise ConfigError("hingelab train encoder needs --data DATASET (a cloud dataset: hingelab generate clouds)")
     if args.recalibrate:
         from hingelab.perception.train_encoder import recalibrate_encoder
 
@@ -84,6 +97,21 @@ def run_encoder(args: argparse.Namespace) -> int:
           f"for the opening (mean error {m['mae_opening_rad_val'] * 1000:.1f} mrad) and {m['r2_gap_val']:.3f} "
           f"for the tip gap (mean error {m['mae_gap_mm_val']:.2f} mm). Per-epoch metrics are in the checkpoint "
           "(`history`); load it with hingelab.perception.encoder.load_encoder.")
+    return 0
+
+
+def run_curve_recalibration(args: argparse.Namespace) -> int:
+    from hingelab.perception.sim_calibration import recalibrate_curve
+
+    encoder, m = recalibrate_curve(args.out, sweeps=args.sweeps, seed=args.seed, progress=not args.no_progress)
+    before = ", ".join(f"{r['band_rad']} rad {r['offset']:.3f}" for r in m["offsets_before"])
+    after = ", ".join(f"{r['offset']:.3f}" for r in m["offsets_after"])
+    print(f"Refitted the calibration curve of {args.out} on {m['latents']} tracked latents ({args.sweeps} sweeps, "
+          f"seed {args.seed}) in {m['wall_time_s']:.0f} s. Held-out sweeps, distance of the mean latent from the "
+          f"curve per opening band: before {before}; after {after}. Opening R^2 {m['r2_opening_before']:.4f} -> "
+          f"{m['r2_opening_after']:.4f}; ToolShape-v0's success threshold {m['success_threshold_before']:.4f} -> "
+          f"{m['success_threshold_after']:.4f}. Fingerprint {m['fingerprint_before']} -> {encoder.fingerprint} "
+          "(policies trained beside the old one still load).")
     return 0
 
 
@@ -112,10 +140,11 @@ def add_low_parser(learners) -> None:
                         "C4 per m beyond 5 mm, per step (default 0: off, the paper's reward); e.g. 60 makes "
                         "1 cm of drift cost 0.3 per step")
     p.add_argument("--her", action="store_true", help="HER relabelling (future strategy, 4 goals)")
-    p.add_argument("--goals", choices=("reachable", "reachable_open", "normal"), default=d.goal_sampling,
+    p.add_argument("--goals", choices=("reachable", "reachable_open", "reachable_closed", "normal"),
+                   default=d.goal_sampling,
                    help=f"training goals: latents of reachable openings, the same with half of them in the "
-                        f"open 40%% of the range (reachable_open), or N(0, I) as in the paper "
-                        f"(default {d.goal_sampling})")
+                        f"open 40%% (reachable_open) or the closed 25%% (reachable_closed) of the range, or "
+                        f"N(0, I) as in the paper (default {d.goal_sampling})")
     p.add_argument("--no-randomize", action="store_true", help="turn domain randomization off")
     p.add_argument("--envs", type=int, default=d.n_envs, help=f"parallel rollout processes (default {d.n_envs})")
     p.add_argument("--in-process", action="store_true",

@@ -78,12 +78,12 @@ class PolicyLowLevel:
                               f"{self.model.action_space.shape}); give a checkpoint from `hingelab train low`")
         trained_with = (getattr(self.model, "hingelab_provenance", None) or {}).get("encoder_fingerprint")
         if trained_with is not None:  # checkpoints made before the fingerprint was recorded: not checked
-            from hingelab.perception.encoder import shipped_encoder_fingerprint
+            from hingelab.perception.encoder import shipped_encoder
 
-            current = encoder.fingerprint if encoder is not None else shipped_encoder_fingerprint()
-            if trained_with != current:
+            current = encoder if encoder is not None else shipped_encoder()
+            if not current.accepts(trained_with):
                 raise ConfigError(f"{path} learned from the latents of another tool encoder (fingerprint "
-                                  f"{trained_with}, this env's is {current}); retrain it with "
+                                  f"{trained_with}, this env's is {current.fingerprint}); retrain it with "
                                   "`hingelab train low` on this encoder")
         self.action_scale = action_scale
 

@@ -208,6 +208,12 @@ class ToolEncoder:
             digest.update(json.dumps(curve, sort_keys=True).encode())
         return digest.hexdigest()[:16]
 
+    def accepts(self, fingerprint: str) -> bool:
+        """Whether a policy that learned beside the encoder ``fingerprint`` reads this one's latents:
+        this fingerprint, or one its calibration curve replaced (the same weights,
+        ``hingelab.perception.sim_calibration``)."""
+        return fingerprint == self.fingerprint or fingerprint in (self.info.get("curve") or {}).get("replaces", ())
+
     def encode(self, points_tool: np.ndarray) -> np.ndarray:
         """(B, N, 3) or (N, 3) metres, tool frame -> latent means z (B, 2) or (2,) float64."""
         arr = np.asarray(points_tool, dtype=np.float32)
@@ -335,11 +341,16 @@ def load_encoder(path=None, geometry=None) -> ToolEncoder:
 
 
 @functools.cache
+def shipped_encoder() -> ToolEncoder:
+    """The shipped checkpoint, loaded once per process."""
+    return load_encoder()
+
+
 def shipped_encoder_fingerprint() -> str:
-    """``ToolEncoder.fingerprint`` of the shipped checkpoint (loaded once per process)."""
-    return load_encoder().fingerprint
+    """``ToolEncoder.fingerprint`` of the shipped checkpoint."""
+    return shipped_encoder().fingerprint
 
 
 __all__ = ["CHECKPOINT_FORMAT", "CHECKPOINT_VERSION", "EncoderConfig", "PointNetVAE", "SHIPPED_CHECKPOINT",
            "ToolEncoder", "chamfer", "load_encoder", "one_blas_thread", "one_torch_thread", "save_checkpoint",
-           "shipped_encoder_fingerprint", "vae_loss"]
+           "shipped_encoder", "shipped_encoder_fingerprint", "vae_loss"]
