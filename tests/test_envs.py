@@ -78,6 +78,19 @@ def test_open_weighted_goals_put_more_of_them_at_the_open_end():
     env.close()
 
 
+def test_closed_weighted_goals_put_more_of_them_at_the_closed_end():
+    from hingelab.envs.tool_shape import CLOSED_SHARE
+
+    env = gym.make(TOOL_SHAPE_ID, goal_sampling="reachable_closed").unwrapped
+    env.np_random = np.random.default_rng(0)
+    low, high = env.reachable_range
+    openings = np.array([env.calibration.project_opening(env._sample_goal()) for _ in range(400)])
+    assert openings.min() >= low - 1e-3 and openings.max() <= high + 1e-3
+    in_closed_part = np.mean(openings < low + CLOSED_SHARE * (high - low))
+    assert 0.52 < in_closed_part < 0.72  # half of them, plus the uniform half's 25%
+    env.close()
+
+
 def test_same_seed_same_episode():
     def run():
         env = gym.make(TOOL_SHAPE_ID)

@@ -36,6 +36,8 @@ episodes on unreachable goals and success rates measure the goal sampler as much
 policy. HER relabels with achieved (hence reachable) latents either way. ``"reachable_open"``:
 as ``"reachable"``, but half of the openings are drawn from the open 40% of the range, where
 the grasp holds the tool most loosely (a training option: more practice where goals are missed).
+``"reachable_closed"``: half of the openings from the closed 25% of the range, where a policy
+that squeezes the tweezer shut misses goals of 1-3 mm of tip gap (the same kind of option).
 
 ## Success
 ``||z_bar - z_goal|| < success_threshold``. The default is the latent distance that 2 mm
@@ -62,7 +64,7 @@ frame-to-frame jitter from 0.04-0.10 to about a quarter of that), ``terminate_on
 
 ## Version History
 v0: first version (later options that default to v0's behaviour: ``effort_weight``,
-``drift_weight``, ``goal_sampling="reachable_open"``).
+``drift_weight``, ``goal_sampling="reachable_open"`` and ``"reachable_closed"``).
 """
 
 from __future__ import annotations
@@ -81,8 +83,9 @@ from hingelab.sim.core import SimCore
 from hingelab.sim.finger_synergy import FingerSynergy
 from hingelab.sim.randomization import RandomizationConfig
 
-GOAL_SAMPLERS = ("normal", "reachable", "reachable_open")
+GOAL_SAMPLERS = ("normal", "reachable", "reachable_open", "reachable_closed")
 OPEN_SHARE = 0.4  # "reachable_open": the top part of the reachable range that gets half of the goals
+CLOSED_SHARE = 0.25  # "reachable_closed": the bottom part of the reachable range that gets half of the goals
 DROP_DISTANCE_M = 0.03
 SUCCESS_GAP_MM = 2.0
 CANONICAL_OPENING = 0.15  # rad: the canonical cloud the effort term moves
@@ -203,6 +206,8 @@ class ToolShapeEnv(SimRenderMixin, gym.Env):
         low, high = self.reachable_range
         if self.goal_sampling == "reachable_open" and self.np_random.random() < 0.5:
             low = high - OPEN_SHARE * (high - low)
+        elif self.goal_sampling == "reachable_closed" and self.np_random.random() < 0.5:
+            high = low + CLOSED_SHARE * (high - low)
         opening = self.np_random.uniform(low, high)
         return np.asarray(self.calibration.z_for_opening(opening), float)
 

@@ -65,7 +65,7 @@ class LowLevelTrainConfig:
             "checkpoint_every": self.checkpoint_every >= 1, "max_episode_steps": self.max_episode_steps >= 1,
             "keep_checkpoints": self.keep_checkpoints >= 1, "offline_updates": self.offline_updates >= 0,
             "eval_goals_per_region": self.eval_goals_per_region >= 1, "torch_threads": self.torch_threads >= 1,
-            "goal_sampling": self.goal_sampling in ("normal", "reachable", "reachable_open"),
+            "goal_sampling": self.goal_sampling in ("normal", "reachable", "reachable_open", "reachable_closed"),
             "algorithm": self.algorithm in ("sac", "fast_sac"),
             "demo_bc_weight": self.demo_bc_weight >= 0, "effort_weight": self.effort_weight >= 0,
             "drift_weight": self.drift_weight >= 0, "bc_pretrain_updates": self.bc_pretrain_updates >= 0,
