@@ -335,3 +335,27 @@ def test_policy_records_its_encoder_and_is_refused_beside_another(tiny_run, tmp_
     assert other.fingerprint != shipped.fingerprint
     with pytest.raises(ConfigError, match="another tool encoder"):
         PolicyLowLevel(run / "model.zip", encoder=other)
+
+
+def test_init_from_starts_a_new_run_from_a_trained_policy(tiny_run, tmp_path):
+    """--init-from: the new run starts with the policy's actor, critics and entropy coefficient
+    (its own config, buffer and rollouts); networks of another shape are a one-line error."""
+    from stable_baselines3 import SAC
+
+    run, _ = tiny_run
+    source = SAC.load(run / "model.zip", device="cpu")
+    start = replace(TINY, steps=0, init_from=str(run), eval_every=1000, checkpoint_every=1000)
+    train_low(start, tmp_path / "start", progress=False)
+    started = SAC.load(tmp_path / "start" / "model.zip", device="cpu")
+    for name, tensor in source.policy.state_dict().items():
+        assert torch.equal(tensor, started.policy.state_dict()[name]), name
+    assert torch.equal(source.log_ent_coef, started.log_ent_coef)
+    assert json.loads((tmp_path / "start" / "config.json").read_text())["config"]["init_from"] == str(run)
+    moved = train_low(replace(start, steps=60), tmp_path / "tuned", progress=False)
+    assert moved["env_steps"] == 60 and moved["updates"] > 0
+    tuned = SAC.load(tmp_path / "tuned" / "model.zip", device="cpu").policy.state_dict()
+    assert any(not torch.equal(t, tuned[k]) for k, t in source.policy.state_dict().items())
+    with pytest.raises(ConfigError, match="does not fit this run's networks"):
+        train_low(replace(start, net_arch=(32, 32)), tmp_path / "small", progress=False)
+    with pytest.raises(ConfigError, match="does not exist"):
+        train_low(replace(start, init_from=str(tmp_path / "nowhere.zip")), tmp_path / "none", progress=False)

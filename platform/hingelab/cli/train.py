@@ -175,6 +175,10 @@ def add_low_parser(learners) -> None:
                         "demonstrated action (keeps the actor near the demonstrator)")
     p.add_argument("--bc-pretrain", type=int, default=d.bc_pretrain_updates, metavar="UPDATES",
                    help="behaviour-cloning updates of the actor on the --from datasets before training (default 0)")
+    p.add_argument("--init-from", type=Path, default=None, metavar="CHECKPOINT",
+                   help="start from a trained low-level policy (a .zip, run folder or checkpoints/step_* folder): "
+                        "its actor, critics, optimizers and entropy coefficient; the replay buffer starts "
+                        "empty (or from --from). Fine-tuning, e.g. with other --goals")
     p.add_argument("--offline", type=int, default=0, metavar="UPDATES",
                    help="train from the --from datasets alone for this many updates (no env rollouts)")
     p.add_argument("--out", type=Path, default=None,
@@ -201,7 +205,8 @@ def run_low(args: argparse.Namespace) -> int:
         eval_every=args.eval_every, eval_goals_per_region=args.eval_goals, checkpoint_every=args.checkpoint_every,
         torch_threads=args.threads, record=not args.no_record,
         from_datasets=tuple(str(p) for p in args.from_datasets), offline_updates=args.offline,
-        demo_bc_weight=args.bc_weight, bc_pretrain_updates=args.bc_pretrain, demo_q_filter=not args.bc_no_q_filter)
+        demo_bc_weight=args.bc_weight, bc_pretrain_updates=args.bc_pretrain, demo_q_filter=not args.bc_no_q_filter,
+        init_from=str(args.init_from.resolve()) if args.init_from else "")
     out = args.out or REPO_ROOT / "runs" / f"low_seed{args.seed}{'' if config.use_effort else '_no_effort'}"
     s = train_low(config, out, resume=args.resume, progress=not args.no_progress, name=args.name)
     last, best = s["last_evaluation"], s["best"]

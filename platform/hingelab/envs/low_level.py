@@ -64,6 +64,7 @@ class PolicyLowLevel:
                 raise ConfigError(f"{path} is a folder without a model.zip; give a run folder, a checkpoints/step_* "
                                   "folder or a .zip from `hingelab train low`")
             path = path / "model.zip"
+        self.path = path
         from stable_baselines3 import SAC
 
         try:

@@ -54,6 +54,7 @@ class LowLevelTrainConfig:
     demo_bc_weight: float = 0.0  # > 0: Q-filtered BC on the --from datasets in the actor loss (demo_bc)
     bc_pretrain_updates: int = 0  # behaviour-cloning updates of the actor on --from before training
     demo_q_filter: bool = True  # BC term only where the critic prefers the demo action (Nair et al.)
+    init_from: str = ""  # a low-level SAC zip whose weights start a new run (fine-tuning; "": fresh weights)
     env_kwargs: dict = field(default_factory=dict)  # more ToolShape-v0 arguments
 
     def __post_init__(self):
@@ -79,6 +80,8 @@ class LowLevelTrainConfig:
             raise ConfigError("offline training (--offline N) needs datasets to learn from: add --from DATASET")
         if self.learns_from_demonstrations and not self.from_datasets:
             raise ConfigError("learning from demonstrations (--bc-weight, --bc-pretrain) needs them: add --from DATASET")
+        if self.init_from and self.offline_updates:
+            raise ConfigError("--init-from starts online training from a policy; --offline trains from datasets: drop one")
         if self.learns_from_demonstrations and (self.algorithm != "fast_sac" or self.her):
             raise ConfigError("--bc-weight and --bc-pretrain work with --algorithm fast_sac and without --her")
 
