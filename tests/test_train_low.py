@@ -359,3 +359,4 @@ def test_init_from_starts_a_new_run_from_a_trained_policy(tiny_run, tmp_path):
         train_low(replace(start, net_arch=(32, 32)), tmp_path / "small", progress=False)
     with pytest.raises(ConfigError, match="does not exist"):
         train_low(replace(start, init_from=str(tmp_path / "nowhere.zip")), tmp_path / "none", progress=False)
+    assert not (tmp_path / "none").exists()  # nothing to clear away before running it again

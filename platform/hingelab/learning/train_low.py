@@ -187,6 +187,10 @@ class LowLevelRun:
     def setup(self):
         configure_torch(self.config.torch_threads)
         if not self.resume:
+            if self.config.init_from:  # a bad --init-from is refused before the run folder is made
+                from hingelab.envs.low_level import PolicyLowLevel
+
+                PolicyLowLevel(self.config.init_from)
             self._write_run_files()
         self.env = make_training_vec_env(self.config, self._dataset_dir())
         eval_args = {**self.config.env_arguments()}
