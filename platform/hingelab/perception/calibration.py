@@ -19,9 +19,9 @@ curve is unchanged by it: goals (``z_for_opening``) and the env's success thresh
 The principal axis u of the latents (oriented so the opening grows along +u) gives a
 coordinate s = u . (z - mean) for plots and for the monotonicity check.
 
-The curve is fitted where the encoder is trained (its training clouds); the shipped one was refitted
-on the latents the envs perceive (``hingelab.perception.sim_calibration``), which differ at the
-closed end.
+The curve is fitted where the encoder is trained (its training clouds);
+``hingelab.perception.sim_calibration`` refits it on the latents the envs perceive, which differ
+at the closed end (assets/checkpoints/README.md says why the shipped encoder keeps its own).
 
 ``r2_opening``, ``r2_gap``: coefficients of determination of the readings on the data the
 calibration was fitted on; ``evaluate`` gives them on other data (the bench: held-out clouds).

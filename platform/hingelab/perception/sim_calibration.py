@@ -5,9 +5,10 @@ at the training data's noise (2-6 mm for the shipped encoder). The envs see 3 mm
 tracked from step to step by ``ToolState``. A PointNet's max pool reads a cloud's extremes, so
 the latent of a given opening depends on the noise and on the registration, and the training
 curve is off the envs' latents where the tweezer is nearly shut: a shut tweezer in
-ToolShape-v0 sat 0.08 from the curve's closed end (the success threshold is 0.094), and the
-reader took it for 0.017 rad open. Goals drawn as ``z_for_opening(small opening)`` then asked
-for a latent that only a tweezer ~0.02 rad open shows.
+ToolShape-v0 sits 0.074 from the shipped curve's closed end (the success threshold is 0.094), and
+the reader takes it for 0.017 rad open; goals drawn as ``z_for_opening(small opening)`` ask for a
+latent that only a tweezer ~0.02 rad open shows. (The shipped encoder keeps its curve: its policy
+learned on those goals; assets/checkpoints/README.md has the measurements.)
 
 Here the curve (and the reader) are fitted on what ``ToolPerception`` produces: per sweep, one
 episode's cloud realism (``CloudRealism()``: 3 mm noise, 20% removal, a pose error drawn per
