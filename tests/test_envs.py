@@ -65,29 +65,23 @@ def test_reachable_goals_lie_on_the_calibration_curve():
     env.close()
 
 
-def test_open_weighted_goals_put_more_of_them_at_the_open_end():
-    from hingelab.envs.tool_shape import OPEN_SHARE
+@pytest.mark.parametrize("sampler, end, bounds", [
+    ("reachable_open", "open", (0.6, 0.8)),  # half of them, plus the uniform half's 40%
+    ("reachable_closed", "closed", (0.52, 0.72)),  # half of them, plus the uniform half's 25%
+])
+def test_weighted_goals_put_more_of_them_at_their_end(sampler, end, bounds):
+    from hingelab.envs.tool_shape import CLOSED_SHARE, OPEN_SHARE
 
-    env = gym.make(TOOL_SHAPE_ID, goal_sampling="reachable_open").unwrapped
+    env = gym.make(TOOL_SHAPE_ID, goal_sampling=sampler).unwrapped
     env.np_random = np.random.default_rng(0)
     low, high = env.reachable_range
     openings = np.array([env.calibration.project_opening(env._sample_goal()) for _ in range(400)])
     assert openings.min() >= low - 1e-3 and openings.max() <= high + 1e-3
-    in_open_part = np.mean(openings > high - OPEN_SHARE * (high - low))
-    assert 0.6 < in_open_part < 0.8  # half of them, plus the uniform half's 40%
-    env.close()
-
-
-def test_closed_weighted_goals_put_more_of_them_at_the_closed_end():
-    from hingelab.envs.tool_shape import CLOSED_SHARE
-
-    env = gym.make(TOOL_SHAPE_ID, goal_sampling="reachable_closed").unwrapped
-    env.np_random = np.random.default_rng(0)
-    low, high = env.reachable_range
-    openings = np.array([env.calibration.project_opening(env._sample_goal()) for _ in range(400)])
-    assert openings.min() >= low - 1e-3 and openings.max() <= high + 1e-3
-    in_closed_part = np.mean(openings < low + CLOSED_SHARE * (high - low))
-    assert 0.52 < in_closed_part < 0.72  # half of them, plus the uniform half's 25%
+    if end == "open":
+        share = np.mean(openings > high - OPEN_SHARE * (high - low))
+    else:
+        share = np.mean(openings < low + CLOSED_SHARE * (high - low))
+    assert bounds[0] < share < bounds[1]
     env.close()
 
 

@@ -81,26 +81,20 @@ def build_model(config: LowLevelTrainConfig, env):
                policy_kwargs={"net_arch": list(config.net_arch), "activation_fn": torch.nn.ReLU}, **kwargs)
 
 
-def load_initial_weights(model, path) -> None:
-    """Start ``model`` from a trained low-level policy (fine-tuning): actor, critics and their targets,
-    the optimizers and the entropy coefficient of the SAC zip (or run folder) ``path``. Refused, with a
-    one-line error, like ``PolicyLowLevel``: another task's spaces or another encoder's latents."""
+def load_initial_weights(model, source) -> None:
+    """Start ``model`` from a trained low-level policy (fine-tuning): the actor, critics and their
+    targets, the optimizers and the entropy coefficient of ``source``, a ``PolicyLowLevel`` (it
+    has refused another task's spaces or another encoder's latents)."""
     import torch
-    from stable_baselines3.common.save_util import load_from_zip_file
 
-    from hingelab.envs.low_level import PolicyLowLevel
-
-    source = PolicyLowLevel(path)  # the checks, and the resolved zip
-    zip_path = source.path
-    _, params, variables = load_from_zip_file(str(zip_path), device="cpu", load_data=False)
     try:
-        model.set_parameters(params, exact_match=True, device="cpu")
+        model.set_parameters(source.model.get_parameters(), exact_match=True, device="cpu")
     except (RuntimeError, ValueError, KeyError) as exc:  # another net_arch, or a plain SAC's optimizers
-        raise ConfigError(f"--init-from {zip_path} does not fit this run's networks ({exc.__class__.__name__}: "
+        raise ConfigError(f"--init-from {source.path} does not fit this run's networks ({exc.__class__.__name__}: "
                           f"{str(exc).splitlines()[0]}); use the net_arch it was trained with") from exc
-    if "log_ent_coef" in (variables or {}) and getattr(model, "log_ent_coef", None) is not None:
+    if getattr(source.model, "log_ent_coef", None) is not None and getattr(model, "log_ent_coef", None) is not None:
         with torch.no_grad():  # a tensor, not a module: set_parameters leaves it
-            model.log_ent_coef.copy_(variables["log_ent_coef"])
+            model.log_ent_coef.copy_(source.model.log_ent_coef)
 
 
 class MetricsLog:
@@ -186,11 +180,12 @@ class LowLevelRun:
 
     def setup(self):
         configure_torch(self.config.torch_threads)
+        init_source = None
         if not self.resume:
-            if self.config.init_from:  # a bad --init-from is refused before the run folder is made
+            if self.config.init_from:  # read (and a bad one refused) before the run folder is made
                 from hingelab.envs.low_level import PolicyLowLevel
 
-                PolicyLowLevel(self.config.init_from)
+                init_source = PolicyLowLevel(self.config.init_from)
             self._write_run_files()
         self.env = make_training_vec_env(self.config, self._dataset_dir())
         eval_args = {**self.config.env_arguments()}
@@ -210,8 +205,8 @@ class LowLevelRun:
         else:
             self.model = build_model(self.config, self.env)
             self.checkpoint_from = None
-            if self.config.init_from:
-                load_initial_weights(self.model, self.config.init_from)
+            if init_source is not None:  # a new run (a resumed one starts from its own checkpoint)
+                load_initial_weights(self.model, init_source)
         setattr(self.model, PROVENANCE_ATTRIBUTE, _provenance(self.config))
         if state is not None:
             self.elapsed_before = state["elapsed_s"]

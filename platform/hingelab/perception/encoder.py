@@ -302,6 +302,19 @@ def save_checkpoint(path, model: PointNetVAE, *, geometry_hash: str, registratio
     return path
 
 
+def rewrite_calibration(path, encoder: ToolEncoder, calibration: dict, **records) -> ToolEncoder:
+    """Write ``encoder`` (its weights, registration config and provenance) to ``path`` with another
+    calibration and more provenance ``records`` (e.g. ``reader=...``), and load it back."""
+    from hingelab.perception.clouds import ToolGeometry
+
+    info = {k: v for k, v in encoder.info.items()
+            if k not in ("format", "format_version", "geometry_hash", "registration_config")}
+    save_checkpoint(path, encoder.model, geometry_hash=ToolGeometry.default().geometry_hash,
+                    registration_config=encoder.registration_config, calibration=calibration,
+                    info={**info, **records})
+    return load_encoder(path)
+
+
 def load_encoder(path=None, geometry=None) -> ToolEncoder:
     """Load a checkpoint (default: the shipped ``assets/checkpoints/encoder.pt``) and check it fits.
 
@@ -352,5 +365,6 @@ def shipped_encoder_fingerprint() -> str:
 
 
 __all__ = ["CHECKPOINT_FORMAT", "CHECKPOINT_VERSION", "EncoderConfig", "PointNetVAE", "SHIPPED_CHECKPOINT",
-           "ToolEncoder", "chamfer", "load_encoder", "one_blas_thread", "one_torch_thread", "save_checkpoint",
+           "ToolEncoder", "chamfer", "load_encoder", "one_blas_thread", "one_torch_thread", "rewrite_calibration",
+           "save_checkpoint",
            "shipped_encoder", "shipped_encoder_fingerprint", "vae_loss"]

@@ -32,7 +32,7 @@ import numpy as np
 from hingelab.errors import ConfigError
 from hingelab.perception.calibration import OpeningCalibration
 from hingelab.perception.clouds import CloudRealism, CloudSynthesizer, ToolGeometry
-from hingelab.perception.encoder import ToolEncoder, load_encoder, save_checkpoint
+from hingelab.perception.encoder import ToolEncoder, load_encoder, rewrite_calibration
 from hingelab.perception.synthetic_dataset import nominal_tool_pose
 from hingelab.perception.tool_state import ToolState
 from hingelab.provenance import code_version
@@ -108,15 +108,10 @@ def recalibrate_curve(checkpoint, sweeps: int = 40, seed: int = 0, progress: boo
         "success_threshold_after": latent_distance_for_gap(new, SUCCESS_GAP_MM),
         "latents": len(fit_data["z"]), "wall_time_s": time.perf_counter() - started,
     }
-    info = {k: v for k, v in encoder.info.items()
-            if k not in ("format", "format_version", "geometry_hash", "registration_config")}
-    replaced = list((info.get("curve") or {}).get("replaces", [])) + [encoder.fingerprint]
-    info["curve"] = {"fitted_on": f"{sweeps} tracked sweeps of 3 mm clouds, seeds {seed}-{seed + sweeps - 1}",
-                     "sweeps": sweeps, "seed": seed, "code_version": code_version(), "replaces": replaced,
-                     "metrics": metrics}
-    save_checkpoint(checkpoint, encoder.model, geometry_hash=ToolGeometry.default().geometry_hash,
-                    registration_config=encoder.registration_config, calibration=new.to_dict(), info=info)
-    rewritten = load_encoder(checkpoint)
+    replaced = list((encoder.info.get("curve") or {}).get("replaces", [])) + [encoder.fingerprint]
+    curve = {"fitted_on": f"{sweeps} tracked sweeps of 3 mm clouds, seeds {seed}-{seed + sweeps - 1}",
+             "sweeps": sweeps, "seed": seed, "code_version": code_version(), "replaces": replaced, "metrics": metrics}
+    rewritten = rewrite_calibration(checkpoint, encoder, new.to_dict(), curve=curve)
     metrics.update(fingerprint_before=encoder.fingerprint, fingerprint_after=rewritten.fingerprint)
     return rewritten, metrics
 

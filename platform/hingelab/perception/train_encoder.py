@@ -23,7 +23,8 @@ import torch
 from hingelab.errors import ConfigError
 from hingelab.perception.calibration import OpeningCalibration
 from hingelab.perception.clouds import ToolGeometry
-from hingelab.perception.encoder import EncoderConfig, PointNetVAE, ToolEncoder, save_checkpoint, vae_loss
+from hingelab.perception.encoder import (EncoderConfig, PointNetVAE, ToolEncoder, rewrite_calibration, save_checkpoint,
+                                         vae_loss)
 from hingelab.perception.registration import CanonicalRegistration, RegistrationConfig
 from hingelab.perception.synthetic_dataset import load_cloud_dataset, nominal_tool_pose
 from hingelab.provenance import code_version
@@ -160,13 +161,9 @@ def recalibrate_encoder(data_dir, checkpoint, progress: bool = True) -> tuple[To
                                     data["tip_gap_m"][va])
     metrics = {"reader_r2_opening_train": calibration.reader_r2_opening,
                **{f"{k}_val": v for k, v in held_out.items()}, "wall_time_s": time.perf_counter() - started}
-    kept = {k: v for k, v in encoder.info.items()
-            if k not in ("format", "format_version", "geometry_hash", "registration_config")}
-    kept["reader"] = {"data": str(Path(data_dir).resolve()), "config_hash": card.config_hash,
-                      "code_version": code_version(), "metrics": metrics}
-    save_checkpoint(checkpoint, encoder.model, geometry_hash=ToolGeometry.default().geometry_hash,
-                    registration_config=encoder.registration_config, calibration=calibration.to_dict(), info=kept)
-    return load_encoder(checkpoint), metrics
+    reader = {"data": str(Path(data_dir).resolve()), "config_hash": card.config_hash,
+              "code_version": code_version(), "metrics": metrics}
+    return rewrite_calibration(checkpoint, encoder, calibration.to_dict(), reader=reader), metrics
 
 
 def train_encoder(data_dir, out_path, train: TrainEncoderConfig = TrainEncoderConfig(),
