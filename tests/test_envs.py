@@ -85,6 +85,21 @@ def test_weighted_goals_put_more_of_them_at_their_end(sampler, end, bounds):
     env.close()
 
 
+def test_a_goal_band_keeps_the_goals_inside_it():
+    """goal_openings=(low, high): an expert's training goals, clipped to the reachable range."""
+    env = gym.make(TOOL_SHAPE_ID, goal_sampling="reachable", goal_openings=(-1.0, 0.10)).unwrapped
+    env.np_random = np.random.default_rng(0)
+    assert env.goal_openings == (env.reachable_range[0], 0.10)
+    openings = np.array([env.calibration.project_opening(env._sample_goal()) for _ in range(200)])
+    assert openings.min() >= env.reachable_range[0] - 1e-3 and openings.max() <= 0.10 + 1e-3
+    assert openings.max() > 0.08 and openings.min() < 0.02  # the whole band, not a corner of it
+    env.close()
+    for band, sampling, match in (((0.2, 0.1), "reachable", "not a band"), ((0.5, 0.9), "reachable", "not a band"),
+                                  ((0.0, 0.1), "normal", "needs goal_sampling='reachable'")):
+        with pytest.raises(ConfigError, match=match):
+            gym.make(TOOL_SHAPE_ID, goal_sampling=sampling, goal_openings=band)
+
+
 def test_same_seed_same_episode():
     def run():
         env = gym.make(TOOL_SHAPE_ID)

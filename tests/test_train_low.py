@@ -285,6 +285,21 @@ def test_drift_weight_charges_the_tools_true_drift_beyond_5mm(tiny_run):
         replace(TINY, use_effort=False, drift_weight=60.0)
 
 
+def test_a_goal_band_is_part_of_the_config_and_the_env():
+    """--goal-openings LOW:HIGH (an expert's goals): saved as a tuple, given to the env, checked."""
+    from hingelab.learning.low_level_config import LowLevelTrainConfig
+
+    config = replace(TINY, goal_openings=[0.0, 0.1])
+    assert config.goal_openings == (0.0, 0.1) and config.env_arguments()["goal_openings"] == (0.0, 0.1)
+    assert LowLevelTrainConfig.from_dict(config.to_dict()) == config
+    assert "goal_openings" not in TINY.env_arguments()  # runs without a band make the env as before
+    for bad in ((0.1, 0.0), (0.0,)):
+        with pytest.raises(ConfigError, match="goal-openings"):
+            replace(TINY, goal_openings=bad)
+    with pytest.raises(ConfigError, match="goal-openings"):
+        replace(TINY, goal_openings=(0.0, 0.1), goal_sampling="normal")
+
+
 def test_learning_from_demonstrations_pretrains_and_anchors_the_actor(tiny_run, tmp_path):
     """--bc-pretrain fits the actor to the --from episodes' actions; --bc-weight keeps a
     Q-filtered BC term in the actor loss; the checkpoint does not carry the demonstrations."""

@@ -23,9 +23,9 @@ def add_parser(subparsers) -> None:
                     "each episode into the dataset --out, with a per-region success table (report.md, "
                     "regions.csv) and one row per episode (episodes.csv).")
     low.add_argument("checkpoint", type=Path, nargs="?", default=None,
-                     help="a model.zip or best_model.zip from hingelab train low, or a run folder or one of "
-                          "its checkpoints/step_* folders (their model.zip; default: the shipped "
-                          "assets/checkpoints/low_level.zip)")
+                     help="a model.zip or best_model.zip from hingelab train low, a run folder or one of "
+                          "its checkpoints/step_* folders (their model.zip), or a goal-region experts manifest "
+                          "from hingelab compose low (default: the shipped low-level policy)")
     low.add_argument("--episodes", type=int, default=60, help="evaluation episodes (default 60)")
     low.add_argument("--out", type=Path, required=True, help="dataset folder to write (must be new or empty)")
     low.add_argument("--seed", type=int, default=0, help="seed of the goals and episodes (default 0)")

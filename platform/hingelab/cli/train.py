@@ -145,6 +145,9 @@ def add_low_parser(learners) -> None:
                    help=f"training goals: latents of reachable openings, the same with half of them in the "
                         f"open 40%% (reachable_open) or the closed 25%% (reachable_closed) of the range, or "
                         f"N(0, I) as in the paper (default {d.goal_sampling})")
+    p.add_argument("--goal-openings", type=_opening_band, default=None, metavar="LOW:HIGH",
+                   help="reachable training goals from this band of openings only (rad, e.g. 0:0.10): an "
+                        "expert for the band, to combine with others by hingelab compose low")
     p.add_argument("--no-randomize", action="store_true", help="turn domain randomization off")
     p.add_argument("--envs", type=int, default=d.n_envs, help=f"parallel rollout processes (default {d.n_envs})")
     p.add_argument("--in-process", action="store_true",
@@ -191,6 +194,17 @@ def add_low_parser(learners) -> None:
     p.set_defaults(func=run_low)
 
 
+def _opening_band(text: str) -> tuple[float, float]:
+    """'0:0.10' -> (0.0, 0.1), for --goal-openings."""
+    try:
+        low, high = (float(v) for v in text.split(":"))
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r} is not LOW:HIGH in rad (e.g. 0:0.10)") from None
+    if not low < high:
+        raise argparse.ArgumentTypeError(f"{text!r}: LOW must be below HIGH")
+    return low, high
+
+
 def run_low(args: argparse.Namespace) -> int:
     from hingelab.learning.low_level_config import LowLevelTrainConfig
     from hingelab.learning.train_low import train_low
@@ -198,7 +212,7 @@ def run_low(args: argparse.Namespace) -> int:
 
     config = LowLevelTrainConfig(
         steps=args.steps, seed=args.seed, use_effort=not args.no_effort, effort_weight=args.effort_weight,
-        drift_weight=args.drift_weight, her=args.her, goal_sampling=args.goals,
+        drift_weight=args.drift_weight, her=args.her, goal_sampling=args.goals, goal_openings=args.goal_openings,
         randomize=not args.no_randomize, n_envs=args.envs,
         subprocess_envs=not args.in_process, algorithm=args.algorithm, batch_size=args.batch_size,
         buffer_size=args.buffer_size, learning_starts=args.learning_starts, gradient_steps=args.gradient_steps,

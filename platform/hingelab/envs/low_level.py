@@ -48,44 +48,57 @@ class PrivilegedLowLevel:
         return {"hinge_target": opening}
 
 
+def load_sac_checkpoint(path: Path, encoder=None):
+    """A ``hingelab train low`` SAC zip, checked: ToolShape-v0's spaces, and latents of ``encoder``
+    (default: the shipped one; a checkpoint that recorded another encoder's fingerprint is refused)."""
+    from stable_baselines3 import SAC
+
+    try:
+        model = SAC.load(str(path), device="cpu")
+    except Exception as exc:  # SB3 raises many kinds on a foreign file
+        raise ConfigError(f"{path} is not a stable-baselines3 SAC checkpoint ({type(exc).__name__})") from exc
+    space = model.observation_space
+    shapes = {k: tuple(v.shape) for k, v in getattr(space, "spaces", {}).items()}
+    if shapes != {"observation": (26,), "achieved_goal": (2,), "desired_goal": (2,)} or \
+            tuple(model.action_space.shape) != (9,):
+        raise ConfigError(f"{path} does not match ToolShape-v0 (observation {shapes or space}, action "
+                          f"{model.action_space.shape}); give a checkpoint from `hingelab train low`")
+    trained_with = (getattr(model, "hingelab_provenance", None) or {}).get("encoder_fingerprint")
+    if trained_with is not None:  # checkpoints made before the fingerprint was recorded: not checked
+        from hingelab.perception.encoder import shipped_encoder
+
+        current = encoder if encoder is not None else shipped_encoder()
+        if not current.accepts(trained_with):
+            raise ConfigError(f"{path} learned from the latents of another tool encoder (fingerprint "
+                              f"{trained_with}, this env's is {current.fingerprint}); retrain it with "
+                              "`hingelab train low` on this encoder")
+    return model
+
+
 class PolicyLowLevel:
     """A trained low-level policy: observation (26,) + z_goal (2,) -> 9 finger changes."""
 
     kind = "policy"
 
     def __init__(self, checkpoint: str | Path = SHIPPED_LOW_LEVEL, action_scale: float = 0.05, encoder=None):
-        """``encoder``: the ToolEncoder the env perceives with (default: the shipped one); a
-        checkpoint that recorded another encoder's fingerprint is refused."""
+        """``checkpoint``: a SAC zip, a run folder or one of its checkpoints/step_* folders (the
+        model.zip inside), or a goal-region experts manifest (.json, ``hingelab compose low``).
+        ``encoder``: the ToolEncoder the env perceives with (default: the shipped one)."""
         path = Path(checkpoint)
         if not path.exists():
             raise ConfigError(f"low-level checkpoint {path} does not exist; train one with `hingelab train low`")
-        if path.is_dir():  # a run folder or one of its checkpoints/step_* folders: the model.zip inside
+        if path.is_dir():
             if not (path / "model.zip").is_file():
                 raise ConfigError(f"{path} is a folder without a model.zip; give a run folder, a checkpoints/step_* "
                                   "folder or a .zip from `hingelab train low`")
             path = path / "model.zip"
         self.path = path
-        from stable_baselines3 import SAC
+        if path.suffix == ".json":
+            from hingelab.learning.goal_experts import load_experts
 
-        try:
-            self.model = SAC.load(str(path), device="cpu")
-        except Exception as exc:  # SB3 raises many kinds on a foreign file
-            raise ConfigError(f"{path} is not a stable-baselines3 SAC checkpoint ({type(exc).__name__})") from exc
-        space = self.model.observation_space
-        shapes = {k: tuple(v.shape) for k, v in getattr(space, "spaces", {}).items()}
-        if shapes != {"observation": (26,), "achieved_goal": (2,), "desired_goal": (2,)} or \
-                tuple(self.model.action_space.shape) != (9,):
-            raise ConfigError(f"{path} does not match ToolShape-v0 (observation {shapes or space}, action "
-                              f"{self.model.action_space.shape}); give a checkpoint from `hingelab train low`")
-        trained_with = (getattr(self.model, "hingelab_provenance", None) or {}).get("encoder_fingerprint")
-        if trained_with is not None:  # checkpoints made before the fingerprint was recorded: not checked
-            from hingelab.perception.encoder import shipped_encoder
-
-            current = encoder if encoder is not None else shipped_encoder()
-            if not current.accepts(trained_with):
-                raise ConfigError(f"{path} learned from the latents of another tool encoder (fingerprint "
-                                  f"{trained_with}, this env's is {current.fingerprint}); retrain it with "
-                                  "`hingelab train low` on this encoder")
+            self.model = load_experts(path, encoder)
+        else:
+            self.model = load_sac_checkpoint(path, encoder)
         self.action_scale = action_scale
 
     def reset(self) -> None:

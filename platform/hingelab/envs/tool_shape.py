@@ -38,6 +38,8 @@ as ``"reachable"``, but half of the openings are drawn from the open 40% of the 
 the grasp holds the tool most loosely (a training option: more practice where goals are missed).
 ``"reachable_closed"``: half of the openings from the closed 25% of the range, where a policy
 that squeezes the tweezer shut misses goals of 1-3 mm of tip gap (the same kind of option).
+``goal_openings=(low, high)`` (rad): the reachable goals only from that band of openings (within
+the reachable range), to train an expert for one band (``hingelab compose low`` routes goals to it).
 
 ## Success
 ``||z_bar - z_goal|| < success_threshold``. The default is the latent distance that 2 mm
@@ -64,7 +66,7 @@ frame-to-frame jitter from 0.04-0.10 to about a quarter of that), ``terminate_on
 
 ## Version History
 v0: first version (later options that default to v0's behaviour: ``effort_weight``,
-``drift_weight``, ``goal_sampling="reachable_open"`` and ``"reachable_closed"``).
+``drift_weight``, ``goal_openings``, ``goal_sampling="reachable_open"`` and ``"reachable_closed"``).
 """
 
 from __future__ import annotations
@@ -99,7 +101,7 @@ class ToolShapeEnv(SimRenderMixin, gym.Env):
                  encoder_path: str | None = None, realistic_clouds: bool = True,
                  reward: LowLevelRewardConfig | None = None, render_mode: str | None = None,
                  smoothing_alpha: float = 0.9, terminate_on_drop: bool = True, effort_weight: float | None = None,
-                 drift_weight: float = 0.0):
+                 drift_weight: float = 0.0, goal_openings: tuple[float, float] | None = None):
         if goal_sampling not in GOAL_SAMPLERS:
             raise ConfigError(f"goal_sampling {goal_sampling!r} is unknown; choose one of {GOAL_SAMPLERS}")
         if not 0 < action_scale <= 0.5:
@@ -128,6 +130,7 @@ class ToolShapeEnv(SimRenderMixin, gym.Env):
         self.action_scale = action_scale
         self.terminate_on_drop = terminate_on_drop
         self.reachable_range = FingerSynergy.load().theta_range
+        self.goal_openings = self._goal_band(goal_openings, goal_sampling)
         self.success_threshold = (success_threshold if success_threshold is not None
                                   else latent_distance_for_gap(self.calibration, SUCCESS_GAP_MM))
         self.canonical_points = ToolGeometry.default().canonical_cloud(CANONICAL_OPENING, 256)
@@ -200,10 +203,23 @@ class ToolShapeEnv(SimRenderMixin, gym.Env):
         return self.sim.data.body("hand_base").xpos, 0.45, 120, -20
 
     # ------------------------------------------------------------------ parts
+    def _goal_band(self, band, goal_sampling: str) -> tuple[float, float] | None:
+        """The (low, high) openings goals are drawn from, within the reachable range; None: all of it."""
+        if band is None:
+            return None
+        low, high = (float(v) for v in band)
+        reach_low, reach_high = self.reachable_range
+        if goal_sampling != "reachable":
+            raise ConfigError(f"goal_openings needs goal_sampling='reachable', not {goal_sampling!r}")
+        if not (low < high and low < reach_high and high > reach_low):
+            raise ConfigError(f"goal_openings {band} is not a band inside the reachable openings "
+                              f"{reach_low:.3f}..{reach_high:.3f} rad (give low < high)")
+        return max(low, reach_low), min(high, reach_high)
+
     def _sample_goal(self) -> np.ndarray:
         if self.goal_sampling == "normal":
             return self.np_random.normal(size=2)
-        low, high = self.reachable_range
+        low, high = self.goal_openings or self.reachable_range
         if self.goal_sampling == "reachable_open" and self.np_random.random() < 0.5:
             low = high - OPEN_SHARE * (high - low)
         elif self.goal_sampling == "reachable_closed" and self.np_random.random() < 0.5:

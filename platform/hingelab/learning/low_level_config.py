@@ -26,6 +26,7 @@ class LowLevelTrainConfig:
     drift_weight: float = 0.0  # c4: reward per m of privileged tool drift beyond 5 mm, per step (0: off, the paper's)
     her: bool = False  # HER relabelling ("future", 4 goals per transition)
     goal_sampling: str = "reachable"  # training goals; see ToolShape-v0 "Goals"
+    goal_openings: tuple | None = None  # (low, high) rad: reachable goals from this band only (an expert's)
     randomize: bool = True  # delays, gains, friction (paper)
     max_episode_steps: int = 50  # 2.5 s at 20 Hz
     n_envs: int = 2  # rollouts per vectorized step
@@ -74,6 +75,12 @@ class LowLevelTrainConfig:
         bad = [name for name, ok in checks.items() if not ok]
         if bad:
             raise ConfigError(f"invalid low-level training config: {', '.join(f'{b}={getattr(self, b)!r}' for b in bad)}")
+        if self.goal_openings is not None:
+            band = tuple(float(v) for v in self.goal_openings)
+            if len(band) != 2 or not band[0] < band[1] or self.goal_sampling != "reachable":
+                raise ConfigError(f"--goal-openings {self.goal_openings} must be LOW:HIGH rad with LOW < HIGH, "
+                                  "and --goals reachable")
+            object.__setattr__(self, "goal_openings", band)
         if self.drift_weight and not self.use_effort:
             raise ConfigError("--drift-weight adds to the effort term, which --no-effort switches off: drop one")
         if self.offline_updates and not self.from_datasets:
@@ -118,4 +125,5 @@ class LowLevelTrainConfig:
         """Keyword arguments of ``gymnasium.make(ENV_ID, ...)`` for this run."""
         return {"use_effort": self.use_effort, "effort_weight": self.effort_weight, "drift_weight": self.drift_weight,
                 "goal_sampling": self.goal_sampling, "randomize": self.randomize,
-                "max_episode_steps": self.max_episode_steps, **self.env_kwargs}
+                "max_episode_steps": self.max_episode_steps,
+                **({"goal_openings": self.goal_openings} if self.goal_openings is not None else {}), **self.env_kwargs}

@@ -87,6 +87,9 @@ def load_initial_weights(model, source) -> None:
     has refused another task's spaces or another encoder's latents)."""
     import torch
 
+    if not hasattr(source.model, "get_parameters"):
+        raise ConfigError(f"--init-from {source.path} is a goal-region experts manifest; start from one of its "
+                          "experts' checkpoints")
     try:
         model.set_parameters(source.model.get_parameters(), exact_match=True, device="cpu")
     except (RuntimeError, ValueError, KeyError) as exc:  # another net_arch, or a plain SAC's optimizers
