@@ -31,7 +31,7 @@ def test_demo_runs_and_measures_the_platform(tmp_path):
     assert measured["lift_cm"] > 4.5
     low = json.loads(out_file.read_text())["step_low_level_policy"]  # the shipped low-level policy
     assert len(low["tip_gap_error_mm"]) == 3 and 0 <= low["settled_success_rate"] <= 1
-    assert "low_level.zip: settled success" in result.stdout
+    assert "low_level_experts.json: settled success" in result.stdout
 
 
 def test_bench_sim_writes_its_table(tmp_path):

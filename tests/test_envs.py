@@ -240,11 +240,11 @@ def test_bench_envs_replays_the_same_steps_as_its_raw_baseline(shape_env):
 def test_a_low_level_checkpoint_folder_means_its_model_zip(tmp_path):
     import shutil
 
-    from hingelab.envs.low_level import SHIPPED_LOW_LEVEL, PolicyLowLevel
+    from hingelab.envs.low_level import SHIPPED_LOW_LEVEL_SAC, PolicyLowLevel
 
     step = tmp_path / "checkpoints" / "step_000000010000"
     step.mkdir(parents=True)
     with pytest.raises(ConfigError, match="without a model.zip"):
         PolicyLowLevel(step)
-    shutil.copy(SHIPPED_LOW_LEVEL, step / "model.zip")
+    shutil.copy(SHIPPED_LOW_LEVEL_SAC, step / "model.zip")
     assert PolicyLowLevel(step).model.action_space.shape == (9,)

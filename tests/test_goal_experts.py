@@ -26,10 +26,10 @@ class _Constant:
 
 @pytest.fixture(scope="module")
 def shipped():
-    from hingelab.envs.low_level import SHIPPED_LOW_LEVEL, PolicyLowLevel
+    from hingelab.envs.low_level import SHIPPED_LOW_LEVEL_SAC, PolicyLowLevel
     from hingelab.perception.encoder import shipped_encoder
 
-    return SHIPPED_LOW_LEVEL, PolicyLowLevel(SHIPPED_LOW_LEVEL).model, shipped_encoder().calibration
+    return SHIPPED_LOW_LEVEL_SAC, PolicyLowLevel(SHIPPED_LOW_LEVEL_SAC).model, shipped_encoder().calibration
 
 
 def _observation(calibration, openings):

@@ -6,8 +6,9 @@ Two kinds, one interface (``reset``, ``act(z_goal) -> None`` acting on the sim):
   the privileged hinge servo, the fingers following the grasp synergy so the tool stays
   held. ToolPick-v0 works with it before any low-level policy is trained.
 * ``PolicyLowLevel``: a trained low-level SAC checkpoint (``hingelab train low``) observing
-  the hand and tool as in ToolShape-v0 and moving the 9 finger channels. The shipped one,
-  ``assets/checkpoints/low_level.zip``, is the default (``low_level="policy"`` in ToolPick-v0).
+  the hand and tool as in ToolShape-v0 and moving the 9 finger channels, or goal-region experts
+  (``hingelab compose low``: the goal's opening picks the checkpoint). The shipped one,
+  ``assets/checkpoints/low_level_experts.json``, is the default (``low_level="policy"`` in ToolPick-v0).
 """
 
 from __future__ import annotations
@@ -21,7 +22,8 @@ from hingelab.paths import ASSETS_DIR
 from hingelab.sim.core import SimCore
 from hingelab.sim.finger_synergy import FingerSynergy
 
-SHIPPED_LOW_LEVEL = ASSETS_DIR / "checkpoints" / "low_level.zip"
+SHIPPED_LOW_LEVEL = ASSETS_DIR / "checkpoints" / "low_level_experts.json"  # the default: experts by goal band
+SHIPPED_LOW_LEVEL_SAC = ASSETS_DIR / "checkpoints" / "low_level.zip"  # its expert for all but the closed goals
 FINGER_SQUEEZE = 0.03  # rad the fingers aim past the commanded opening (keeps leg b pressed)
 
 

@@ -32,7 +32,7 @@ episode: the object stays where it fell and the next grasp is attempt 2
 
 ## Arguments
 ``object`` ("sphere"), ``size`` (0.02 m), ``mass`` (0.01 kg), ``low_level`` ("privileged";
-"policy": the shipped low-level policy ``assets/checkpoints/low_level.zip``; or a checkpoint
+"policy": the shipped low-level policy ``assets/checkpoints/low_level_experts.json``; or a checkpoint
 path), ``randomize`` (True: object friction 1-5, finger friction, gains
 60-150% of hand and arm servos, observation delays up to 150 ms), ``placement_half_width``
 (0.05 m), ``max_episode_steps`` (200), ``encoder_path``.
