@@ -175,6 +175,31 @@ def test_diverging_episode_is_truncated_with_its_reason(pick_env):
     assert truncated and not terminated and info["failure_reason"] == "divergence"
 
 
+def test_tool_pick_ends_when_the_tool_leaves_the_hand():
+    """Random high-level actions shake the tweezer out of the hand (real contacts, nothing moved by
+    hand): the step where it is 3 cm from its start terminates with "tool_drop"; with
+    terminate_on_drop=False the same step reports it and the episode runs on."""
+    def until_drop(env):
+        env.reset(seed=0)
+        env.action_space.seed(0)
+        for step in range(200):
+            _, _, terminated, truncated, info = env.step(env.action_space.sample() * 0.3)
+            if info["tool_dropped"] or terminated or truncated:
+                return step, terminated, truncated, info
+        return None
+
+    ends = until_drop(gym.make(TOOL_PICK_ID))
+    assert ends is not None, "the random actions did not drop the tool; pick another seed"
+    step, terminated, truncated, info = ends
+    assert terminated and not truncated and info["failure_reason"] == "tool_drop"
+    assert info["tool_dropped"] and info["tool_drift_m"] > 0.03
+    runs_on = gym.make(TOOL_PICK_ID, terminate_on_drop=False)
+    again = until_drop(runs_on)
+    assert again[0] == step and again[3]["tool_dropped"] and not again[1]
+    *_, terminated, truncated, info = runs_on.step(np.zeros(5))
+    assert not terminated and info["tool_dropped"]
+
+
 def test_tool_pick_with_the_shipped_low_level_policy_follows_the_goal():
     """A scripted high level (arm still) asks the shipped low-level policy for a nearly closed and
     an open tweezer in turn; the tool's latent goes to each goal and the hinge follows (loose

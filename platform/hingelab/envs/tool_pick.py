@@ -24,9 +24,12 @@ smoothed; z_bar (2); object position (3, m, with 2 mm Gaussian noise) and target
 (``hingelab.envs.rewards``); the terms are in ``info["reward_terms"]``.
 
 ## Episode End
-Terminated on success (object within 1 cm of the target); truncated after
-``max_episode_steps`` (200 = 10 s, the paper's limit) or when the simulation diverges
-(failure reason "divergence"). A failed grasp does not end the
+Terminated on success (object within 1 cm of the target) or when the tool leaves the hand
+(more than 3 cm from its in-hand start, ``info["tool_dropped"]``, failure reason
+"tool_drop": the paper's tool is fixed in the hand, and the steps of a tool lying on the
+table teach nothing and track nothing; ``terminate_on_drop=False`` reports it and runs on);
+truncated after ``max_episode_steps`` (200 = 10 s, the paper's limit) or when the simulation
+diverges (failure reason "divergence"). A failed grasp does not end the
 episode: the object stays where it fell and the next grasp is attempt 2
 (``info["attempt"]``; ``info["first_attempt_success"]``).
 
@@ -35,7 +38,7 @@ episode: the object stays where it fell and the next grasp is attempt 2
 "policy": the shipped low-level policy ``assets/checkpoints/low_level_experts.json``; or a checkpoint
 path), ``randomize`` (True: object friction 1-5, finger friction, gains
 60-150% of hand and arm servos, observation delays up to 150 ms), ``placement_half_width``
-(0.05 m), ``max_episode_steps`` (200), ``encoder_path``.
+(0.05 m), ``max_episode_steps`` (200), ``encoder_path``, ``terminate_on_drop`` (True).
 
 ## Version History
 v0: first version.
@@ -50,6 +53,7 @@ from gymnasium import spaces
 from hingelab.envs.low_level import SHIPPED_LOW_LEVEL, PolicyLowLevel, PrivilegedLowLevel
 from hingelab.envs.rendering import SimRenderMixin
 from hingelab.envs.rewards import HighLevelRewardConfig, high_level_terms
+from hingelab.envs.tool_shape import DROP_DISTANCE_M
 from hingelab.envs.tool_perception import ToolPerception
 from hingelab.errors import ConfigError
 from hingelab.sim import scripted
@@ -71,7 +75,8 @@ class ToolPickEnv(SimRenderMixin, gym.Env):
     def __init__(self, object: str = "sphere", size: float = 0.02, mass: float = 0.01,
                  low_level: str = "privileged", randomize: bool = True, placement_half_width: float = 0.05,
                  max_episode_steps: int = 200, encoder_path: str | None = None,
-                 reward: HighLevelRewardConfig | None = None, render_mode: str | None = None):
+                 reward: HighLevelRewardConfig | None = None, render_mode: str | None = None,
+                 terminate_on_drop: bool = True):
         from hingelab.perception.encoder import load_encoder
 
         self.object = ObjectSpec(object, size, mass)
@@ -90,6 +95,7 @@ class ToolPickEnv(SimRenderMixin, gym.Env):
         self.reward_config = reward or HighLevelRewardConfig()
         self.placement_half_width = placement_half_width
         self.max_episode_steps = max_episode_steps
+        self.terminate_on_drop = terminate_on_drop
         self.render_mode = render_mode
         self.action_space = spaces.Box(-1.0, 1.0, (5,), np.float32)
         self.observation_space = spaces.Box(-np.inf, np.inf, (14,), np.float64)
@@ -110,6 +116,7 @@ class ToolPickEnv(SimRenderMixin, gym.Env):
         self.perception.reset(episode_seed)
         self.low_level.reset()
         self.object_start = self.state.object_pos_world.copy()
+        self.tool_start = self.state.tool_pos_hand.copy()
         self.target = self.object_start + [0.0, 0.0, TARGET_HEIGHT]
         self.steps, self.attempt, self.held, self.first_attempt_success = 0, 1, False, False
         self._privileged_command = None
@@ -164,10 +171,13 @@ class ToolPickEnv(SimRenderMixin, gym.Env):
         self._count_attempts(success)
         info = self._info(terms, success)
         info["executed_action"] = np.asarray(executed, float)
-        terminated = success
+        dropped = info["tool_dropped"] and not success and not result.diverged
+        terminated = success or (dropped and self.terminate_on_drop)
         truncated = (not terminated) and (result.diverged or self.steps >= self.max_episode_steps)
         if result.diverged:
             info["failure_reason"] = "divergence"
+        elif dropped:
+            info["failure_reason"] = "tool_drop"
         elif truncated:
             info["failure_reason"] = "drop" if self.attempt > 1 else "timeout"
         self.last_record = self._record(executed, info)
@@ -212,6 +222,7 @@ class ToolPickEnv(SimRenderMixin, gym.Env):
             self.first_attempt_success = True
 
     def _info(self, terms: dict, success: bool) -> dict:
+        drift = float(np.linalg.norm(self.state.tool_pos_hand - self.tool_start))
         return {
             "is_success": float(success),
             "reward_terms": terms,
@@ -220,6 +231,8 @@ class ToolPickEnv(SimRenderMixin, gym.Env):
             "object_target_distance": float(np.linalg.norm(self.state.object_pos_world - self.target)),
             "table_collision": bool(self.state.table_collision),
             "hinge_angle": self.state.hinge_angle,
+            "tool_drift_m": drift,
+            "tool_dropped": drift > DROP_DISTANCE_M,
             "z_goal": self.z_goal.copy(),
         }
 
