@@ -41,14 +41,20 @@ def test_kabsch_recovers_a_known_motion():
 
 def test_exact_cloud_at_any_opening_registers_on_leg_a(registration):
     rot = Rotation.from_euler("xyz", [0.2, -0.3, 2.5]).as_matrix()
-    for theta in (0.0, 0.15, 0.3):
-        cloud = CloudSynthesizer(registration.geometry, IDEAL, seed=1).from_tool_pose(rot, [0.03, 0.04, 0.1], theta)
-        result = registration.register(cloud, prior=(rot, np.array([0.03, 0.04, 0.1])), hinge_prior=theta + 0.03)
-        # the canonical cloud is a 1024-point sample: ~1 degree of discretization error
-        assert np.rad2deg(rotation_error_rad(result.rotation, rot)) < 2.5
-        # closed, leg b's points crowd leg a's hinge block and pads: a known ~3 mm bias along the legs
-        assert np.linalg.norm(result.translation - [0.03, 0.04, 0.1]) < (0.004 if theta == 0 else 0.0015)
-        assert result.hinge_angle == pytest.approx(theta, abs=0.02)
+    errors, offsets = [], []
+    for seed in range(4):  # four draws of the cloud's points: the error depends on which are drawn
+        for theta in (0.0, 0.15, 0.3):
+            cloud = CloudSynthesizer(registration.geometry, IDEAL, seed=seed).from_tool_pose(rot, [0.03, 0.04, 0.1],
+                                                                                             theta)
+            result = registration.register(cloud, prior=(rot, np.array([0.03, 0.04, 0.1])), hinge_prior=theta + 0.03)
+            errors.append(np.rad2deg(rotation_error_rad(result.rotation, rot)))
+            offsets.append(np.linalg.norm(result.translation - [0.03, 0.04, 0.1]))
+            # closed, leg b's points crowd leg a's hinge block and pads: a known bias along the legs
+            assert offsets[-1] < (0.004 if theta == 0 else 0.0025)
+            assert result.hinge_angle == pytest.approx(theta, abs=0.02)
+    # the canonical cloud is a 1024-point sample: ~1 degree and ~1 mm of discretization error, more on
+    # an unlucky draw (over 20 draws: median 0.4 degrees and 0.3 mm, the worst 2.7 degrees and 2.7 mm)
+    assert max(errors) < 3.0 and np.median(errors) < 1.0 and np.median(offsets) < 0.001
 
 
 def test_noisy_occluded_clouds_from_the_in_hand_prior(registration, in_hand_clouds):
@@ -175,19 +181,33 @@ def test_exact_nearest_neighbours_match_a_kd_tree(registration):
 
 
 def test_compiled_pose_kernels_match_their_numpy_formulas():
-    """The per-step kernels (cloud placement, the effort term's mean displacement, the prior's
+    """The per-step kernels (cloud synthesis, the effort term's mean displacement, the prior's
     check) give the numpy formulas they replaced."""
     from hingelab.perception import pose_kernels
 
     rng = np.random.default_rng(3)
     rot = Rotation.random(4, random_state=2).as_matrix()
     pos = rng.normal(size=(4, 3))
-    local = rng.normal(size=(2, 50, 3))
-    on_b = rng.random((2, 50)) < 0.5
-    expected = np.where(on_b[..., None], np.einsum("bij,bnj->bni", rot[2:], local) + pos[2:, None],
-                        np.einsum("bij,bnj->bni", rot[:2], local) + pos[:2, None])
-    np.testing.assert_allclose(pose_kernels.place_parts(local, on_b, rot[:2], pos[:2], rot[2:], pos[2:]),
-                               expected, rtol=0, atol=1e-14)  # einsum sums in another order: float64 rounding
+    # clouds: leg a's pose turned by the episode's perturbation, leg b moved with it, noise, refill
+    bank, part = rng.normal(size=(40, 3)), (rng.random(40) < 0.5).astype(np.int8)
+    index, refill = np.stack([rng.permutation(40)[:30] for _ in range(2)]), rng.integers(0, 30, (2, 6))
+    noise, std = rng.normal(size=(2, 30, 3)), np.array([0.0, 0.01])
+    d_rot, d_pos = Rotation.random(random_state=4).as_matrix(), rng.normal(size=3)
+    rot_a, pos_a = rot[:2] @ d_rot, pos[:2] + d_pos
+    rot_b = rot_a @ np.swapaxes(rot[:2], 1, 2) @ rot[2:]
+    pos_b = np.einsum("bij,bj->bi", rot_a, np.einsum("bji,bj->bi", rot[:2], pos[2:] - pos[:2])) + pos_a
+    local = bank[index]
+    on_b = part[index][..., None] == 1
+    placed = np.where(on_b, np.einsum("bij,bnj->bni", rot_b, local) + pos_b[:, None],
+                      np.einsum("bij,bnj->bni", rot_a, local) + pos_a[:, None]) + noise * std[:, None, None]
+    expected = np.concatenate([placed, placed[np.arange(2)[:, None], refill]], axis=1).astype(np.float32)
+    clouds = pose_kernels.synthesize_clouds(bank, part, index, refill, noise, std, rot[:2], pos[:2], rot[2:],
+                                            pos[2:], d_rot, d_pos)
+    assert clouds.dtype == np.float32 and clouds.shape == (2, 36, 3)
+    np.testing.assert_allclose(clouds, expected, rtol=0, atol=1e-6)  # float32 rounding of ~1 m values
+    no_noise = pose_kernels.synthesize_clouds(bank, part, index, refill, np.empty((2, 0, 3)), std, rot[:2],
+                                              pos[:2], rot[2:], pos[2:], d_rot, d_pos)
+    np.testing.assert_allclose(no_noise[0], clouds[0], rtol=0, atol=1e-6)
     points, shift = rng.normal(size=(256, 3)), rng.normal(size=3) * 0.01
     moved = points @ rot[0].T + shift
     assert pose_kernels.mean_displacement(points, rot[0], shift) == pytest.approx(

@@ -5,7 +5,8 @@ its box geoms' surfaces uniformly (the compiled MuJoCo model's ``geom_size``,
 ``geom_pos``, ``geom_quat``, so the clouds follow the model), points inside another box
 of the same part are dropped (the faces where boxes touch are not surface), and the
 result is a bank of points in each part's body frame. A cloud is a random draw from
-the bank moved by the parts' simulated poses into ``hand_base``, then made realistic:
+the bank (without replacement) moved by the parts' simulated poses into ``hand_base``,
+then made realistic:
 
 * a pose perturbation (up to 2 cm, 30 degrees; a calibration error, so fixed for an
   episode: ``CloudSynthesizer.new_episode``), applied to the tool pose about its origin;
@@ -244,7 +245,7 @@ class CloudSynthesizer:
         """How many points of each cloud are distinct: the occlusion removes a share and refills the
         cloud to ``n_points`` with repeats of the kept ones, which ``_sample`` puts last."""
         r = self.realism
-        return self.n_points - int(round(r.removal_fraction * self.n_points)) if r.removal_fraction > 0 else self.n_points
+        return max(1, self.n_points - int(round(r.removal_fraction * self.n_points)))
 
     def new_episode(self, seed: int | None = None) -> None:
         """Draw this episode's pose perturbation (and reseed if ``seed`` is given)."""
@@ -267,16 +268,8 @@ class CloudSynthesizer:
         ``noise_std_m`` (B,): a noise level per cloud instead of the realism's one.
         """
         single = np.ndim(rot_a) == 2
-        rot_a, rot_b = (np.asarray(x, float).reshape(-1, 3, 3) for x in (rot_a, rot_b))
-        pos_a, pos_b = (np.asarray(x, float).reshape(-1, 3) for x in (pos_a, pos_b))
-        d_rot, d_pos = self.perturbation
-        # perturbed leg a pose; leg b keeps its pose relative to leg a
-        rel_rot = np.swapaxes(rot_a, 1, 2) @ rot_b
-        rel_pos = np.einsum("bji,bj->bi", rot_a, pos_b - pos_a)
-        rot_a = rot_a @ d_rot
-        pos_a = pos_a + d_pos
-        rot_b = rot_a @ rel_rot
-        pos_b = np.einsum("bij,bj->bi", rot_a, rel_pos) + pos_a
+        rot_a, rot_b = (np.ascontiguousarray(np.reshape(x, (-1, 3, 3)), dtype=float) for x in (rot_a, rot_b))
+        pos_a, pos_b = (np.ascontiguousarray(np.reshape(x, (-1, 3)), dtype=float) for x in (pos_a, pos_b))
         clouds = self._sample(rot_a, pos_a, rot_b, pos_b, noise_std_m)
         return clouds[0] if single else clouds
 
@@ -295,39 +288,36 @@ class CloudSynthesizer:
     def from_sim(self, model: mujoco.MjModel, data: mujoco.MjData) -> np.ndarray:
         """The cloud of the tweezer as the simulator has it now: (n_points, 3) float32, hand_base."""
         if self._sim_ids is None or self._sim_ids[0] is not model:
-            self._sim_ids = (model, model.body(names.HAND_BASE_BODY).id, model.body(names.TOOL_BODY_A).id,
-                             model.body(names.TOOL_BODY_B).id)
-        _, hand, leg_a, leg_b = self._sim_ids
-        rot_h = data.xmat[hand].reshape(3, 3)
-        pos_h = data.xpos[hand]
-        poses = []
-        for body in (leg_a, leg_b):
-            poses += [rot_h.T @ data.xmat[body].reshape(3, 3), rot_h.T @ (data.xpos[body] - pos_h)]
-        return self.from_part_poses(*poses)
+            self._sim_ids = (model, model.body(names.HAND_BASE_BODY).id,
+                             np.array([model.body(names.TOOL_BODY_A).id, model.body(names.TOOL_BODY_B).id]))
+        _, hand, bodies = self._sim_ids
+        rot, pos = pose_kernels.hand_frame_poses(data.xmat, data.xpos, hand, bodies)
+        return self._sample(rot[:1], pos[:1], rot[1:], pos[1:])[0]
 
     def _sample(self, rot_a, pos_a, rot_b, pos_b, noise_std_m=None) -> np.ndarray:
+        """The draws of the module docstring, then ``pose_kernels.synthesize_clouds`` (placement,
+        perturbation, noise and refill in one pass). Each cloud's distinct points are a uniform
+        random draw of ``n_distinct`` bank points without replacement, in random order: the same
+        distribution as drawing ``n_points`` and removing a random ``removal_fraction`` of them,
+        at a quarter of the cost (the draw was an argpartition of the whole bank). The batch's
+        draws come in a fixed order (points, then noise, then refill), so clouds of one seed
+        share their points whatever their noise levels."""
         g, r, n = self.geometry, self.realism, self.n_points
-        batch = len(rot_a)
-        bank = len(g.bank_points)
-        # each cloud: n distinct bank points (argsort of uniforms = a random permutation per row)
-        index = np.argpartition(self.rng.random((batch, bank)), n, axis=1)[:, :n]
-        local = g.bank_points[index]  # (B, n, 3), part frames
-        points = pose_kernels.place_parts(local, g.bank_part[index] == 1, *(np.ascontiguousarray(x, dtype=float)
-                                                                              for x in (rot_a, pos_a, rot_b, pos_b)))
-        std = r.noise_std_m  # one level for all, or one per cloud
+        batch, k = len(rot_a), self.n_distinct
+        index = np.empty((batch, k), np.int64)
+        for b in range(batch):
+            index[b] = self.rng.choice(len(g.bank_points), k, replace=False)
+        std = np.full(batch, r.noise_std_m)  # one level for all, or one per cloud
         if noise_std_m is not None:
-            std = np.broadcast_to(np.asarray(noise_std_m, float).reshape(-1), (batch,))[:, None, None]
+            std = np.broadcast_to(np.asarray(noise_std_m, float).reshape(-1), (batch,)).copy()
             if std.min() < 0:
                 raise ConfigError(f"noise levels must be >= 0, got a minimum of {std.min()}")
-        if np.any(std > 0):
-            points = points + self.rng.normal(0.0, 1.0, points.shape) * std
-        if r.removal_fraction > 0:
-            n_keep = self.n_distinct
-            kept = np.argsort(self.rng.random((batch, n)), axis=1)[:, :n_keep]
-            refill = kept[np.arange(batch)[:, None], self.rng.integers(0, n_keep, (batch, n - n_keep))]
-            order = np.concatenate([kept, refill], axis=1)
-            points = points[np.arange(batch)[:, None], order]
-        return points.astype(np.float32)
+        noise = self.rng.standard_normal((batch, k, 3)) if np.any(std > 0) else np.empty((batch, 0, 3))
+        refill = self.rng.integers(0, k, (batch, n - k)) if n > k else np.empty((batch, 0), np.int64)
+        d_rot, d_pos = self.perturbation
+        return pose_kernels.synthesize_clouds(g.bank_points, g.bank_part, index, refill, noise, std, rot_a, pos_a,
+                                              rot_b, pos_b, np.ascontiguousarray(d_rot, dtype=float),
+                                              np.ascontiguousarray(d_pos, dtype=float))
 
 
 __all__ = ["CloudRealism", "CloudSynthesizer", "IDEAL", "N_POINTS", "ToolGeometry", "pose_matrix",

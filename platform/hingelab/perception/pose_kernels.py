@@ -103,18 +103,72 @@ def mean_displacement(points, rot, shift):
 
 
 @njit(cache=True)
-def place_parts(local, on_b, rot_a, pos_a, rot_b, pos_b):
-    """Part-frame points (B, n, 3) into hand_base: R p + t of leg b where on_b (B, n), else of leg a."""
-    n_batch, n = local.shape[0], local.shape[1]
-    out = np.empty((n_batch, n, 3))
+def hand_frame_poses(xmat, xpos, hand, bodies):
+    """Poses of ``bodies`` in the hand's frame from MjData's world poses (xmat (nbody, 9), xpos
+    (nbody, 3)): R (len(bodies), 3, 3) = R_hand^T R_body, t = R_hand^T (x_body - x_hand)."""
+    rot = np.empty((len(bodies), 3, 3))
+    pos = np.empty((len(bodies), 3))
+    h = xmat[hand]
+    for n in range(len(bodies)):
+        body = bodies[n]
+        for i in range(3):
+            for j in range(3):
+                rot[n, i, j] = h[i] * xmat[body, j] + h[3 + i] * xmat[body, 3 + j] + h[6 + i] * xmat[body, 6 + j]
+            pos[n, i] = (h[i] * (xpos[body, 0] - xpos[hand, 0]) + h[3 + i] * (xpos[body, 1] - xpos[hand, 1])
+                         + h[6 + i] * (xpos[body, 2] - xpos[hand, 2]))
+    return rot, pos
+
+
+@njit(cache=True)
+def synthesize_clouds(bank, bank_part, index, refill, noise, noise_std, rot_a, pos_a, rot_b, pos_b, d_rot, d_pos):
+    """Clouds (B, n, 3) float32 in hand_base from bank draws (``CloudSynthesizer._sample``).
+
+    ``index`` (B, k): the distinct bank points of each cloud; ``refill`` (B, n - k): which of
+    them repeat in the last n - k rows (the occlusion refill); ``noise`` (B, k, 3) standard
+    normal draws scaled by ``noise_std`` (B,) (or (B, 0, 3): none); parts' poses R (B, 3, 3),
+    t (B, 3) in hand_base. The episode's perturbation (d_rot, d_pos) moves leg a about its
+    origin and leg b with it (it is an error of the tool pose): R_a' = R_a dR, t_a' = t_a + dt,
+    and leg b keeps its pose relative to leg a.
+    """
+    n_batch, k = index.shape[0], index.shape[1]
+    n = k + refill.shape[1]
+    noisy = noise.shape[1] > 0
+    out = np.empty((n_batch, n, 3), np.float32)
+    ra, rb = np.empty((3, 3)), np.empty((3, 3))
+    pa, pb, rel_pos = np.empty(3), np.empty(3), np.empty(3)
     for b in range(n_batch):
-        for i in range(n):
-            rot, pos = (rot_b[b], pos_b[b]) if on_b[b, i] else (rot_a[b], pos_a[b])
-            for k in range(3):
-                out[b, i, k] = rot[k, 0] * local[b, i, 0] + rot[k, 1] * local[b, i, 1] + \
-                    rot[k, 2] * local[b, i, 2] + pos[k]
+        # leg b relative to leg a: rel = R_a^T R_b, rel_pos = R_a^T (t_b - t_a)
+        for i in range(3):
+            rel_pos[i] = 0.0
+            for j in range(3):
+                rel_pos[i] += rot_a[b, j, i] * (pos_b[b, j] - pos_a[b, j])
+        for i in range(3):
+            for j in range(3):
+                ra[i, j] = rot_a[b, i, 0] * d_rot[0, j] + rot_a[b, i, 1] * d_rot[1, j] + rot_a[b, i, 2] * d_rot[2, j]
+            pa[i] = pos_a[b, i] + d_pos[i]
+        for i in range(3):
+            for j in range(3):  # R_b' = R_a' R_a^T R_b
+                acc = 0.0
+                for m in range(3):
+                    rel = rot_a[b, 0, m] * rot_b[b, 0, j] + rot_a[b, 1, m] * rot_b[b, 1, j] + \
+                        rot_a[b, 2, m] * rot_b[b, 2, j]
+                    acc += ra[i, m] * rel
+                rb[i, j] = acc
+            pb[i] = ra[i, 0] * rel_pos[0] + ra[i, 1] * rel_pos[1] + ra[i, 2] * rel_pos[2] + pa[i]
+        std = noise_std[b]
+        for i in range(k):
+            p = index[b, i]
+            rot, pos = (rb, pb) if bank_part[p] == 1 else (ra, pa)
+            for c in range(3):
+                value = rot[c, 0] * bank[p, 0] + rot[c, 1] * bank[p, 1] + rot[c, 2] * bank[p, 2] + pos[c]
+                if noisy:
+                    value += noise[b, i, c] * std
+                out[b, i, c] = value
+        for i in range(n - k):
+            for c in range(3):
+                out[b, k + i, c] = out[b, refill[b, i], c]
     return out
 
 
-__all__ = ["euler_angles_xyz", "matrices_to_rotvecs", "mean_displacement", "place_parts", "pose_check",
-           "rotvecs_to_matrices"]
+__all__ = ["euler_angles_xyz", "hand_frame_poses", "matrices_to_rotvecs", "mean_displacement", "pose_check",
+           "rotvecs_to_matrices", "synthesize_clouds"]

@@ -36,6 +36,20 @@ def _grid_lookup(q, origin, resolution, index, points):
 
 
 @njit(cache=True)
+def _core_lookup(q, origin, resolution, core, offset, index, points):
+    """``_grid_lookup`` looking in the map's core block first (``registration._GridNearest.core``):
+    a point in the core finds the same voxel there; one outside falls back to the whole map."""
+    c0 = np.int64(np.floor((q[0] - origin[0]) / resolution)) - offset[0]
+    c1 = np.int64(np.floor((q[1] - origin[1]) / resolution)) - offset[1]
+    c2 = np.int64(np.floor((q[2] - origin[2]) / resolution)) - offset[2]
+    if 0 <= c0 < core.shape[0] and 0 <= c1 < core.shape[1] and 0 <= c2 < core.shape[2]:
+        i = core[c0, c1, c2]
+        d0, d1, d2 = q[0] - points[i, 0], q[1] - points[i, 1], q[2] - points[i, 2]
+        return np.sqrt(d0 * d0 + d1 * d1 + d2 * d2), i
+    return _grid_lookup(q, origin, resolution, index, points)
+
+
+@njit(cache=True)
 def _leg_b_pose(theta, skew, b_rot, b_pos, g_anchor):
     """Leg b's pose in the tool frame at hinge angle theta (``CanonicalRegistration._leg_b_fast``)."""
     hinge_rot = np.eye(3) + np.sin(theta) * skew + (1 - np.cos(theta)) * (skew @ skew)
@@ -87,9 +101,10 @@ def _hinge_update(points, rot, pos, theta, on_b, w, index_b, hinge_cross, hinge_
 
 
 @njit(cache=True)
-def track_one(points, rot_p, pos_p, theta, model_a, normals_a, grid_a, origin_a, model_b, normals_b, grid_b,
-              origin_b, resolution, hinge_cross, hinge_perp, anchor, skew, b_rot, b_pos, g_anchor, theta_lo,
-              theta_hi, articulated, trim_fraction, k_r, k_t, max_iterations, tolerance_rad, tolerance_m):
+def track_one(points, rot_p, pos_p, theta, model_a, normals_a, grid_a, origin_a, core_a, offset_a, model_b,
+              normals_b, grid_b, origin_b, core_b, offset_b, resolution, hinge_cross, hinge_perp, anchor, skew, b_rot,
+              b_pos, g_anchor, theta_lo, theta_hi, articulated, trim_fraction, k_r, k_t, max_iterations, tolerance_rad,
+              tolerance_m):
     """Track one cloud (N, 3) from the predicted pose (rot_p, pos_p) and opening theta.
 
     Returns (rotation (3, 3), translation (3,), hinge angle, score): score is the weighted mean
@@ -110,8 +125,8 @@ def track_one(points, rot_p, pos_p, theta, model_a, normals_a, grid_a, origin_a,
         rot_b, pos_b = _leg_b_pose(theta, skew, b_rot, b_pos, g_anchor)
         for i in range(n):
             _to_tool_frames(points, i, rot, pos, rot_b, pos_b, local, local_b)
-            da, ia = _grid_lookup(local, origin_a, resolution, grid_a, model_a)
-            db, ib = _grid_lookup(local_b, origin_b, resolution, grid_b, model_b)
+            da, ia = _core_lookup(local, origin_a, resolution, core_a, offset_a, grid_a, model_a)
+            db, ib = _core_lookup(local_b, origin_b, resolution, core_b, offset_b, grid_b, model_b)
             index_b[i] = ib
             if db < da:
                 on_b[i] = True
@@ -190,18 +205,20 @@ def track_one(points, rot_p, pos_p, theta, model_a, normals_a, grid_a, origin_a,
 
 
 @njit(cache=True)
-def track_batch(points, rot_p, pos_p, theta, model_a, normals_a, grid_a, origin_a, model_b, normals_b, grid_b,
-                origin_b, resolution, hinge_cross, hinge_perp, anchor, skew, b_rot, b_pos, g_anchor, theta_lo,
-                theta_hi, articulated, trim_fraction, k_r, k_t, max_iterations, tolerance_rad, tolerance_m):
+def track_batch(points, rot_p, pos_p, theta, model_a, normals_a, grid_a, origin_a, core_a, offset_a, model_b,
+                normals_b, grid_b, origin_b, core_b, offset_b, resolution, hinge_cross, hinge_perp, anchor, skew, b_rot,
+                b_pos, g_anchor, theta_lo, theta_hi, articulated, trim_fraction, k_r, k_t, max_iterations, tolerance_rad,
+              tolerance_m):
     """``track_one`` over a batch: points (B, N, 3), rot_p (B, 3, 3), pos_p (B, 3), theta (B,)."""
     n_batch = points.shape[0]
     rot, pos = np.empty((n_batch, 3, 3)), np.empty((n_batch, 3))
     hinge, score = np.empty(n_batch), np.empty(n_batch)
     for b in range(n_batch):
         rot[b], pos[b], hinge[b], score[b] = track_one(
-            points[b], rot_p[b], pos_p[b], theta[b], model_a, normals_a, grid_a, origin_a, model_b, normals_b,
-            grid_b, origin_b, resolution, hinge_cross, hinge_perp, anchor, skew, b_rot, b_pos, g_anchor, theta_lo,
-            theta_hi, articulated, trim_fraction, k_r, k_t, max_iterations, tolerance_rad, tolerance_m)
+            points[b], rot_p[b], pos_p[b], theta[b], model_a, normals_a, grid_a, origin_a, core_a, offset_a, model_b,
+            normals_b, grid_b, origin_b, core_b, offset_b, resolution, hinge_cross, hinge_perp, anchor, skew, b_rot,
+            b_pos, g_anchor, theta_lo, theta_hi, articulated, trim_fraction, k_r, k_t, max_iterations, tolerance_rad,
+            tolerance_m)
     return rot, pos, hinge, score
 
 

@@ -33,8 +33,8 @@ from hingelab.sim.scene import load_scene
 CONTROL_HZ = 20.0
 HINGE_SERVO_KP = 2.0  # N m / rad when the privileged hinge command is on
 MAX_HAND_SPEED = 0.5  # m/s: commanded hand velocities beyond this are refused as invalid
-_INSTABILITY_WARNINGS = (mujoco.mjtWarning.mjWARN_BADQPOS, mujoco.mjtWarning.mjWARN_BADQVEL,
-                         mujoco.mjtWarning.mjWARN_BADQACC)
+_INSTABILITY_WARNINGS = np.array([mujoco.mjtWarning.mjWARN_BADQPOS, mujoco.mjtWarning.mjWARN_BADQVEL,
+                                  mujoco.mjtWarning.mjWARN_BADQACC], dtype=int)
 
 
 @dataclass(frozen=True)
@@ -174,15 +174,15 @@ class SimCore:
         return self.reader.read(self.data)
 
     def _instability_warnings(self) -> int:
-        w = self.data.warning
-        return sum(int(w[k].number) for k in _INSTABILITY_WARNINGS)
+        return int(self.data.warning.number[_INSTABILITY_WARNINGS].sum())
 
     def _divergence(self) -> str:
         d = self.data
         if self._instability_warnings() > self._warnings_at_reset:
             # MuJoCo has already reset the state to the model's defaults: the episode is void
             return "MuJoCo found a NaN, Inf or huge position, velocity or acceleration"
-        if not (np.isfinite(d.qpos).all() and np.isfinite(d.qvel).all()):
+        # one dot product per array: NaN or Inf anywhere makes it non-finite (overflow only past ~1e154)
+        if not (np.isfinite(d.qpos @ d.qpos) and np.isfinite(d.qvel @ d.qvel)):
             return "NaN or Inf in the simulation state"
         return ""
 
