@@ -122,7 +122,7 @@ def test_recalibrate_curve_fits_the_tracked_latents_and_keeps_old_policies(tmp_p
     out = tmp_path / "encoder.pt"
     shutil.copy(SHIPPED_CHECKPOINT, out)
     before = load_encoder(out)
-    assert main(["train", "encoder", "--recalibrate-curve", "--sweeps", "4", "--seed", "100", "--out", str(out),
+    assert main(["train", "encoder", "--recalibrate-curve", "--sweeps", "10", "--seed", "100", "--out", str(out),
                  "--no-progress"]) == 0
     assert "Refitted the calibration curve" in capsys.readouterr().out
     after = load_encoder(out)
@@ -131,7 +131,8 @@ def test_recalibrate_curve_fits_the_tracked_latents_and_keeps_old_policies(tmp_p
     assert after.fingerprint != before.fingerprint
     assert after.accepts(before.fingerprint) and after.accepts(after.fingerprint) and not after.accepts("0" * 16)
     assert before.fingerprint in after.info["curve"]["replaces"] and after.info["curve"]["seed"] == 100
-    check = tracked_sweep_latents(after, sweeps=2, seed=500, progress=False)  # sweeps neither curve saw
+    # 10 sweeps neither curve saw: fewer leave the shut-end mean to a sweep or two's pose error
+    check = tracked_sweep_latents(after, sweeps=10, seed=900, progress=False)
     old_shut, new_shut = (curve_offsets(c, check)[0]["offset"] for c in (before.calibration, after.calibration))
     assert new_shut < 0.5 * old_shut, (old_shut, new_shut)
     assert main(["train", "encoder", "--out", str(out)]) == 1
