@@ -89,6 +89,40 @@ class _OneWorker:
         return len(states) / elapsed
 
 
+    def breakdown(self, steps: int) -> dict[str, float]:
+        """Milliseconds per step of each part of perception (timers around them for ``steps``
+        steps), the replayed physics of those steps, and the rest (total minus those)."""
+        perception = self.env.unwrapped.perception
+        tool_state = perception.tool_state
+        timed = {"cloud": [(perception.synthesizer, "from_sim")],
+                 "registration": [(tool_state.registration, "track"), (tool_state.registration, "register")],
+                 "encoder": [(tool_state.encoder, "encode")]}
+        spent = dict.fromkeys(timed, 0.0)
+
+        def timer(part, function):
+            def wrapped(*args, **kwargs):
+                start = time.perf_counter()
+                try:
+                    return function(*args, **kwargs)
+                finally:
+                    spent[part] += time.perf_counter() - start
+            return wrapped
+
+        for part, methods in timed.items():
+            for owner, name in methods:
+                setattr(owner, name, timer(part, getattr(owner, name)))
+        try:
+            total = steps / self.rate(steps)
+        finally:
+            for methods in timed.values():
+                for owner, name in methods:
+                    del owner.__dict__[name]  # back to the class's method
+        physics = steps / self.replayed_raw_rate()
+        out = {"physics": physics, **spent}
+        out["rest"] = total - sum(out.values())
+        return {part: 1000 * value / steps for part, value in out.items()}
+
+
 class _Workers:
     """``n_envs`` spawned env processes in a vec env (PinnedVecEnv or SB3's SubprocVecEnv): total steps/s."""
 
@@ -128,6 +162,7 @@ def run(quick: bool = False) -> BenchTable:
             rest_r.append(_raw_rate(one.sim.model, block, one.sim.n_substeps))
             two_r.append(two.rate(block // 2))
             stock_r.append(stock.rate(block // 2))
+        parts = one.breakdown(block)
         one.env.close()
         two.vec.close()
         stock.vec.close()
@@ -141,7 +176,8 @@ def run(quick: bool = False) -> BenchTable:
                "1 worker / raw at rest": float(np.median(one_r / rest_r)),
                "2 workers / (2 x raw), per core": float(np.median(two_r / (2 * raw_r))),
                "2 workers, SubprocVecEnv (steps/s)": float(np.median(stock_r)),
-               "2 workers, SubprocVecEnv / raw": float(np.median(stock_r / raw_r))}
+               "2 workers, SubprocVecEnv / raw": float(np.median(stock_r / raw_r)),
+               "1 worker, ms per step": ", ".join(f"{part} {ms:.2f}" for part, ms in parts.items())}
         rows.append(row)
         ratios[f"{env_id}: 1 worker / raw"] = row["1 worker / raw"]
         ratios[f"{env_id}: 2 workers / raw"] = row["2 workers / raw"]
@@ -165,6 +201,10 @@ def run(quick: bool = False) -> BenchTable:
                "workers / raw' divides them by one core's raw rate (the issue's figure), '2 workers / (2 x raw), "
                "per core' by two cores' (what each core keeps of its physics rate; the two envs step in lockstep, "
                "so each vector step waits for the slower one). SubprocVecEnv: stable-baselines3's, the same 2 "
-               "envs, taking turns with the others in every round."],
+               "envs, taking turns with the others in every round.",
+               "1 worker, ms per step: one more round of the 1-worker run with timers around the perception's "
+               "parts (cloud synthesis; registration, tracking and the re-registrations of resets; encoder), "
+               "physics = the replayed raw steps of that round, rest = everything else of env.step and reset "
+               "(the sim's bookkeeping, privileged state, rewards, observation, delays)."],
         config={"steps": steps, "rounds": rounds},
     )
