@@ -188,6 +188,7 @@ class _GridNearest:
         # int16 where it fits: half the bytes of int32, fewer cache misses
         self.index = index.astype(np.int16 if len(points) <= np.iinfo(np.int16).max else np.int32).reshape(self.shape)
         core_margin = min(CORE_MARGIN_M, margin)
+        self.core_margin = core_margin  # a point outside the core is farther than this from every model point
         low = np.floor((points.min(axis=0) - core_margin - self.origin) / resolution).astype(int)
         high = np.ceil((points.max(axis=0) + core_margin - self.origin) / resolution).astype(int) + 1
         low, high = np.maximum(low, 0), np.minimum(high, self.shape)
@@ -404,8 +405,10 @@ class CanonicalRegistration:
         rot, pos, theta, score = registration_kernels.track_batch(
             points, rot_p, pos_p, theta, self.leg_a, normals_a, ga.index, ga.origin, ga.core, ga.core_offset,
             self.leg_b_local, normals_b, gb.index, gb.origin, gb.core, gb.core_offset, float(ga.resolution),
+            min(ga.core_margin, gb.core_margin) - 1e-9,  # a nanometre less: rounding at the blocks' edges
             self._hinge_cross, self._hinge_perp, self._anchor, self._skew, self.geometry._b_rot, self.geometry._b_pos,
-            self.geometry._anchor,            float(self._hinge_bounds[0]), float(self._hinge_bounds[1]), bool(c.articulated), float(c.trim_fraction),
+            self.geometry._anchor, float(self._hinge_bounds[0]), float(self._hinge_bounds[1]), bool(c.articulated),
+            float(c.trim_fraction),
             float(config.rotation_prior_m ** 2), float(config.translation_prior), int(config.max_iterations),
             float(config.tolerance_rad), float(config.tolerance_m))
         return self._tracked(rot, pos, theta, score, single)

@@ -24,7 +24,7 @@ from numba import njit
 from hingelab.perception.pose_kernels import rotvecs_to_matrices
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")  # a call with array arguments costs ~30 ns of reference counting
 def _grid_lookup(q, origin, resolution, index, points):
     """Nearest model point by the voxel map: (distance, model index) of one query point."""
     c0 = min(max(np.int64(np.floor((q[0] - origin[0]) / resolution)), 0), index.shape[0] - 1)
@@ -35,18 +35,23 @@ def _grid_lookup(q, origin, resolution, index, points):
     return np.sqrt(d0 * d0 + d1 * d1 + d2 * d2), i
 
 
-@njit(cache=True)
-def _core_lookup(q, origin, resolution, core, offset, index, points):
-    """``_grid_lookup`` looking in the map's core block first (``registration._GridNearest.core``):
-    a point in the core finds the same voxel there; one outside falls back to the whole map."""
+@njit(cache=True, inline="always")
+def _core_index(q, origin, resolution, core, offset):
+    """The model index the voxel map gives q, looked up in the map's core block
+    (``registration._GridNearest.core``: the same voxels), or -1 for a point outside the block,
+    which is then farther than the core's margin from every model point."""
     c0 = np.int64(np.floor((q[0] - origin[0]) / resolution)) - offset[0]
     c1 = np.int64(np.floor((q[1] - origin[1]) / resolution)) - offset[1]
     c2 = np.int64(np.floor((q[2] - origin[2]) / resolution)) - offset[2]
     if 0 <= c0 < core.shape[0] and 0 <= c1 < core.shape[1] and 0 <= c2 < core.shape[2]:
-        i = core[c0, c1, c2]
-        d0, d1, d2 = q[0] - points[i, 0], q[1] - points[i, 1], q[2] - points[i, 2]
-        return np.sqrt(d0 * d0 + d1 * d1 + d2 * d2), i
-    return _grid_lookup(q, origin, resolution, index, points)
+        return np.int64(core[c0, c1, c2])
+    return np.int64(-1)
+
+
+@njit(cache=True, inline="always")
+def _distance_to(q, points, i):
+    d0, d1, d2 = q[0] - points[i, 0], q[1] - points[i, 1], q[2] - points[i, 2]
+    return np.sqrt(d0 * d0 + d1 * d1 + d2 * d2)
 
 
 @njit(cache=True)
@@ -102,10 +107,13 @@ def _hinge_update(points, rot, pos, theta, on_b, w, index_b, hinge_cross, hinge_
 
 @njit(cache=True)
 def track_one(points, rot_p, pos_p, theta, model_a, normals_a, grid_a, origin_a, core_a, offset_a, model_b,
-              normals_b, grid_b, origin_b, core_b, offset_b, resolution, hinge_cross, hinge_perp, anchor, skew, b_rot,
-              b_pos, g_anchor, theta_lo, theta_hi, articulated, trim_fraction, k_r, k_t, max_iterations, tolerance_rad,
-              tolerance_m):
+              normals_b, grid_b, origin_b, core_b, offset_b, resolution, core_margin, hinge_cross, hinge_perp, anchor,
+              skew, b_rot, b_pos, g_anchor, theta_lo, theta_hi, articulated, trim_fraction, k_r, k_t, max_iterations,
+              tolerance_rad, tolerance_m):
     """Track one cloud (N, 3) from the predicted pose (rot_p, pos_p) and opening theta.
+
+    ``core_margin``: a distance (m) that no point outside a leg's core block comes nearer its
+    leg than (the blocks' margin, a little less for rounding at their edges).
 
     Returns (rotation (3, 3), translation (3,), hinge angle, score): score is the weighted mean
     squared point-to-point distance of the last iteration's pairs (before its update).
@@ -125,8 +133,17 @@ def track_one(points, rot_p, pos_p, theta, model_a, normals_a, grid_a, origin_a,
         rot_b, pos_b = _leg_b_pose(theta, skew, b_rot, b_pos, g_anchor)
         for i in range(n):
             _to_tool_frames(points, i, rot, pos, rot_b, pos_b, local, local_b)
-            da, ia = _core_lookup(local, origin_a, resolution, core_a, offset_a, grid_a, model_a)
-            db, ib = _core_lookup(local_b, origin_b, resolution, core_b, offset_b, grid_b, model_b)
+            ia = _core_index(local, origin_a, resolution, core_a, offset_a)
+            ib = _core_index(local_b, origin_b, resolution, core_b, offset_b)
+            da = _distance_to(local, model_a, ia) if ia >= 0 else np.inf
+            db = _distance_to(local_b, model_b, ib) if ib >= 0 else np.inf
+            # a point outside a leg's core is farther than core_margin from that leg: when the
+            # other leg is nearer than that, the pair is the other leg's whatever the whole map
+            # says, so the map (out of the cache after the physics) is read only otherwise
+            if ia < 0 and not db < core_margin:
+                da, ia = _grid_lookup(local, origin_a, resolution, grid_a, model_a)
+            if ib < 0 and not da < core_margin:
+                db, ib = _grid_lookup(local_b, origin_b, resolution, grid_b, model_b)
             index_b[i] = ib
             if db < da:
                 on_b[i] = True
@@ -206,9 +223,9 @@ def track_one(points, rot_p, pos_p, theta, model_a, normals_a, grid_a, origin_a,
 
 @njit(cache=True)
 def track_batch(points, rot_p, pos_p, theta, model_a, normals_a, grid_a, origin_a, core_a, offset_a, model_b,
-                normals_b, grid_b, origin_b, core_b, offset_b, resolution, hinge_cross, hinge_perp, anchor, skew, b_rot,
-                b_pos, g_anchor, theta_lo, theta_hi, articulated, trim_fraction, k_r, k_t, max_iterations, tolerance_rad,
-              tolerance_m):
+                normals_b, grid_b, origin_b, core_b, offset_b, resolution, core_margin, hinge_cross, hinge_perp, anchor,
+                skew, b_rot, b_pos, g_anchor, theta_lo, theta_hi, articulated, trim_fraction, k_r, k_t, max_iterations,
+                tolerance_rad, tolerance_m):
     """``track_one`` over a batch: points (B, N, 3), rot_p (B, 3, 3), pos_p (B, 3), theta (B,)."""
     n_batch = points.shape[0]
     rot, pos = np.empty((n_batch, 3, 3)), np.empty((n_batch, 3))
@@ -216,9 +233,9 @@ def track_batch(points, rot_p, pos_p, theta, model_a, normals_a, grid_a, origin_
     for b in range(n_batch):
         rot[b], pos[b], hinge[b], score[b] = track_one(
             points[b], rot_p[b], pos_p[b], theta[b], model_a, normals_a, grid_a, origin_a, core_a, offset_a, model_b,
-            normals_b, grid_b, origin_b, core_b, offset_b, resolution, hinge_cross, hinge_perp, anchor, skew, b_rot,
-            b_pos, g_anchor, theta_lo, theta_hi, articulated, trim_fraction, k_r, k_t, max_iterations, tolerance_rad,
-            tolerance_m)
+            normals_b, grid_b, origin_b, core_b, offset_b, resolution, core_margin, hinge_cross, hinge_perp, anchor,
+            skew, b_rot, b_pos, g_anchor, theta_lo, theta_hi, articulated, trim_fraction, k_r, k_t, max_iterations,
+            tolerance_rad, tolerance_m)
     return rot, pos, hinge, score
 
 
