@@ -48,6 +48,7 @@ Frames and units: clouds (N, 3) or (B, N, 3) metres in ``hand_base``; the result
 from __future__ import annotations
 
 import copy
+import functools
 from dataclasses import asdict, dataclass, replace
 
 import numpy as np
@@ -55,7 +56,7 @@ from scipy.spatial import cKDTree
 from scipy.spatial.transform import Rotation
 
 from hingelab.errors import ConfigError
-from hingelab.perception import pose_kernels
+from hingelab.perception import pose_kernels, registration_kernels
 from hingelab.perception.clouds import ToolGeometry, _even_subset
 
 EXACT_CELL_M = 0.005  # cells of the compiled loops' exact nearest-neighbour search (2 and 3 mm were slower)
@@ -291,6 +292,7 @@ class CanonicalRegistration:
         self._skew = _skew(geometry._axis)
         self._normals = None  # tracking's model normals, made on first use
         self._cells = None  # exact nearest-neighbour cell lists of the compiled loops, made on first use
+        self._tracking_arguments = None  # the tracking kernel's model arguments, made on first use
         self.compiled = True  # iterate in the compiled loops (registration_kernels); False: numpy (numpy_reference)
 
     def with_search(self, **changes) -> "CanonicalRegistration":
@@ -302,6 +304,7 @@ class CanonicalRegistration:
             raise ConfigError(f"with_search cannot change {sorted(fixed & set(changes))}; make a new registration")
         other = copy.copy(self)
         other.config = replace(self.config, **changes)
+        other._tracking_arguments = None  # they hold the trimming and articulation settings
         return other
 
     def numpy_reference(self) -> "CanonicalRegistration":
@@ -313,8 +316,6 @@ class CanonicalRegistration:
 
     def _kernel_model(self) -> tuple:
         """The model arrays the compiled loops take, in their argument order."""
-        from hingelab.perception import registration_kernels
-
         if self._cells is None:
             c = self.config
             self._cells = tuple(registration_kernels.cell_lists(model, EXACT_CELL_M, c.grid_margin_m)
@@ -329,8 +330,6 @@ class CanonicalRegistration:
     def _iterate(self, points, rot, pos, theta, iterations: int, reverse, exact: bool):
         """``iterations`` ICP steps (``_step``) on C candidates: (rot, pos, theta, score)."""
         if self.compiled and self.config.reverse_weight == 0:
-            from hingelab.perception import registration_kernels
-
             return registration_kernels.icp_iterations(
                 np.ascontiguousarray(points), np.ascontiguousarray(rot), np.ascontiguousarray(pos),
                 np.ascontiguousarray(theta, dtype=float), int(iterations), bool(exact), *self._kernel_model())
@@ -395,39 +394,43 @@ class CanonicalRegistration:
         """
         if not self.compiled:
             return self._track_numpy(clouds, rotation, translation, hinge, config)
-        from hingelab.perception import registration_kernels
-
         points, single = check_clouds(clouds)
-        c = self.config
         rot_p, pos_p, theta = self._track_start(points, rotation, translation, hinge)
-        normals_a, normals_b = self._model_normals()
-        ga, gb = self._grid_a, self._grid_b
-        rot, pos, theta, score = registration_kernels.track_batch(
-            points, rot_p, pos_p, theta, self.leg_a, normals_a, ga.index, ga.origin, ga.core, ga.core_offset,
-            self.leg_b_local, normals_b, gb.index, gb.origin, gb.core, gb.core_offset, float(ga.resolution),
-            min(ga.core_margin, gb.core_margin) - 1e-9,  # a nanometre less: rounding at the blocks' edges
-            self._hinge_cross, self._hinge_perp, self._anchor, self._skew, self.geometry._b_rot, self.geometry._b_pos,
-            self.geometry._anchor, float(self._hinge_bounds[0]), float(self._hinge_bounds[1]), bool(c.articulated),
-            float(c.trim_fraction),
-            float(config.rotation_prior_m ** 2), float(config.translation_prior), int(config.max_iterations),
-            float(config.tolerance_rad), float(config.tolerance_m))
-        return self._tracked(rot, pos, theta, score, single)
+        rot, pos, theta, score, euler, locked = registration_kernels.track_batch(
+            points, rot_p, pos_p, theta, *self._tracking_model(), *_tracking_settings(config))
+        if locked.any():  # near gimbal lock: scipy's convention (as euler_xyz)
+            euler[locked] = Rotation.from_matrix(rot[locked]).as_euler(EULER_SEQUENCE)
+        return self._tracked(rot, pos, theta, score, single, euler)
+
+    def _tracking_model(self) -> tuple:
+        """The model arrays and settings ``registration_kernels.track_batch`` takes, in its argument
+        order (made once: assembling them cost ~10 us of a ~0.1 ms tracking step)."""
+        if self._tracking_arguments is None:
+            normals_a, normals_b = self._model_normals()
+            ga, gb = self._grid_a, self._grid_b
+            c = self.config
+            self._tracking_arguments = (
+                self.leg_a, normals_a, ga.index, ga.origin, ga.core, ga.core_offset, self.leg_b_local, normals_b,
+                gb.index, gb.origin, gb.core, gb.core_offset, float(ga.resolution),
+                min(ga.core_margin, gb.core_margin) - 1e-9,  # a nanometre less: rounding at the blocks' edges
+                self._hinge_cross, self._hinge_perp, self._anchor, self._skew, self.geometry._b_rot,
+                self.geometry._b_pos, self.geometry._anchor, float(self._hinge_bounds[0]),
+                float(self._hinge_bounds[1]), bool(c.articulated), float(c.trim_fraction))
+        return self._tracking_arguments
 
     def _track_start(self, points, rotation, translation, hinge):
         n_batch = len(points)
-        rot_p = np.broadcast_to(np.asarray(rotation, float), (n_batch, 3, 3)).copy()
-        pos_p = np.broadcast_to(np.asarray(translation, float), (n_batch, 3)).copy()
+        rot_p = _batch_copy(rotation, (n_batch, 3, 3))
+        pos_p = _batch_copy(translation, (n_batch, 3))
         _check_prior(rot_p, pos_p)
         low, high = self._hinge_bounds
         # np.clip's dispatch cost more than the arithmetic here (a step's B is 1)
-        theta = np.minimum(np.maximum(np.broadcast_to(np.asarray(hinge, float), (n_batch,)), low), high)
+        theta = np.minimum(np.maximum(_batch_copy(hinge, (n_batch,)), low), high)
         return rot_p, pos_p, theta
 
-    def _tracked(self, rot, pos, theta, score, single: bool) -> Registration:
-        n_batch = len(rot)
-        euler = euler_xyz(rot)
-        result = Registration(rot, pos, euler, theta if self.config.articulated else np.full(n_batch, np.nan),
-                              np.sqrt(score))
+    def _tracked(self, rot, pos, theta, score, single: bool, euler=None) -> Registration:
+        result = Registration(rot, pos, euler_xyz(rot) if euler is None else euler,
+                              theta if self.config.articulated else np.full(len(rot), np.nan), np.sqrt(score))
         if single:
             result = Registration(*(getattr(result, f)[0] for f in result.__dataclass_fields__))
         return result
@@ -672,6 +675,20 @@ def _plane_step(points, model, normals, w, rot, pos, rot_p, pos_p, k_r: float, k
     omega, tau = step[:, :3], step[:, 3:]
     turn = rotvec_to_matrix(omega)
     return omega, turn, centre + np.einsum("bij,bj->bi", turn, pos - centre) + tau
+
+
+def _batch_copy(value, shape: tuple) -> np.ndarray:
+    """A float64 copy of ``value`` in ``shape``, broadcast if it has another (np.broadcast_to costs
+    ~10 us a call, a plain copy ~1: tracking's inputs have the batch's shape already)."""
+    arr = np.array(value, dtype=float)
+    return arr if arr.shape == shape else np.broadcast_to(arr, shape).copy()
+
+
+@functools.cache
+def _tracking_settings(config: TrackingConfig) -> tuple:
+    """The tracking config as ``registration_kernels.track_batch``'s last arguments."""
+    return (float(config.rotation_prior_m ** 2), float(config.translation_prior), int(config.max_iterations),
+            float(config.tolerance_rad), float(config.tolerance_m))
 
 
 def _check_prior(rot: np.ndarray, pos: np.ndarray) -> None:

@@ -21,7 +21,7 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-from hingelab.perception.pose_kernels import rotvecs_to_matrices
+from hingelab.perception.pose_kernels import euler_angles_xyz, rotvecs_to_matrices
 
 
 @njit(cache=True, inline="always")  # a call with array arguments costs ~30 ns of reference counting
@@ -226,7 +226,11 @@ def track_batch(points, rot_p, pos_p, theta, model_a, normals_a, grid_a, origin_
                 normals_b, grid_b, origin_b, core_b, offset_b, resolution, core_margin, hinge_cross, hinge_perp, anchor,
                 skew, b_rot, b_pos, g_anchor, theta_lo, theta_hi, articulated, trim_fraction, k_r, k_t, max_iterations,
                 tolerance_rad, tolerance_m):
-    """``track_one`` over a batch: points (B, N, 3), rot_p (B, 3, 3), pos_p (B, 3), theta (B,)."""
+    """``track_one`` over a batch: points (B, N, 3), rot_p (B, 3, 3), pos_p (B, 3), theta (B,).
+
+    Returns rotations (B, 3, 3), translations (B, 3), hinge angles (B,), scores (B,) and the
+    rotations' Euler angles (``pose_kernels.euler_angles_xyz``: angles (B, 3), locked (B,)).
+    """
     n_batch = points.shape[0]
     rot, pos = np.empty((n_batch, 3, 3)), np.empty((n_batch, 3))
     hinge, score = np.empty(n_batch), np.empty(n_batch)
@@ -236,7 +240,8 @@ def track_batch(points, rot_p, pos_p, theta, model_a, normals_a, grid_a, origin_
             normals_b, grid_b, origin_b, core_b, offset_b, resolution, core_margin, hinge_cross, hinge_perp, anchor,
             skew, b_rot, b_pos, g_anchor, theta_lo, theta_hi, articulated, trim_fraction, k_r, k_t, max_iterations,
             tolerance_rad, tolerance_m)
-    return rot, pos, hinge, score
+    euler, locked = euler_angles_xyz(rot)
+    return rot, pos, hinge, score, euler, locked
 
 
 # ---------------------------------------------------------------------- fresh registration
