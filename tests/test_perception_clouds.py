@@ -131,3 +131,22 @@ def test_cloud_dataset_noise_range(geometry):
                           np.deg2rad(30), 0.02, noise_range_m=(0.002, 0.006))
     assert batch["noise_std_m"].min() >= 0.002 and batch["noise_std_m"].max() <= 0.006
     assert np.ptp(batch["noise_std_m"]) > 0.003  # it does vary
+
+
+@pytest.mark.parametrize("population, size, batch", [(4096, 205, 3), (4096, 4096, 1), (100, 1, 2), (7, 7, 2)])
+def test_compiled_draws_are_numpys_own(population, size, batch):
+    """The clouds' compiled draws (generator_draws) give numpy's Generator.choice and .integers
+    values draw for draw and leave the generator where numpy's calls would: a seed keeps its clouds."""
+    from hingelab.perception import generator_draws
+
+    for seed in range(20):
+        ours, numpys = np.random.default_rng(seed), np.random.default_rng(seed)
+        for _ in range(3):
+            expected = np.stack([numpys.choice(population, size, replace=False) for _ in range(batch)])
+            np.testing.assert_array_equal(generator_draws.choice(ours, population, size, batch), expected)
+            for high in (1, 2, size, 51, 2**31):
+                np.testing.assert_array_equal(generator_draws.integers(ours, high, (batch, 13)),
+                                              numpys.integers(0, high, (batch, 13)))
+        assert ours.random() == numpys.random()
+    with pytest.raises(ValueError, match="without replacement"):
+        generator_draws.choice(np.random.default_rng(0), 5, 6)

@@ -33,7 +33,7 @@ from scipy.spatial.transform import Rotation
 
 from hingelab.errors import AssetError, ConfigError
 from hingelab.paths import ASSETS_DIR
-from hingelab.perception import pose_kernels
+from hingelab.perception import generator_draws, pose_kernels
 from hingelab.sim import names
 
 TWEEZER_XML = ASSETS_DIR / "tweezer" / "tweezer.xml"
@@ -304,16 +304,16 @@ class CloudSynthesizer:
         share their points whatever their noise levels."""
         g, r, n = self.geometry, self.realism, self.n_points
         batch, k = len(rot_a), self.n_distinct
-        index = np.empty((batch, k), np.int64)
-        for b in range(batch):
-            index[b] = self.rng.choice(len(g.bank_points), k, replace=False)
+        index = generator_draws.choice(self.rng, len(g.bank_points), k, batch)  # rng.choice's draws, compiled
         std = np.full(batch, r.noise_std_m)  # one level for all, or one per cloud
+        noisy = r.noise_std_m > 0
         if noise_std_m is not None:
             std = np.broadcast_to(np.asarray(noise_std_m, float).reshape(-1), (batch,)).copy()
             if std.min() < 0:
                 raise ConfigError(f"noise levels must be >= 0, got a minimum of {std.min()}")
-        noise = self.rng.standard_normal((batch, k, 3)) if np.any(std > 0) else np.empty((batch, 0, 3))
-        refill = self.rng.integers(0, k, (batch, n - k)) if n > k else np.empty((batch, 0), np.int64)
+            noisy = bool(np.any(std > 0))
+        noise = self.rng.standard_normal((batch, k, 3)) if noisy else np.empty((batch, 0, 3))
+        refill = generator_draws.integers(self.rng, k, (batch, n - k)) if n > k else np.empty((batch, 0), np.int64)
         d_rot, d_pos = self.perturbation
         return pose_kernels.synthesize_clouds(g.bank_points, g.bank_part, index, refill, noise, std, rot_a, pos_a,
                                               rot_b, pos_b, np.ascontiguousarray(d_rot, dtype=float),
