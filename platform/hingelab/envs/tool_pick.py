@@ -100,6 +100,7 @@ class ToolPickEnv(SimRenderMixin, gym.Env):
         self.action_space = spaces.Box(-1.0, 1.0, (5,), np.float32)
         self.observation_space = spaces.Box(-np.inf, np.inf, (14,), np.float64)
         self.delay = DelayLine(self.sim.control_dt, 0.150)
+        self._hand_body = self.sim.reader.hand_body  # hand_base's body id (by-name access costs ~1 us a call)
         self._privileged_command = None
         self.steps = 0
         self.last_record: dict = {}
@@ -142,7 +143,8 @@ class ToolPickEnv(SimRenderMixin, gym.Env):
         action = np.asarray(action, dtype=float)
         if action.shape != (5,) or not np.isfinite(action).all():
             raise ConfigError(f"ToolPick-v0 takes 5 finite values in [-1, 1], got {action!r}")
-        rot_hand = self.sim.data.body("hand_base").xmat.reshape(3, 3)
+        # a view into MjData: in the privileged branch it is read after the step, as it always was
+        rot_hand = self.sim.data.xmat[self._hand_body].reshape(3, 3)
         if self._privileged_command is not None:
             velocity_world, hinge_target, hand_targets = self._privileged_command
             self._privileged_command = None
@@ -188,8 +190,9 @@ class ToolPickEnv(SimRenderMixin, gym.Env):
 
     # ------------------------------------------------------------------ parts
     def _to_hand(self, p_world: np.ndarray) -> np.ndarray:
-        body = self.sim.data.body("hand_base")
-        return body.xmat.reshape(3, 3).T @ (p_world - body.xpos)
+        """World point (m) -> hand_base frame (m)."""
+        d = self.sim.data
+        return d.xmat[self._hand_body].reshape(3, 3).T @ (p_world - d.xpos[self._hand_body])
 
     def _fresh_observation(self) -> np.ndarray:
         noisy_object = self.state.object_pos_world + self.np_random.normal(0.0, OBJECT_NOISE_M, 3)

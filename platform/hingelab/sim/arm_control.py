@@ -11,6 +11,8 @@ to the Zu 7's 180 deg/s bound and integrated into the position servos' targets.
 
 from __future__ import annotations
 
+import functools
+
 import mujoco
 import numpy as np
 
@@ -34,9 +36,17 @@ def hand_jacobian(model: mujoco.MjModel, data: mujoco.MjData, dofs: np.ndarray) 
     return np.vstack([jacp[:, dofs], jacr[:, dofs]])
 
 
+@functools.cache
+def _identity(n: int) -> np.ndarray:
+    """A shared read-only n x n identity (np.eye allocates one per call)."""
+    eye = np.eye(n)
+    eye.flags.writeable = False
+    return eye
+
+
 def damped_pinv_solve(jac: np.ndarray, twist: np.ndarray, damping: float = DAMPING) -> np.ndarray:
     """J^T (J J^T + lambda^2 I)^-1 twist."""
-    jjt = jac @ jac.T + damping**2 * np.eye(jac.shape[0])
+    jjt = jac @ jac.T + damping**2 * _identity(jac.shape[0])
     return jac.T @ np.linalg.solve(jjt, twist)
 
 
@@ -61,20 +71,26 @@ class ArmVelocityController:
         self.q_high = model.jnt_range[[model.joint(j).id for j in names.ARM_JOINTS], 1].copy()
         self.rot_hold = np.eye(3)
         self.q_target = np.zeros(6)
+        self.hand_body = model.body(names.HAND_BASE_BODY).id
+        # mj_jacBody's output, reused every step: rows linear then angular velocity, all nv columns
+        self._jac_all_dofs = np.zeros((6, model.nv))
+        self._jacp, self._jacr = self._jac_all_dofs[:3], self._jac_all_dofs[3:]
 
     def reset(self, data: mujoco.MjData) -> None:
         """Hold the current joint positions and hand orientation."""
         self.q_target = data.qpos[self.qpos_adr].copy()
-        self.rot_hold = data.body(names.HAND_BASE_BODY).xmat.reshape(3, 3).copy()
+        self.rot_hold = data.xmat[self.hand_body].reshape(3, 3).copy()
         data.ctrl[self.actuator_ids] = self.q_target
 
     def joint_velocities(self, data: mujoco.MjData, hand_velocity: np.ndarray) -> np.ndarray:
         """(6,) arm joint velocities (rad/s) for a hand_base linear velocity (m/s, base frame)."""
-        jac = hand_jacobian(self.model, data, self.dofs)
-        rot_now = data.body(names.HAND_BASE_BODY).xmat.reshape(3, 3)
-        twist = np.concatenate([hand_velocity, ORIENTATION_GAIN * orientation_error(self.rot_hold, rot_now)])
+        # hand_jacobian's (6, 6), without its per-call name lookup and buffers
+        mujoco.mj_jacBody(self.model, data, self._jacp, self._jacr, self.hand_body)
+        jac = self._jac_all_dofs[:, self.dofs]
+        rot_now = data.xmat[self.hand_body].reshape(3, 3)
+        twist = np.concatenate((hand_velocity, ORIENTATION_GAIN * orientation_error(self.rot_hold, rot_now)))
         qdot = damped_pinv_solve(jac, twist)
-        peak = np.max(np.abs(qdot))
+        peak = np.abs(qdot).max()
         if peak > JOINT_SPEED_LIMIT:
             qdot *= JOINT_SPEED_LIMIT / peak
         return qdot
@@ -85,8 +101,9 @@ class ArmVelocityController:
         # integrate the target (so a steady servo error does not become drift), but keep
         # it within MAX_LEAD of the measured position so a blocked arm does not wind up
         q_now = data.qpos[self.qpos_adr]
-        target = np.clip(self.q_target + qdot * dt, q_now - MAX_LEAD, q_now + MAX_LEAD)
-        self.q_target = np.clip(target, self.q_low, self.q_high)
+        # np.minimum(np.maximum()) is np.clip's arithmetic without its dispatch overhead
+        target = np.minimum(np.maximum(self.q_target + qdot * dt, q_now - MAX_LEAD), q_now + MAX_LEAD)
+        self.q_target = np.minimum(np.maximum(target, self.q_low), self.q_high)
         data.ctrl[self.actuator_ids] = self.q_target
 
 

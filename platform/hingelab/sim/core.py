@@ -15,6 +15,7 @@ with ``StepResult.diverged`` instead of raising; stepping again needs ``reset``.
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import mujoco
@@ -33,8 +34,8 @@ from hingelab.sim.scene import load_scene
 CONTROL_HZ = 20.0
 HINGE_SERVO_KP = 2.0  # N m / rad when the privileged hinge command is on
 MAX_HAND_SPEED = 0.5  # m/s: commanded hand velocities beyond this are refused as invalid
-_INSTABILITY_WARNINGS = tuple(int(w) for w in (mujoco.mjtWarning.mjWARN_BADQPOS, mujoco.mjtWarning.mjWARN_BADQVEL,
-                                               mujoco.mjtWarning.mjWARN_BADQACC))
+_INSTABILITY_WARNINGS = np.array([int(w) for w in (mujoco.mjtWarning.mjWARN_BADQPOS, mujoco.mjtWarning.mjWARN_BADQVEL,
+                                                   mujoco.mjtWarning.mjWARN_BADQACC)])
 
 
 @dataclass(frozen=True)
@@ -120,7 +121,7 @@ class SimCore:
         if hand_action is not None:
             action = _checked("hand action", hand_action, 9)
             target = self.hand.q(d) + action
-            d.ctrl[self.hand.actuator_ids] = np.clip(target, self.hand.ctrl_low, self.hand.ctrl_high)
+            d.ctrl[self.hand.actuator_ids] = self.hand.clip_to_ctrl_range(target)
         if arm_velocity is not None:
             if self.arm is None:
                 raise ConfigError(f"scene {self.scene!r} has no arm; arm velocities need tool_pick")
@@ -131,8 +132,8 @@ class SimCore:
             self.arm.command(d, velocity, self.control_dt)
         if hinge_target is not None:
             self._set_hinge_servo(float(_checked("hinge target", np.atleast_1d(hinge_target), 1)[0]))
-        for _ in range(self.n_substeps):
-            mujoco.mj_step(self.model, d)
+        # one call for all substeps: the same state as n single calls, without n Python round trips
+        mujoco.mj_step(self.model, d, nstep=self.n_substeps)
         # after mj_step, positions are new but derived quantities are one substep old
         mujoco.mj_kinematics(self.model, d)
         mujoco.mj_comPos(self.model, d)
@@ -145,7 +146,7 @@ class SimCore:
     def set_hand_targets(self, targets: np.ndarray) -> None:
         """Absolute hand servo targets (9, rad), e.g. from the grasp synergy."""
         targets = _checked("hand targets", targets, 9)
-        self.data.ctrl[self.hand.actuator_ids] = np.clip(targets, self.hand.ctrl_low, self.hand.ctrl_high)
+        self.data.ctrl[self.hand.actuator_ids] = self.hand.clip_to_ctrl_range(targets)
 
     def release_hinge(self) -> None:
         """Turn the privileged hinge servo off again."""
@@ -162,7 +163,8 @@ class SimCore:
 
     # ------------------------------------------------------------------ state
     def _hand_sample(self) -> np.ndarray:
-        return np.concatenate([self.hand.q(self.data), self.hand.qdot(self.data)])
+        """(18,): q (9, rad) then qdot (9, rad/s) of the primary hand joints."""
+        return np.concatenate((self.hand.q(self.data), self.hand.qdot(self.data)))
 
     def hand_observation(self) -> tuple[np.ndarray, np.ndarray]:
         """(q, qdot) of the 9 primary hand joints as seen through this episode's sensor delay."""
@@ -175,7 +177,7 @@ class SimCore:
 
     def _instability_warnings(self) -> int:
         number = self.data.warning.number  # one array read (indexing the warning list per kind cost 4x)
-        return int(sum(number[k] for k in _INSTABILITY_WARNINGS))
+        return int(number[_INSTABILITY_WARNINGS].sum())
 
     def _divergence(self) -> str:
         d = self.data
@@ -183,15 +185,20 @@ class SimCore:
             # MuJoCo has already reset the state to the model's defaults: the episode is void
             return "MuJoCo found a NaN, Inf or huge position, velocity or acceleration"
         # one dot product per array: NaN or Inf anywhere makes it non-finite (overflow only past ~1e154)
-        if not (np.isfinite(d.qpos @ d.qpos) and np.isfinite(d.qvel @ d.qvel)):
+        if not (math.isfinite(d.qpos @ d.qpos) and math.isfinite(d.qvel @ d.qvel)):
             return "NaN or Inf in the simulation state"
         return ""
 
 
 def _checked(what: str, value, size: int) -> np.ndarray:
-    arr = np.asarray(value, dtype=float).reshape(-1)
+    """``value`` as a flat float array of ``size`` finite values; ConfigError otherwise."""
+    arr = np.asarray(value, dtype=float)
+    if arr.ndim != 1:
+        arr = arr.reshape(-1)
     if arr.shape != (size,):
         raise ConfigError(f"{what} must have {size} values, got shape {np.shape(value)}")
-    if not np.isfinite(arr).all():
+    # a finite sum of squares proves every value finite (NaN/Inf propagate); only a non-finite
+    # one (a bad value, or an overflow past ~1e154) needs the element-wise test
+    if not math.isfinite(arr @ arr) and not np.isfinite(arr).all():
         raise ConfigError(f"{what} contains NaN or Inf ({arr.tolist()}); check the policy's output")
     return arr

@@ -39,8 +39,18 @@ class HandActuators:
         self.ctrl_low = model.actuator_ctrlrange[self.actuator_ids, 0].copy()
         self.ctrl_high = model.actuator_ctrlrange[self.actuator_ids, 1].copy()
 
+    # take() with an index array returns a fresh array (a copy, never a view of MjData)
     def q(self, data: mujoco.MjData) -> np.ndarray:
-        return data.qpos[self.qpos_adr].copy()
+        """(9,) primary joint positions, rad."""
+        return data.qpos.take(self.qpos_adr)
 
     def qdot(self, data: mujoco.MjData) -> np.ndarray:
-        return data.qvel[self.qvel_adr].copy()
+        """(9,) primary joint velocities, rad/s."""
+        return data.qvel.take(self.qvel_adr)
+
+    def clip_to_ctrl_range(self, targets: np.ndarray) -> np.ndarray:
+        """(9,) servo targets (rad) clipped to the actuators' ctrlrange.
+
+        The same values as ``np.clip`` for finite targets, without its dispatch overhead.
+        """
+        return np.minimum(np.maximum(targets, self.ctrl_low), self.ctrl_high)
