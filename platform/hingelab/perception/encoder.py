@@ -31,6 +31,7 @@ from torch import nn
 
 from hingelab.errors import ConfigError
 from hingelab.paths import ASSETS_DIR
+from hingelab.perception import encoder_kernels
 
 CHECKPOINT_FORMAT = "hingelab.tool_encoder"
 CHECKPOINT_VERSION = 1
@@ -223,13 +224,24 @@ class ToolEncoder:
         if not np.isfinite(arr).all():
             raise ConfigError("a cloud given to the encoder has NaN or Inf coordinates")
         batch = arr[None] if single else arr
-        if len(batch) <= ONE_THREAD_BATCH:
-            with one_blas_thread():
-                z = self._small_batch_latent_mean(batch)
-        else:
-            with torch.no_grad():
-                z = self._latent_mean(torch.from_numpy(batch)).double().numpy()
+        offset, scale = self.input_offset_and_scale
+        z = self.encode_scaled((batch - offset) / scale)
         return z[0] if single else z
+
+    @functools.cached_property
+    def input_offset_and_scale(self) -> tuple[np.ndarray, np.float32]:
+        """(offset (3,) float32 m, scale float32 m): the network reads points as (p - offset) / scale."""
+        return self.model.offset.numpy().copy(), np.float32(self.model.config.scale_m)
+
+    def encode_scaled(self, scaled: np.ndarray) -> np.ndarray:
+        """``encode`` of clouds already moved and scaled as the network reads them: (B, N, 3)
+        float32, finite, ``(p - offset) / scale`` of tool-frame points (``input_offset_and_scale``)
+        -> z (B, 2) float64. For callers that compute that input in their own compiled pass."""
+        if len(scaled) <= ONE_THREAD_BATCH:
+            with one_blas_thread():
+                return self._small_batch_latent_mean(scaled)
+        with torch.no_grad():
+            return self._latent_mean(torch.from_numpy(np.ascontiguousarray(scaled))).double().numpy()
 
     @functools.cached_property
     def _layers(self):
@@ -240,40 +252,39 @@ class ToolEncoder:
 
     @functools.cached_property
     def _numpy_layers(self):
-        """float32 (weight^T, bias) of the point MLP's and the head's Linear layers, and the input
-        offset and scale: ``_small_batch_latent_mean``'s copy of the weights."""
+        """float32 (weight^T, bias) of the point MLP's and the head's Linear layers:
+        ``_small_batch_latent_mean``'s copy of the weights."""
         point_layers, head_layers = self._layers
 
         def arrays(layer):
             return (layer.weight.detach().numpy().T.copy(), layer.bias.detach().numpy().copy())
-        return ([arrays(layer) for layer in point_layers], [arrays(layer) for layer in head_layers],
-                self.model.offset.numpy().copy(), np.float32(self.model.config.scale_m))
+        return [arrays(layer) for layer in point_layers], [arrays(layer) for layer in head_layers]
 
-    def _small_batch_latent_mean(self, batch: np.ndarray) -> np.ndarray:
-        """``_latent_mean`` in numpy for a few clouds (B, N, 3) float32 -> (B, 2) float64. One cloud
-        per env step spent ~0.1 ms of its ~0.4 ms in torch's per-call cost and its slower kernel
-        on this CPU; OpenBLAS on one thread does the products at its peak rate. The last point
-        layer's ReLU comes after the max pool: max_i relu(x_i + b) = relu(max_i x_i + b), exactly.
-        The same numbers as torch to float32 rounding (~1e-7)."""
-        point_layers, (head_in, head_out), offset, scale = self._numpy_layers
-        out = np.empty((len(batch), self.model.config.latent_dim))
-        for b, cloud in enumerate(batch):
-            x = (cloud - offset) / scale
+    def _small_batch_latent_mean(self, scaled: np.ndarray) -> np.ndarray:
+        """``_latent_mean`` in numpy for a few scaled clouds (B, N, 3) float32 -> (B, 2) float64.
+        One cloud per env step spent ~0.1 ms of its ~0.4 ms in torch's per-call cost and its
+        slower kernel on this CPU; OpenBLAS on one thread does the products at its peak rate.
+        The last point layer's ReLU comes after the max pool: max_i relu(x_i + b) = relu(max_i x_i
+        + b), exactly. Bias and ReLU are one compiled pass over each layer's output (the same
+        float32 operations as numpy's). The same numbers as torch to float32 rounding (~1e-7)."""
+        point_layers, (head_in, head_out) = self._numpy_layers
+        out = np.empty((len(scaled), self.model.config.latent_dim))
+        for b, x in enumerate(scaled):
             for weight, bias in point_layers[:-1]:
                 x = x @ weight
-                x += bias
-                np.maximum(x, 0.0, out=x)
+                encoder_kernels.add_bias_relu(x, bias)
             weight, bias = point_layers[-1]
-            feature = np.maximum((x @ weight).max(axis=0) + bias, 0.0)
+            feature = encoder_kernels.max_pool_bias_relu(x @ weight, bias)
             hidden = np.maximum(feature @ head_in[0] + head_in[1], 0.0)
             out[b] = (hidden @ head_out[0] + head_out[1])[:self.model.config.latent_dim]
         return out
 
-    def _latent_mean(self, batch: torch.Tensor) -> torch.Tensor:
-        """``PointNetVAE.encode``'s mean without nn.Module dispatch (~0.15 of an env step's
-        encode went to it): ReLU after every point layer, max pool, head; the same numbers."""
+    def _latent_mean(self, scaled: torch.Tensor) -> torch.Tensor:
+        """``PointNetVAE.encode``'s mean of scaled clouds (B, N, 3) without nn.Module dispatch (~0.15
+        of an env step's encode went to it): ReLU after every point layer, max pool, head; the same
+        numbers."""
         point_layers, (head_in, head_out) = self._layers
-        x = (batch - self.model.offset) / self.model.config.scale_m
+        x = scaled
         for layer in point_layers:
             x = torch.relu(nn.functional.linear(x, layer.weight, layer.bias))
         hidden = torch.relu(nn.functional.linear(x.amax(dim=1), head_in.weight, head_in.bias))
