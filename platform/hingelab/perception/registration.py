@@ -397,7 +397,7 @@ class CanonicalRegistration:
         points, single = check_clouds(clouds)
         rot_p, pos_p, theta = self._track_start(points, rotation, translation, hinge)
         rot, pos, theta, score, euler, locked = registration_kernels.track_batch(
-            points, rot_p, pos_p, theta, *self._tracking_model(), *_tracking_settings(config))
+            points, rot_p, pos_p, theta, *self._tracking_model(), *tracking_settings(config))
         if locked.any():  # near gimbal lock: scipy's convention (as euler_xyz)
             euler[locked] = Rotation.from_matrix(rot[locked]).as_euler(EULER_SEQUENCE)
         return self._tracked(rot, pos, theta, score, single, euler)
@@ -685,7 +685,7 @@ def _batch_copy(value, shape: tuple) -> np.ndarray:
 
 
 @functools.cache
-def _tracking_settings(config: TrackingConfig) -> tuple:
+def tracking_settings(config: TrackingConfig) -> tuple:
     """The tracking config as ``registration_kernels.track_batch``'s last arguments."""
     return (float(config.rotation_prior_m ** 2), float(config.translation_prior), int(config.max_iterations),
             float(config.tolerance_rad), float(config.tolerance_m))

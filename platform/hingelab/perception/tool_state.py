@@ -35,9 +35,10 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from hingelab.errors import ConfigError
+from hingelab.perception import tool_state_kernels
 from hingelab.perception.encoder import ToolEncoder, load_encoder
 from hingelab.perception.registration import (CanonicalRegistration, Registration, RegistrationConfig, TrackingConfig,
-                                              check_clouds, matrix_to_rotvec, rotvec_to_matrix)
+                                              check_clouds, matrix_to_rotvec, rotvec_to_matrix, tracking_settings)
 
 ALPHA = 0.9  # the paper's smoothing
 CONTROL_DT_S = 0.05  # 20 Hz
@@ -163,7 +164,12 @@ class ToolState:
             raise ConfigError(f"n_distinct must be in [1, {points.shape[1]}] (the cloud's points), got {n_distinct}")
         if len(points) != self.n_tools:
             raise ConfigError(f"ToolState was made for {self.n_tools} tools, got {len(points)} clouds")
+        n_distinct = points.shape[1] if n_distinct is None else n_distinct
         fresh = self._fresh
+        if not fresh.any() and self._compiled_tracking:  # every env step between resets
+            step = self._tracked_step(points, n_distinct)
+            if step is not None:
+                return step
         result = self._register(points, fresh)
         lost = ~fresh & (result.rmse_m > self.lost_rmse_m)
         if lost.any():  # tracking slipped: start those afresh
@@ -171,26 +177,46 @@ class ToolState:
             for name in ("rotation", "translation", "euler_xyz", "hinge_angle", "rmse_m"):
                 getattr(result, name)[lost] = getattr(again, name)
         rot, pos = result.rotation, result.translation
-        any_fresh = fresh.any()  # the masks are for resets; between them (every env step) they are skipped
-        if any_fresh:
-            velocity = np.where(fresh[:, None], 0.0, (pos - self._pos) / self.dt)
-            previous = np.where(fresh[:, None, None], rot, self._rot)  # fresh tools: no motion yet
-            omega = np.where(fresh[:, None], 0.0, matrix_to_rotvec(rot @ np.swapaxes(previous, 1, 2)) / self.dt)
-        else:
-            velocity = (pos - self._pos) / self.dt
-            omega = matrix_to_rotvec(rot @ np.swapaxes(self._rot, 1, 2)) / self.dt
+        velocity = np.where(fresh[:, None], 0.0, (pos - self._pos) / self.dt)
+        previous = np.where(fresh[:, None, None], rot, self._rot)  # fresh tools: no motion yet
+        omega = np.where(fresh[:, None], 0.0, matrix_to_rotvec(rot @ np.swapaxes(previous, 1, 2)) / self.dt)
         z = self.encoder.encode(result.to_tool_frame(points[:, :n_distinct]).astype(np.float32))
+        return self._advance(rot, pos, result.euler_xyz, result.hinge_angle, result.rmse_m, velocity, omega, z,
+                             fresh=fresh, lost=lost)
+
+    @property
+    def _compiled_tracking(self) -> bool:
+        """Whether steps between resets can take ``_tracked_step`` (the registration's compiled loops)."""
+        return isinstance(self.registration, CanonicalRegistration) and self.registration.compiled
+
+    def _tracked_step(self, points: np.ndarray, n_distinct: int) -> ToolStateSample | None:
+        """Steps 1-4 for tools that are all tracked, the arithmetic in one compiled call
+        (``tool_state_kernels.tracked_step``) and the encoder; None when a tool needs the general
+        path (lost, or an edge case the kernel flags), which then does the whole update."""
+        offset, scale = self.encoder.input_offset_and_scale
+        rot, pos, theta, rmse, euler, velocity, omega, scaled, redo = tool_state_kernels.tracked_step(
+            points, n_distinct, self._rot, self._pos, self._motion, self.tracking.predict_motion * self.dt,
+            self._hinge, self.dt, self.lost_rmse_m, offset, scale, *self.registration._tracking_model(),
+            *tracking_settings(self.tracking))
+        if redo.any():
+            return None
+        theta = theta if self.registration.config.articulated else np.full(self.n_tools, np.nan)
+        return self._advance(rot, pos, euler, theta, rmse, velocity, omega, self.encoder.encode_scaled(scaled))
+
+    def _advance(self, rot, pos, euler, theta, rmse, velocity, omega, z, fresh=None, lost=None) -> ToolStateSample:
+        """Step 4 and the bookkeeping for the next step. ``fresh`` (B,) bool: tools registered
+        after a reset, whose averages start at this state; ``lost`` (B,) bool: tools registered
+        afresh after tracking slipped, whose jump is not motion to carry into the next prediction."""
         raw = np.concatenate([velocity, omega, z], axis=1)
         smoothed = self.alpha * raw + (1 - self.alpha) * self._smoothed
-        self._smoothed = np.where(fresh[:, None], raw, smoothed) if any_fresh else smoothed
+        self._smoothed = np.where(fresh[:, None], raw, smoothed) if fresh is not None and fresh.any() else smoothed
+        self._motion = np.where(lost[:, None], 0.0, raw[:, :6]) if lost is not None and lost.any() else raw[:, :6]
         self._rot, self._pos, self._fresh = rot, pos, np.zeros(self.n_tools, bool)
-        # a re-registered tool's jump is not motion to carry into the next prediction
-        self._motion = np.where(lost[:, None], 0.0, raw[:, :6]) if lost.any() else raw[:, :6]
         if self.registration.config.articulated:
-            self._hinge = result.hinge_angle.copy()
+            self._hinge = theta.copy()
         s = self._smoothed
-        return ToolStateSample(pos, rot, result.euler_xyz, velocity, omega, z, s[:, :3].copy(), s[:, 3:6].copy(),
-                               s[:, 6:].copy(), result.rmse_m, self.encoder.calibration)
+        return ToolStateSample(pos, rot, euler, velocity, omega, z, s[:, :3].copy(), s[:, 3:6].copy(),
+                               s[:, 6:].copy(), rmse, self.encoder.calibration)
 
 
 __all__ = ["ALPHA", "ToolState", "ToolStateSample"]
