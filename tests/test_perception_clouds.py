@@ -150,3 +150,9 @@ def test_compiled_draws_are_numpys_own(population, size, batch):
         assert ours.random() == numpys.random()
     with pytest.raises(ValueError, match="without replacement"):
         generator_draws.choice(np.random.default_rng(0), 5, 6)
+
+
+def test_part_poses_of_different_batch_sizes_are_refused(geometry):
+    synthesizer = CloudSynthesizer(geometry, IDEAL, seed=0)
+    with pytest.raises(ConfigError, match="different batch sizes"):
+        synthesizer.from_tool_pose(np.stack([np.eye(3)] * 2), np.zeros(3), 0.1)

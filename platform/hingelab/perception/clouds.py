@@ -270,6 +270,9 @@ class CloudSynthesizer:
         single = np.ndim(rot_a) == 2
         rot_a, rot_b = (np.ascontiguousarray(np.reshape(x, (-1, 3, 3)), dtype=float) for x in (rot_a, rot_b))
         pos_a, pos_b = (np.ascontiguousarray(np.reshape(x, (-1, 3)), dtype=float) for x in (pos_a, pos_b))
+        if not len(rot_a) == len(rot_b) == len(pos_a) == len(pos_b):  # the compiled sampler reads all B of each
+            raise ConfigError(f"part poses of different batch sizes: rotations {len(rot_a)} and {len(rot_b)}, "
+                              f"positions {len(pos_a)} and {len(pos_b)}")
         clouds = self._sample(rot_a, pos_a, rot_b, pos_b, noise_std_m)
         return clouds[0] if single else clouds
 
