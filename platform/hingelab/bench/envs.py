@@ -15,6 +15,7 @@ Goal (issue): at least 0.6 of the raw physics rate.
 from __future__ import annotations
 
 import time
+import types
 
 import gymnasium as gym
 import mujoco
@@ -92,11 +93,16 @@ class _OneWorker:
     def breakdown(self, steps: int) -> dict[str, float]:
         """Milliseconds per step of each part of perception (timers around them for ``steps``
         steps), the replayed physics of those steps, and the rest (total minus those)."""
+        from hingelab.perception import tool_state_kernels
+
         perception = self.env.unwrapped.perception
         tool_state = perception.tool_state
+        # encode_scaled is where every encoding goes (encode too); tracked_step is the compiled step
+        # between resets (tracking and differencing), track and register the general path's parts
         timed = {"cloud": [(perception.synthesizer, "from_sim")],
-                 "registration": [(tool_state.registration, "track"), (tool_state.registration, "register")],
-                 "encoder": [(tool_state.encoder, "encode")]}
+                 "registration": [(tool_state_kernels, "tracked_step"), (tool_state.registration, "track"),
+                                  (tool_state.registration, "register")],
+                 "encoder": [(tool_state.encoder, "encode_scaled")]}
         spent = dict.fromkeys(timed, 0.0)
 
         def timer(part, function):
@@ -108,14 +114,17 @@ class _OneWorker:
                     spent[part] += time.perf_counter() - start
             return wrapped
 
+        originals = [(owner, name, getattr(owner, name)) for methods in timed.values() for owner, name in methods]
         for part, methods in timed.items():
             for owner, name in methods:
                 setattr(owner, name, timer(part, getattr(owner, name)))
         try:
             total = steps / self.rate(steps)
         finally:
-            for methods in timed.values():
-                for owner, name in methods:
+            for owner, name, original in originals:
+                if isinstance(owner, types.ModuleType):
+                    setattr(owner, name, original)
+                else:
                     del owner.__dict__[name]  # back to the class's method
         physics = steps / self.replayed_raw_rate()
         out = {"physics": physics, **spent}
@@ -203,7 +212,8 @@ def run(quick: bool = False) -> BenchTable:
                "so each vector step waits for the slower one). SubprocVecEnv: stable-baselines3's, the same 2 "
                "envs, taking turns with the others in every round.",
                "1 worker, ms per step: one more round of the 1-worker run with timers around the perception's "
-               "parts (cloud synthesis; registration, tracking and the re-registrations of resets; encoder), "
+               "parts (cloud synthesis; registration: the compiled tracking step between resets, with the "
+               "differencing and the encoder's input, and the registrations of resets and lost tools; encoder), "
                "physics = the replayed raw steps of that round, rest = everything else of env.step and reset "
                "(the sim's bookkeeping, privileged state, rewards, observation, delays)."],
         config={"steps": steps, "rounds": rounds},

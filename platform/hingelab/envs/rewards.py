@@ -22,6 +22,7 @@ position stands for; the registered tool frame sits on the hinge, 12 cm behind t
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import numpy as np
@@ -68,7 +69,8 @@ def effort_quantities(v_bar: np.ndarray, w_bar: np.ndarray, qdot: np.ndarray, ca
     rot = rotvec_to_matrix(np.asarray(w_bar, float)[None] * control_dt)[0]
     shift = np.asarray(v_bar, float) * control_dt
     moved = pose_kernels.mean_displacement(np.ascontiguousarray(canonical_points, dtype=float), rot, shift)
-    return float(moved), float(np.linalg.norm(qdot))
+    qdot = np.asarray(qdot, float)
+    return float(moved), math.sqrt(qdot @ qdot)  # np.linalg.norm's formula for a vector, without its overhead
 
 
 def effort_terms(tool_motion_m, finger_speed, config: LowLevelRewardConfig):
