@@ -397,12 +397,12 @@ class CanonicalRegistration:
         points, single = check_clouds(clouds)
         rot_p, pos_p, theta = self._track_start(points, rotation, translation, hinge)
         rot, pos, theta, score, euler, locked = registration_kernels.track_batch(
-            points, rot_p, pos_p, theta, *self._tracking_model(), *tracking_settings(config))
+            points, rot_p, pos_p, theta, *self.tracking_arguments(), *tracking_settings(config))
         if locked.any():  # near gimbal lock: scipy's convention (as euler_xyz)
             euler[locked] = Rotation.from_matrix(rot[locked]).as_euler(EULER_SEQUENCE)
         return self._tracked(rot, pos, theta, score, single, euler)
 
-    def _tracking_model(self) -> tuple:
+    def tracking_arguments(self) -> tuple:
         """The model arrays and settings ``registration_kernels.track_batch`` takes, in its argument
         order (made once: assembling them cost ~10 us of a ~0.1 ms tracking step)."""
         if self._tracking_arguments is None:

@@ -196,7 +196,7 @@ class ToolState:
         offset, scale = self.encoder.input_offset_and_scale
         rot, pos, theta, rmse, euler, velocity, omega, scaled, redo = tool_state_kernels.tracked_step(
             points, n_distinct, self._rot, self._pos, self._motion, self.tracking.predict_motion * self.dt,
-            self._hinge, self.dt, self.lost_rmse_m, offset, scale, *self.registration._tracking_model(),
+            self._hinge, self.dt, self.lost_rmse_m, offset, scale, *self.registration.tracking_arguments(),
             *tracking_settings(self.tracking))
         if redo.any():
             return None

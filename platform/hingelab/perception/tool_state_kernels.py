@@ -33,8 +33,8 @@ def tracked_step(points, n_distinct, rot_prev, pos_prev, motion, share, hinge, d
 
     points (B, N, 3) hand_base m; rot_prev (B, 3, 3), pos_prev (B, 3): the last poses; motion
     (B, 6): the last step's v, omega, of which ``share`` (predict_motion * dt) moves the
-    prediction; hinge (B,): the last openings. The rest: ``CanonicalRegistration._tracking_model``
-    and ``_tracking_settings``.
+    prediction; hinge (B,): the last openings. The rest: ``CanonicalRegistration.tracking_arguments``
+    and ``registration.tracking_settings``.
 
     Returns rot (B, 3, 3), pos (B, 3), opening (B,), rmse (B,) m, Euler xyz (B, 3), v (B, 3) m/s,
     omega (B, 3) rad/s, the encoder's input ((B, n_distinct, 3) float32: the first n_distinct
