@@ -14,6 +14,8 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
+ORTHONORMALITY_TOLERANCE = 1e-3  # max |R R^T - I| of a rotation matrix (pose_check's second value)
+
 
 @njit(cache=True)
 def rotvecs_to_matrices(rotvec):
@@ -170,5 +172,5 @@ def synthesize_clouds(bank, bank_part, index, refill, noise, noise_std, rot_a, p
     return out
 
 
-__all__ = ["euler_angles_xyz", "hand_frame_poses", "matrices_to_rotvecs", "mean_displacement", "pose_check",
+__all__ = ["ORTHONORMALITY_TOLERANCE", "euler_angles_xyz", "hand_frame_poses", "matrices_to_rotvecs", "mean_displacement", "pose_check",
            "rotvecs_to_matrices", "synthesize_clouds"]

@@ -696,7 +696,7 @@ def _check_prior(rot: np.ndarray, pos: np.ndarray) -> None:
                                                      np.ascontiguousarray(pos, dtype=float))
     if not finite:
         raise ConfigError("the prior pose for registration has NaN or Inf; pass prior=None for a global start")
-    if orthonormality > 1e-3:
+    if orthonormality > pose_kernels.ORTHONORMALITY_TOLERANCE:
         raise ConfigError("the prior rotation for registration is not a rotation matrix (R R^T != I)")
 
 

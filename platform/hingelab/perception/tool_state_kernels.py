@@ -17,10 +17,9 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-from hingelab.perception.pose_kernels import euler_angles_xyz, matrices_to_rotvecs, rotvecs_to_matrices
+from hingelab.perception.pose_kernels import (ORTHONORMALITY_TOLERANCE, euler_angles_xyz, matrices_to_rotvecs,
+                                              pose_check, rotvecs_to_matrices)
 from hingelab.perception.registration_kernels import track_one
-
-PRIOR_TOLERANCE = 1e-3  # |R R^T - I| beyond this is not a rotation (registration._check_prior)
 
 
 @njit(cache=True)
@@ -54,15 +53,8 @@ def tracked_step(points, n_distinct, rot_prev, pos_prev, motion, share, hinge, d
                 rot_p[i, j] = turn[b, i, 0] * rot_prev[b, 0, j] + turn[b, i, 1] * rot_prev[b, 1, j] + \
                     turn[b, i, 2] * rot_prev[b, 2, j]
             pos_p[i] = pos_prev[b, i] + share * motion[b, i]
-        if not (np.isfinite(rot_p).all() and np.isfinite(pos_p).all()):
-            redo[b] = True
-            continue
-        worst = 0.0
-        for i in range(3):
-            for k in range(3):
-                dot = rot_p[i, 0] * rot_p[k, 0] + rot_p[i, 1] * rot_p[k, 1] + rot_p[i, 2] * rot_p[k, 2]
-                worst = max(worst, abs(dot - (1.0 if i == k else 0.0)))
-        if worst > PRIOR_TOLERANCE:
+        finite, orthonormality = pose_check(rot_p.reshape((1, 3, 3)), pos_p.reshape((1, 3)))
+        if not finite or orthonormality > ORTHONORMALITY_TOLERANCE:  # registration._check_prior's test
             redo[b] = True
             continue
         start = min(max(hinge[b], theta_lo), theta_hi)

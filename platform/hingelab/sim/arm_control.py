@@ -28,12 +28,16 @@ def _arm_dofs(model: mujoco.MjModel) -> np.ndarray:
     return np.array([model.jnt_dofadr[model.joint(j).id] for j in names.ARM_JOINTS])
 
 
-def hand_jacobian(model: mujoco.MjModel, data: mujoco.MjData, dofs: np.ndarray) -> np.ndarray:
-    """(6, 6): rows linear then angular velocity of hand_base (world frame), columns arm joints."""
-    jacp = np.zeros((3, model.nv))
-    jacr = np.zeros((3, model.nv))
-    mujoco.mj_jacBody(model, data, jacp, jacr, model.body(names.HAND_BASE_BODY).id)
-    return np.vstack([jacp[:, dofs], jacr[:, dofs]])
+def hand_jacobian(model: mujoco.MjModel, data: mujoco.MjData, dofs: np.ndarray, hand_body: int | None = None,
+                  out: np.ndarray | None = None) -> np.ndarray:
+    """(6, 6): rows linear then angular velocity of hand_base (world frame), columns arm joints.
+
+    ``hand_body`` (its id) and ``out`` (a (6, nv) buffer for all dofs) spare a per-step caller the
+    name lookup and the allocations."""
+    body = model.body(names.HAND_BASE_BODY).id if hand_body is None else hand_body
+    full = np.zeros((6, model.nv)) if out is None else out
+    mujoco.mj_jacBody(model, data, full[:3], full[3:], body)
+    return full[:, dofs]
 
 
 @functools.cache
@@ -72,9 +76,7 @@ class ArmVelocityController:
         self.rot_hold = np.eye(3)
         self.q_target = np.zeros(6)
         self.hand_body = model.body(names.HAND_BASE_BODY).id
-        # mj_jacBody's output, reused every step: rows linear then angular velocity, all nv columns
-        self._jac_all_dofs = np.zeros((6, model.nv))
-        self._jacp, self._jacr = self._jac_all_dofs[:3], self._jac_all_dofs[3:]
+        self._jac_all_dofs = np.zeros((6, model.nv))  # hand_jacobian's buffer, reused every step
 
     def reset(self, data: mujoco.MjData) -> None:
         """Hold the current joint positions and hand orientation."""
@@ -84,9 +86,7 @@ class ArmVelocityController:
 
     def joint_velocities(self, data: mujoco.MjData, hand_velocity: np.ndarray) -> np.ndarray:
         """(6,) arm joint velocities (rad/s) for a hand_base linear velocity (m/s, base frame)."""
-        # hand_jacobian's (6, 6), without its per-call name lookup and buffers
-        mujoco.mj_jacBody(self.model, data, self._jacp, self._jacr, self.hand_body)
-        jac = self._jac_all_dofs[:, self.dofs]
+        jac = hand_jacobian(self.model, data, self.dofs, self.hand_body, self._jac_all_dofs)
         rot_now = data.xmat[self.hand_body].reshape(3, 3)
         twist = np.concatenate((hand_velocity, ORIENTATION_GAIN * orientation_error(self.rot_hold, rot_now)))
         qdot = damped_pinv_solve(jac, twist)
