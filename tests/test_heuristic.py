@@ -10,6 +10,7 @@ import pytest
 
 from hingelab.episodes import read_episode
 from hingelab.episodes.dataset import Dataset
+from hingelab.episodes.verify import verify_dataset
 from hingelab.heuristic.rollout import HeuristicRunConfig, generate_heuristic_dataset
 
 
@@ -38,6 +39,8 @@ def test_heuristic_picks_the_sphere_and_records_every_step(sphere_dataset):
     assert hinge.max() - hinge.min() > 0.05  # it opened and closed the tweezer
     assert steps["terminated"][-1] and not steps["terminated"][:-1].any()
     assert episode.metadata["object_size"] in ("0.02", 0.02)
+    good, problems = verify_dataset(out)  # length counts the reset's record too: still sound
+    assert len(good) == 3 and problems == []
 
 
 def test_same_seed_same_dataset_whatever_the_workers(sphere_dataset, tmp_path):

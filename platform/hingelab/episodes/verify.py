@@ -3,8 +3,9 @@
 A file passes when: it opens as MCAP with a summary (not cut off), every channel
 uses the contract's protobuf schema for its topic, it has an ``episode`` record
 with the required keys, every chunk passes its CRC, every message decodes, and
-the ``/step`` count matches ``length``. ``.partial`` files are unfinished writes
-(a writer still running, or killed): they are reported, and ``recover`` salvages them.
+the ``/step`` messages match ``length`` (one per step, the reset's record aside). ``.partial``
+files are unfinished writes (a writer still running, or killed): they are reported, and
+``recover`` salvages them.
 """
 
 from __future__ import annotations
@@ -50,20 +51,28 @@ def verify_episode(path: Path) -> Problem | None:
         if text.startswith(str(path)):
             text = text[len(str(path)):].lstrip(": ")
         return Problem(path, kind, text)
-    steps = 0
+    indices = []  # of the /step messages without final
     try:
         with open(path, "rb") as stream:
             reader = SeekingReader(stream, validate_crcs=True)
             for _, channel, message in reader.iter_messages(log_time_order=False):
                 decoded = S.TOPIC_TYPES[channel.topic].FromString(message.data)
                 if channel.topic == S.TOPIC_STEP and not decoded.final:
-                    steps += 1
+                    indices.append(decoded.index)
     except Exception as exc:  # noqa: BLE001 - any failure to read a message is corruption
         return Problem(path, "corrupt", f"{type(exc).__name__}: {exc}; restore it, or salvage with "
                                         f"hingelab datasets recover {path} --out NEWFILE")
-    if S.KEY_LENGTH in meta and steps and steps != meta[S.KEY_LENGTH]:
-        return Problem(path, "corrupt", f"{steps} /step messages but length={meta[S.KEY_LENGTH]}")
+    if S.KEY_LENGTH in meta and indices and not _steps_match(sorted(indices), int(meta[S.KEY_LENGTH])):
+        return Problem(path, "corrupt", f"/step messages {indices[0]}..{indices[-1]} ({len(indices)} of them) do "
+                                        f"not match length={meta[S.KEY_LENGTH]}")
     return None
+
+
+def _steps_match(indices: list[int], length: int) -> bool:
+    """Whether the /step indices are those of ``length`` logged steps: one per step, or one per
+    step after the first when that first step is the reset's record (an env's recording logs the
+    reset observation with no transition, so its first /step has index 1)."""
+    return indices in (list(range(length)), list(range(1, length)))
 
 
 def verify_dataset(root, progress: bool = False) -> tuple[list[Path], list[Problem]]:
