@@ -8,7 +8,8 @@ from pathlib import Path
 
 from hingelab.bench import BENCHMARKS
 from hingelab.errors import ConfigError
-from hingelab.provenance import code_version
+from hingelab.paths import ANALYSIS_DIR
+from hingelab.provenance import code_version, require_clean_for
 
 
 def add_parser(subparsers) -> None:
@@ -27,6 +28,9 @@ def add_parser(subparsers) -> None:
                    help="perception only: an encoder checkpoint to measure instead of the shipped one")
     p.add_argument("--out", type=Path, default=None,
                    help="folder for NAME.md and NAME.json (default: analysis/bench/)")
+    p.add_argument("--allow-dirty", action="store_true",
+                   help="write under analysis/ even if platform/, assets/ or pyproject.toml have uncommitted "
+                        "changes (the table then names the commit +dirty and a hash of the changes)")
     p.set_defaults(func=run)
 
 
@@ -44,9 +48,9 @@ def run(args: argparse.Namespace) -> int:
         if args.name != "perception":
             raise ConfigError("--encoder is an option of `hingelab bench perception` only")
         options["encoder"] = args.encoder
-    # the code version as the run starts (git_commit is cached): the bench's own figures and
-    # plots, written into the checkout while it runs, must not mark the code "+dirty"
-    code_version()
+    # before the run, not after: a long benchmark must not end in a refusal
+    require_clean_for(args.out or ANALYSIS_DIR / "bench", args.allow_dirty, f"hingelab bench {args.name}")
+    code_version()  # the version as the run starts (cached)
     table = module.run(quick=args.quick, **options)
     print(table.markdown())
     md_path, json_path = table.write(args.out)

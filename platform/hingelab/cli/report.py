@@ -24,6 +24,9 @@ def add_parser(subparsers) -> None:
     p.add_argument("--runs", type=Path, nargs="+", action="extend", default=[], metavar="RUNDIR",
                    help="training run folders (each with metrics.csv, or */metrics.csv per seed)")
     p.add_argument("--out", type=Path, required=True, help="report folder, e.g. analysis/NAME")
+    p.add_argument("--allow-dirty", action="store_true",
+                   help="write under analysis/ even if platform/, assets/ or pyproject.toml have uncommitted "
+                        "changes (the report then names the commit +dirty and a hash of the changes)")
     p.add_argument("--title", default=None, help="report title (default: the dataset names)")
     p.add_argument("--attempts", type=int, nargs="+", default=[1, 2, 3], metavar="K",
                    help="k of the within-k-attempts rates (default 1 2 3)")
@@ -33,7 +36,9 @@ def add_parser(subparsers) -> None:
 def run(args: argparse.Namespace) -> int:
     from hingelab.analysis import build_report
     from hingelab.errors import ConfigError
+    from hingelab.provenance import require_clean_for
 
+    require_clean_for(args.out, args.allow_dirty, "hingelab report")
     if any(k < 1 for k in args.attempts):
         raise ConfigError(f"--attempts must be positive integers, not {args.attempts}")
     started = time.perf_counter()
