@@ -29,6 +29,8 @@ def add_parser(subparsers) -> None:
                           "(rad) it serves; repeat, closed end first; the last has no bound")
     low.add_argument("--out", type=Path, required=True,
                      help="manifest to write (.json; checkpoint paths are stored relative to its folder)")
+    low.add_argument("--force", action="store_true",
+                     help="replace an existing manifest under assets/ (the shipped low level) on purpose")
     low.set_defaults(func=run_low)
 
 
@@ -49,6 +51,9 @@ def parse_expert(text: str) -> tuple[Path, float | None]:
 def run_low(args: argparse.Namespace) -> int:
     from hingelab.learning.goal_experts import load_experts, write_experts
 
+    from hingelab.paths import refuse_to_replace_shipped
+
+    refuse_to_replace_shipped(args.out, args.force)
     experts = [parse_expert(text) for text in args.expert]
     if any(bound is None for _, bound in experts[:-1]) or experts[-1][1] is not None:
         raise ConfigError("give every --expert but the last an opening bound (CHECKPOINT:UP_TO_RAD), and the "

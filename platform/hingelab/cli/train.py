@@ -35,7 +35,7 @@ def add_parser(subparsers) -> None:
 
 # ---------------------------------------------------------------------------- encoder
 def add_encoder_parser(learners) -> None:
-    from hingelab.perception.encoder import SHIPPED_CHECKPOINT, EncoderConfig
+    from hingelab.perception.encoder import EncoderConfig
     from hingelab.perception.train_encoder import TrainEncoderConfig
 
     d = TrainEncoderConfig()
@@ -54,8 +54,12 @@ def add_encoder_parser(learners) -> None:
     p.add_argument("--seed", type=int, default=d.seed, help=f"seed of weights and batches (default {d.seed})")
     p.add_argument("--threads", type=int, default=d.threads,
                    help=f"torch CPU threads (default {d.threads}; 1 to train two encoders side by side)")
-    p.add_argument("--out", type=Path, default=SHIPPED_CHECKPOINT,
-                   help=f"checkpoint to write (default {SHIPPED_CHECKPOINT})")
+    p.add_argument("--out", type=Path, default=None,
+                   help="checkpoint to write (default runs/encoder_seed{SEED}/encoder.pt); with --recalibrate or "
+                        "--recalibrate-curve, the checkpoint to rewrite (required)")
+    p.add_argument("--force", action="store_true",
+                   help="replace an existing checkpoint, e.g. the shipped assets/checkpoints/encoder.pt "
+                        "(every shipped policy is bound to the shipped encoder: replace it only on purpose)")
     p.add_argument("--no-progress", action="store_true", help="log one JSON line per epoch instead of a bar")
     p.add_argument("--recalibrate", action="store_true",
                    help="do not train: fit the latent -> opening reader of the checkpoint --out on the training "
@@ -72,9 +76,14 @@ def add_encoder_parser(learners) -> None:
 
 
 def run_encoder(args: argparse.Namespace) -> int:
+    from hingelab.paths import REPO_ROOT, refuse_to_replace_shipped
     from hingelab.perception.encoder import EncoderConfig
     from hingelab.perception.train_encoder import TrainEncoderConfig, train_encoder
 
+    if args.recalibrate or args.recalibrate_curve:
+        if args.out is None:
+            raise ConfigError("--recalibrate and --recalibrate-curve rewrite a checkpoint: name it with --out CKPT")
+        refuse_to_replace_shipped(args.out, args.force)
     if args.recalibrate_curve:
         return run_curve_recalibration(args)
     if args.data is None:
@@ -88,6 +97,10 @@ def run_encoder(args: argparse.Namespace) -> int:
               f"held-out ones (mean error {m['mae_opening_rad_val'] * 1000:.1f} mrad); fingerprint "
               f"{encoder.fingerprint} (unchanged).")
         return 0
+    args.out = args.out or REPO_ROOT / "runs" / f"encoder_seed{args.seed}" / "encoder.pt"
+    refuse_to_replace_shipped(args.out, args.force)
+    if args.out.exists() and not args.force:
+        raise ConfigError(f"{args.out} exists: give --out a new checkpoint path, or --force to replace it")
     config = TrainEncoderConfig(epochs=args.epochs, batch_size=args.batch_size, learning_rate=args.lr, seed=args.seed,
                                 threads=args.threads)
     _, m = train_encoder(args.data, args.out, config, EncoderConfig(beta=args.beta), progress=not args.no_progress)
@@ -185,7 +198,8 @@ def add_low_parser(learners) -> None:
     p.add_argument("--offline", type=int, default=0, metavar="UPDATES",
                    help="train from the --from datasets alone for this many updates (no env rollouts)")
     p.add_argument("--out", type=Path, default=None,
-                   help="run folder (default runs/low_seed{SEED}[_no_effort])")
+                   help="run folder (default runs/low_seed{SEED}[_no_effort]); never under assets/ without --force")
+    p.add_argument("--force", action="store_true", help="allow a run folder that replaces files under assets/")
     p.add_argument("--resume", action="store_true",
                    help="continue the run in --out from its last checkpoint (its saved config is kept; "
                         "--steps may raise the budget)")
@@ -208,7 +222,7 @@ def _opening_band(text: str) -> tuple[float, float]:
 def run_low(args: argparse.Namespace) -> int:
     from hingelab.learning.low_level_config import LowLevelTrainConfig
     from hingelab.learning.train_low import train_low
-    from hingelab.paths import REPO_ROOT
+    from hingelab.paths import REPO_ROOT, refuse_to_replace_shipped
 
     config = LowLevelTrainConfig(
         steps=args.steps, seed=args.seed, use_effort=not args.no_effort, effort_weight=args.effort_weight,
@@ -222,6 +236,7 @@ def run_low(args: argparse.Namespace) -> int:
         demo_bc_weight=args.bc_weight, bc_pretrain_updates=args.bc_pretrain, demo_q_filter=not args.bc_no_q_filter,
         init_from=str(args.init_from.resolve()) if args.init_from else "")
     out = args.out or REPO_ROOT / "runs" / f"low_seed{args.seed}{'' if config.use_effort else '_no_effort'}"
+    refuse_to_replace_shipped(out, args.force)
     s = train_low(config, out, resume=args.resume, progress=not args.no_progress, name=args.name)
     last, best = s["last_evaluation"], s["best"]
     prefill = ""

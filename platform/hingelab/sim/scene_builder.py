@@ -21,7 +21,8 @@ from pathlib import Path
 import mujoco
 import numpy as np
 
-from hingelab.paths import ASSETS_DIR, SCENES_DIR
+from hingelab.errors import ConfigError
+from hingelab.paths import ASSETS_DIR, SCENES_DIR, refuse_to_replace_shipped
 from hingelab.provenance import code_version
 from hingelab.sim import names
 from hingelab.sim.arm_control import solve_hand_pose
@@ -273,8 +274,14 @@ def _header(name: str) -> str:
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    parser.add_argument("--out", type=Path, default=SCENES_DIR, help="folder for the scene files")
+    parser.add_argument("--out", type=Path, default=SCENES_DIR, help=f"folder for the scene files (default {SCENES_DIR})")
+    parser.add_argument("--force", action="store_true",
+                        help="replace the shipped scenes under assets/ (shipped policies were trained in them)")
     args = parser.parse_args()
+    try:
+        refuse_to_replace_shipped(args.out / "tool_shape.xml", args.force)
+    except ConfigError as exc:
+        parser.exit(1, f"{parser.prog}: error: {exc}\n")
     print(json.dumps(build(args.out), indent=1))
 
 
