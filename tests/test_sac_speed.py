@@ -1,6 +1,12 @@
-"""FastSAC is SB3's SAC, faster: same update, same saves, HER, determinism. Tiny nets, < 30 s."""
+"""FastSAC is SB3's SAC, faster: same update, same saves, HER, determinism. Tiny nets, < 30 s.
+And ``hingelab bench sac``, which measures it against SB3's SAC: its figures and its table (~20 s)."""
 
 from __future__ import annotations
+
+import json
+import statistics
+import subprocess
+import sys
 
 import gymnasium as gym
 import numpy as np
@@ -10,7 +16,8 @@ from gymnasium import spaces
 from stable_baselines3 import SAC, HerReplayBuffer
 from stable_baselines3.common.logger import configure
 
-from hingelab.learning.sac_speed import FastSAC, update_rate
+from hingelab.bench.sac import ARMS, BASELINE, OURS, build_table, ratio_name, update_rate
+from hingelab.learning.sac_speed import FastSAC
 
 NET = dict(net_arch=[32, 32])
 
@@ -130,7 +137,6 @@ def test_critic_loss_decreases_and_actor_moves():
     last = model.logger.name_to_value["train/critic_loss"]
     assert last < 0.3 * first
     assert all(not th.equal(a, b) for a, b in zip(actor_before, model.actor.parameters()))
-    assert update_rate(model, 5, 64) > 0
 
 
 def test_save_load_roundtrip_also_as_plain_sac(tmp_path):
@@ -172,3 +178,91 @@ def test_her_learn_and_same_seed_same_result():
     assert first._n_updates > 0
     for (name, a), b in zip(_params(first).items(), _params(second).values()):
         assert th.equal(a, b), name
+
+
+# --- hingelab bench sac ------------------------------------------------------------------------
+
+
+def test_update_rate_is_the_updates_it_ran_over_the_time_they_took():
+    """Exactly n updates, timed from just before the first to just after the last."""
+    model = _filled(FastSAC)
+    model.train(gradient_steps=2, batch_size=64)
+    before = model._n_updates
+    seen, times = [], iter([100.0, 102.5])
+
+    def clock():
+        seen.append(model._n_updates)  # how many updates had run when the clock was read
+        return next(times)
+
+    assert update_rate(model, 5, 64, clock=clock) == pytest.approx(5 / 2.5)
+    assert seen == [before, before + 5] and model._n_updates == before + 5
+
+
+def test_bench_table_figures_are_medians_of_the_blocks_and_ratios_of_the_medians():
+    rates = {1: {BASELINE: [50.0, 60.0, 40.0], "SB3 SAC + configure_torch": [52.0, 48.0, 70.0],
+                 OURS: [80.0, 64.0, 66.0]},
+             2: {BASELINE: [90.0, 10.0, 100.0], "SB3 SAC + configure_torch": [1.0, 2.0, 3.0],
+                 OURS: [120.0, 30.0, 110.0]}}
+    config = {"stable_baselines3": "x", "torch": "y", "batch_size": 256, "buffer_size": 100, "rounds": 3,
+              "updates_per_block": 10, "profile_updates": 10}
+    profile = {arm: {"backward (3 losses)": 5.0, "total under cProfile": 9.0} for arm in ARMS}
+    table = build_table(rates, profile, config)
+    rows = {(r["threads"], r["config"]): r for r in table.rows}
+    assert set(rows) == {(t, arm) for t in (1, 2) for arm in ARMS}
+    assert rows[(1, BASELINE)]["updates/s"] == 50.0 and rows[(1, OURS)]["updates/s"] == 66.0
+    assert (rows[(2, OURS)]["min"], rows[(2, OURS)]["max"]) == (30.0, 120.0)
+    assert rows[(1, OURS)]["ms/update"] == pytest.approx(1e3 / 66.0)
+    assert rows[(1, OURS)]["/ SB3 SAC"] == pytest.approx(66.0 / 50.0)
+    assert rows[(2, OURS)]["/ SB3 SAC"] == pytest.approx(110.0 / 90.0)
+    assert table.ratios[ratio_name(1)] == pytest.approx(66.0 / 50.0)
+    assert table.ratios[ratio_name(2)] == pytest.approx(110.0 / 90.0)
+    assert list(table.ratios)[0] == ratio_name(1)  # the headline first
+    assert table.config["block_rates"]["2"][OURS] == [120.0, 30.0, 110.0]
+    assert any("backward (3 losses): 5.00 / 5.00 / 5.00" in note for note in table.notes)
+
+
+def _head():
+    from hingelab.paths import REPO_ROOT
+
+    return subprocess.run(["git", "-C", str(REPO_ROOT), "rev-parse", "HEAD"], capture_output=True, text=True,
+                          check=True).stdout.strip()
+
+
+def test_bench_sac_quick_writes_a_table_whose_figures_agree(tmp_path):
+    from hingelab import __version__, provenance
+
+    head_before = _head()
+    result = subprocess.run([sys.executable, "-m", "hingelab.cli.main", "bench", "sac", "--quick", "--out",
+                             str(tmp_path)], capture_output=True, text=True, timeout=300)
+    assert result.returncode == 0, result.stderr[-3000:]
+    table = json.loads((tmp_path / "sac.json").read_text())
+    assert ratio_name(1) in (tmp_path / "sac.md").read_text() and ratio_name(1) in result.stdout
+
+    rows = {(r["threads"], r["config"]): r for r in table["rows"]}
+    assert set(rows) == {(1, arm) for arm in ARMS}
+    rounds = table["config"]["rounds"]
+    for arm in ARMS:
+        blocks = table["config"]["block_rates"]["1"][arm]
+        assert len(blocks) == rounds and all(rate > 0 for rate in blocks)
+        row = rows[(1, arm)]
+        assert row["updates/s"] == pytest.approx(statistics.median(blocks), rel=1e-12)
+        assert row["min"] <= row["updates/s"] <= row["max"]
+        assert row["ms/update"] == pytest.approx(1e3 / row["updates/s"])
+        assert row["role"] == ARMS[arm][0]
+    ours, baseline = rows[(1, OURS)]["updates/s"], rows[(1, BASELINE)]["updates/s"]
+    assert table["ratios"][ratio_name(1)] == pytest.approx(ours / baseline, rel=1e-12)
+    assert rows[(1, OURS)]["/ SB3 SAC"] == pytest.approx(ours / baseline, rel=1e-12)
+    assert 0.2 < ours / baseline < 5  # a quick run is noisy; a factor of 5 is a measuring bug
+
+    for arm, parts in table["config"]["profile_ms_per_update"].items():  # the profile found each part
+        for part in ("replay sampling + to-tensor", "actor forward (obs + next_obs, with squashed Gaussian)",
+                     "critic forward (target + critic loss + actor loss)", "backward (3 losses)",
+                     "Adam step (3 optimizers)", "polyak update"):
+            assert parts[part] > 0, (arm, part)
+
+    recorded = table["code"]["git_commit"]  # the code version as the run started
+    assert recorded.split("+")[0] in {head_before, _head()}
+    provenance.git_commit.cache_clear()
+    assert ("+dirty" in recorded) == provenance.is_dirty(provenance.git_commit())
+    assert table["code"]["hingelab_version"] == __version__
+    assert table["config"]["torch"] == th.__version__ and table["config"]["quick"] is True

@@ -2,13 +2,38 @@
 
 Each benchmark measures ours against a named baseline in one run and writes
 ``analysis/bench/NAME.md`` and ``.json`` through ``write_bench``.
+
+Each benchmark's module also declares ``MEASURES``: the repository paths (files or folders)
+of the code and models its figures depend on. A committed table is stale once a commit after
+the one it records changes any of them (``hingelab.bench.freshness``; tests/test_bench_tables.py).
 """
 
-# name -> module; a benchmark's module exposes run(quick: bool) -> BenchTable
+from __future__ import annotations
+
+# name -> module; a benchmark's module exposes run(quick: bool) -> BenchTable and MEASURES
 BENCHMARKS = {
     "sim": "hingelab.bench.sim",
     "datasets": "hingelab.bench.datasets",
     "perception": "hingelab.bench.perception",
     "envs": "hingelab.bench.envs",
     "train": "hingelab.bench.train",
+    "sac": "hingelab.bench.sac",
 }
+
+# measured by every benchmark: the locked package versions (torch, MuJoCo, numba, SB3, ...)
+COMMON_MEASURES = ("constraints.txt",)
+
+
+def measured_paths(name: str) -> tuple[str, ...]:
+    """Repository paths whose changes make benchmark ``name``'s table stale.
+
+    The module's ``MEASURES``, the module itself and ``COMMON_MEASURES``.
+    """
+    import importlib
+    from pathlib import Path
+
+    from hingelab.paths import REPO_ROOT
+
+    module = importlib.import_module(BENCHMARKS[name])
+    own = Path(module.__file__).resolve().relative_to(REPO_ROOT).as_posix()
+    return (*module.MEASURES, own, *COMMON_MEASURES)

@@ -37,6 +37,9 @@ from hingelab.episodes.reader import EpisodeFile, read_episode
 from hingelab.episodes.synthetic import CONTROL_DT_S, tweezer_cloud
 from hingelab.episodes.writer import EpisodeWriter
 
+# the code this benchmark measures (the bench module itself: hingelab.bench.measured_paths)
+MEASURES = ("platform/hingelab/episodes",)
+
 STEPS_PER_EPISODE = 200
 
 

@@ -24,6 +24,10 @@ import numpy as np
 from hingelab.bench.table import BenchTable
 from hingelab.envs import TOOL_PICK_ID, TOOL_SHAPE_ID
 
+# the code and models this benchmark measures (the bench module itself: hingelab.bench.measured_paths):
+# the envs, their physics and perception, and every asset (ToolPick-v0 runs the shipped low-level policy)
+MEASURES = ("platform/hingelab/envs", "platform/hingelab/sim", "platform/hingelab/perception", "assets")
+
 
 WARMUP_STEPS = 20  # untimed steps first, in every worker
 # the replayed steps' start: positions, velocities, time and the solver's warm start (without it the

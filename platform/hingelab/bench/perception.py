@@ -30,6 +30,11 @@ from hingelab.bench.table import BenchTable
 from hingelab.errors import ConfigError
 from hingelab.paths import ANALYSIS_DIR
 
+# the code and models this benchmark measures (the bench module itself: hingelab.bench.measured_paths);
+# the tool's geometry comes from tweezer.xml, its frame names from sim/names.py
+MEASURES = ("platform/hingelab/perception", "platform/hingelab/sim/names.py", "assets/tweezer",
+            "assets/checkpoints/encoder.pt")
+
 PLOT_PATH = ANALYSIS_DIR / "perception" / "latent_space.png"
 SEED = 2026  # held-out: datasets and training use small seeds
 

@@ -18,6 +18,10 @@ import numpy as np
 from hingelab.bench.table import BenchTable
 from hingelab.sim.core import SimCore
 
+# the code and models this benchmark measures (the bench module itself: hingelab.bench.measured_paths)
+MEASURES = ("platform/hingelab/sim", "assets/scenes", "assets/svh_hand", "assets/tweezer", "assets/jaka_zu7",
+            "assets/objects")
+
 
 def _core_rate(sim: SimCore, control_steps: int, rng: np.random.Generator) -> tuple[float, np.ndarray]:
     """SimCore.step with random small hand actions (and arm velocities); returns the rate and

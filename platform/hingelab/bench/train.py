@@ -26,6 +26,11 @@ import numpy as np
 
 from hingelab.bench.table import BenchTable
 
+# the code and models this benchmark measures (the bench module itself: hingelab.bench.measured_paths):
+# `hingelab train low` whole (its envs, recording, replay pre-fill, reports) and its algorithm
+MEASURES = ("platform/hingelab/learning", "platform/hingelab/envs", "platform/hingelab/sim",
+            "platform/hingelab/perception", "platform/hingelab/episodes", "platform/hingelab/analysis", "assets")
+
 SEED = 0
 
 

@@ -2,7 +2,7 @@
 
 Where SB3's ``SAC.train()`` spends its time on this 2-core machine (batch 256, 2 x 256 ReLU
 actor and twin critics, Dict observations) and what each change here buys is written up in
-``analysis/bench/sac_updates.md``. In short:
+``analysis/bench/history/sac_updates.md``. In short:
 
 - ``configure_torch`` stops glibc from handing the ~256 KB activation buffers back to the
   kernel after every free (``mallopt``): each fresh buffer otherwise costs 64 page faults,
@@ -17,7 +17,8 @@ actor and twin critics, Dict observations) and what each change here buys is wri
 
 ``FastSAC`` saves with SB3's ``save`` and the file loads as plain ``SAC`` too.
 
-Run the interleaved benchmark: ``python -m hingelab.learning.sac_speed --help``.
+Measured against bare SB3 ``SAC`` by ``hingelab bench sac`` (``hingelab.bench.sac``), which writes
+``analysis/bench/sac.md``.
 """
 
 from __future__ import annotations
@@ -25,7 +26,6 @@ from __future__ import annotations
 import ctypes
 import ctypes.util
 import math
-import time
 from collections.abc import Iterable
 from typing import Any
 
@@ -60,7 +60,7 @@ def configure_torch(threads: int = 1, *, keep_heap: bool = True, flush_denormal:
         torch still allows it (only before the first parallel op; SAC has no inter-op work).
     keep_heap: glibc only. Raise the mmap threshold to 64 MiB and the trim threshold to 512 MiB
         so freed activation/gradient buffers stay in the heap: the largest single gain measured
-        (see analysis/bench/sac_updates.md). Costs up to a few hundred MB of RSS kept mapped.
+        (see analysis/bench/history/sac_updates.md). Costs up to a few hundred MB of RSS kept mapped.
     flush_denormal: flush denormals to zero. Off by default: with it set, scipy's cKDTree
         (used by the registration's voxel map) segfaults in this environment, and it gained
         nothing measurable on SAC updates.
@@ -378,239 +378,3 @@ def _mean(values: list[Any]) -> float:
     if values and isinstance(values[0], th.Tensor):
         return float(th.stack(values).to(th.float64).mean().item())
     return float(np.mean(values))
-
-
-def update_rate(model: SAC, n_updates: int, batch_size: int) -> float:
-    """Gradient updates per second of ``model.train(gradient_steps=n_updates, batch_size=...)``.
-
-    The replay buffer must already hold data. Wall time, so measure A and B interleaved.
-    """
-    start = time.perf_counter()
-    model.train(gradient_steps=n_updates, batch_size=batch_size)
-    return n_updates / (time.perf_counter() - start)
-
-
-# --- benchmark: python -m hingelab.learning.sac_speed -------------------------------------
-
-
-class _DummyGoalEnv:
-    """Spaces of the project's goal-conditioned low-level task; steps return random data."""
-
-    def __new__(cls) -> Any:
-        import gymnasium as gym
-        from gymnasium import spaces
-
-        class DummyGoalEnv(gym.Env):
-            observation_space = spaces.Dict(
-                {
-                    "observation": spaces.Box(-10.0, 10.0, (26,), np.float32),
-                    "achieved_goal": spaces.Box(-1.0, 1.0, (2,), np.float32),
-                    "desired_goal": spaces.Box(-1.0, 1.0, (2,), np.float32),
-                }
-            )
-            action_space = spaces.Box(-1.0, 1.0, (9,), np.float32)
-
-            def reset(self, *, seed: int | None = None, options: dict | None = None) -> Any:
-                super().reset(seed=seed)
-                return self.observation_space.sample(), {}
-
-            def step(self, action: np.ndarray) -> Any:
-                return self.observation_space.sample(), 0.0, False, False, {}
-
-        return DummyGoalEnv()
-
-
-def make_filled_model(cls: type[SAC], seed: int = 0, buffer_size: int = 100_000, **kwargs: Any) -> SAC:
-    """SAC/FastSAC, MultiInputPolicy, 2 x 256, batch 256, on the dummy goal env, buffer full of noise."""
-    from stable_baselines3.common.logger import configure
-
-    policy_kwargs = dict(kwargs.pop("policy_kwargs", None) or {})
-    policy_kwargs.setdefault("net_arch", [256, 256])
-    model = cls(
-        "MultiInputPolicy",
-        _DummyGoalEnv(),
-        batch_size=256,
-        buffer_size=buffer_size,
-        learning_starts=0,
-        seed=seed,
-        policy_kwargs=policy_kwargs,
-        **kwargs,
-    )
-    rb = model.replay_buffer
-    rng = np.random.default_rng(seed)
-    for key in rb.observations:
-        rb.observations[key][:] = rng.standard_normal(rb.observations[key].shape)
-        rb.next_observations[key][:] = rng.standard_normal(rb.next_observations[key].shape)
-    rb.actions[:] = rng.uniform(-1.0, 1.0, rb.actions.shape)
-    rb.rewards[:] = rng.standard_normal(rb.rewards.shape)
-    rb.dones[:] = rng.random(rb.dones.shape) < 0.02
-    rb.full, rb.pos = True, 0
-    model.set_logger(configure(None, []))
-    return model
-
-
-# (category, alternatives): the first alternative present in the profile is used, so that a
-# FastSAC function and the SB3 function it may fall back to are not counted twice.
-_PROFILE_PARTS: list[tuple[str, list[list[tuple[str, str]]]]] = [
-    ("replay sampling + to-tensor", [[("sac_speed.py", "_sample")], [("buffers.py", "sample")]]),
-    ("actor forward (obs + next_obs, with squashed Gaussian)", [[("sac_speed.py", "_action_log_prob")], [("sac/policies.py", "action_log_prob")]]),
-    ("critic forward (target + critic loss + actor loss)", [[("sac_speed.py", "_q_values"), ("sac_speed.py", "_critic_features")], [("common/policies.py", "forward")]]),
-    ("backward (3 losses)", [[("torch/_tensor.py", "backward")]]),
-    ("Adam step (3 optimizers)", [[("torch/optim/optimizer.py", "wrapper")]]),
-    ("zero_grad", [[("torch/optim/optimizer.py", "zero_grad")]]),
-    ("polyak update", [[("sac_speed.py", "_polyak")], [("common/utils.py", "polyak_update")]]),
-    (".item() syncs", [[("~", "<method 'item' of 'torch._C.TensorBase' objects>")]]),
-    ("logger.record", [[("logger.py", "record")]]),
-]
-
-
-def profile_breakdown(model: SAC, n_updates: int = 200, batch_size: int = 256) -> dict[str, float]:
-    """ms per update by part, from cProfile (which inflates Python-heavy parts a little)."""
-    import cProfile
-    import pstats
-
-    model.train(gradient_steps=20, batch_size=batch_size)
-    profiler = cProfile.Profile()
-    start = time.perf_counter()
-    profiler.enable()
-    model.train(gradient_steps=n_updates, batch_size=batch_size)
-    profiler.disable()
-    total = time.perf_counter() - start
-    stats = pstats.Stats(profiler).stats  # type: ignore[attr-defined]
-    cumulative: dict[tuple[str, str], float] = {}
-    for (filename, _line, func), (_cc, _nc, _tt, ct, _callers) in stats.items():
-        for (_cat, alternatives) in _PROFILE_PARTS:
-            for alternative in alternatives:
-                for suffix, name in alternative:
-                    if func == name and filename.endswith(suffix):
-                        cumulative[(suffix, name)] = cumulative.get((suffix, name), 0.0) + ct
-    parts: dict[str, float] = {}
-    for category, alternatives in _PROFILE_PARTS:
-        for alternative in alternatives:
-            if any(key in cumulative for key in alternative):
-                parts[category] = sum(cumulative.get(key, 0.0) for key in alternative) / n_updates * 1e3
-                break
-        else:
-            parts[category] = 0.0
-    parts["rest (loss arithmetic, ent_coef, Python)"] = total / n_updates * 1e3 - sum(parts.values())
-    parts["total under cProfile"] = total / n_updates * 1e3
-    return parts
-
-
-#: name -> (class, process settings, FastSAC speedups, fused Adam)
-_BENCH_CONFIGS: dict[str, tuple[str, bool, frozenset[str] | None, bool]] = {
-    "SAC": ("SAC", False, None, False),
-    "SAC + configure_torch": ("SAC", True, None, False),
-    "FastSAC + configure_torch": ("FastSAC", True, ALL_SPEEDUPS, True),
-    "FastSAC, no configure_torch": ("FastSAC", False, ALL_SPEEDUPS, True),
-    "FastSAC - fused Adam": ("FastSAC", True, ALL_SPEEDUPS, False),
-    **{f"FastSAC - {s}": ("FastSAC", True, ALL_SPEEDUPS - {s}, True) for s in sorted(ALL_SPEEDUPS)},
-}
-
-
-def _bench_worker(config_name: str, connection: Any) -> None:
-    """Runs in its own process so process-wide settings (malloc) differ between configs."""
-    cls_name, process_settings, speedups, fused = _BENCH_CONFIGS[config_name]
-    if process_settings:
-        configure_torch(1)
-    if cls_name == "SAC":
-        model = make_filled_model(SAC)
-    else:
-        model = make_filled_model(FastSAC, speedups=speedups, policy_kwargs={"optimizer_kwargs": {"fused": fused}})
-    while True:
-        message = connection.recv()
-        if message is None:
-            return
-        command, threads, n_updates = message
-        th.set_num_threads(threads)
-        if command == "profile":
-            connection.send(profile_breakdown(model, n_updates))
-        else:
-            model.train(gradient_steps=10, batch_size=256)  # warm caches after a thread change
-            connection.send(update_rate(model, n_updates, 256))
-
-
-def interleaved_rates(
-    config_names: list[str], threads: int, rounds: int = 5, n_updates: int = 200
-) -> dict[str, list[float]]:
-    """Updates/s of each config, blocks run one at a time in round-robin (one process each)."""
-    import multiprocessing as mp
-
-    ctx = mp.get_context("spawn")
-    workers = {}
-    for name in config_names:
-        parent, child = ctx.Pipe()
-        process = ctx.Process(target=_bench_worker, args=(name, child), daemon=True)
-        process.start()
-        workers[name] = (process, parent)
-    rates: dict[str, list[float]] = {name: [] for name in config_names}
-    try:
-        for _ in range(rounds):
-            for name, (_process, connection) in workers.items():
-                connection.send(("rate", threads, n_updates))
-                rates[name].append(connection.recv())
-    finally:
-        for process, connection in workers.values():
-            connection.send(None)
-            process.join(timeout=30)
-    return rates
-
-
-def profiles(config_names: list[str], threads: int = 1, n_updates: int = 200) -> dict[str, dict[str, float]]:
-    import multiprocessing as mp
-
-    ctx = mp.get_context("spawn")
-    result = {}
-    for name in config_names:
-        parent, child = ctx.Pipe()
-        process = ctx.Process(target=_bench_worker, args=(name, child), daemon=True)
-        process.start()
-        parent.send(("profile", threads, n_updates))
-        result[name] = parent.recv()
-        parent.send(None)
-        process.join(timeout=30)
-    return result
-
-
-def main(argv: list[str] | None = None) -> int:
-    """Print the markdown tables of analysis/bench/sac_updates.md."""
-    import argparse
-    import os
-    import platform
-
-    parser = argparse.ArgumentParser(description=main.__doc__)
-    parser.add_argument("--rounds", type=int, default=5, help="alternating blocks per config")
-    parser.add_argument("--updates", type=int, default=200, help="gradient updates per block")
-    parser.add_argument("--threads", type=int, nargs="+", default=[1, 2], help="torch intra-op threads")
-    parser.add_argument("--ablation", action="store_true", help="also FastSAC minus each speed-up (threads 1)")
-    parser.add_argument("--profile", action="store_true", help="also the cProfile breakdown of SAC and FastSAC")
-    args = parser.parse_args(argv)
-
-    print(f"torch {th.__version__}, {platform.machine()} x {os.cpu_count()} cores, python {platform.python_version()}\n")
-    if args.profile:
-        names = ["SAC", "SAC + configure_torch", "FastSAC + configure_torch"]
-        table = profiles(names)
-        print("| part (ms/update, threads 1, cProfile) | " + " | ".join(names) + " |")
-        print("|---|" + "---|" * len(names))
-        for part in table[names[0]]:
-            print(f"| {part} | " + " | ".join(f"{table[n][part]:.2f}" for n in names) + " |")
-        print()
-    main_configs = ["SAC", "SAC + configure_torch", "FastSAC + configure_torch"]
-    print(f"Interleaved: {args.rounds} rounds x {args.updates} updates per config, median updates/s (min-max)\n")
-    print("| threads | config | updates/s | ms/update | / SAC |")
-    print("|---|---|---|---|---|")
-    for threads in args.threads:
-        configs = main_configs + ([n for n in _BENCH_CONFIGS if n not in main_configs] if args.ablation and threads == 1 else [])
-        rates = interleaved_rates(configs, threads, args.rounds, args.updates)
-        base = float(np.median(rates["SAC"]))
-        for name in configs:
-            med = float(np.median(rates[name]))
-            print(
-                f"| {threads} | {name} | {med:.1f} ({min(rates[name]):.1f}-{max(rates[name]):.1f}) "
-                f"| {1e3 / med:.2f} | {med / base:.2f} |"
-            )
-    return 0
-
-
-if __name__ == "__main__":
-    raise SystemExit(main())

@@ -1,0 +1,330 @@
+"""``hingelab bench sac``: SAC gradient updates per second, hingelab's FastSAC vs bare SB3 SAC.
+
+The update alone, on the low-level task's shapes: ``MultiInputPolicy``, Dict observations
+(``observation`` 26, ``achieved_goal`` 2, ``desired_goal`` 2), a 9-D action, actor and twin
+critics 2 x 256 ReLU, batch 256, ``ent_coef="auto"``, a ``DictReplayBuffer`` full of random
+transitions. Three arms, each in its own process (so that process-wide settings, such as
+glibc's heap, differ between them):
+
+- ``SB3 SAC``: ``stable_baselines3.SAC`` as it comes: the baseline;
+- ``SB3 SAC + configure_torch``: the same with hingelab's process settings, which separates
+  them from FastSAC's own changes;
+- ``FastSAC + configure_torch``: ``hingelab.learning.sac_speed``, what ``hingelab train low``
+  uses: ours.
+
+In each round every arm runs one block of updates, one arm at a time, in an order shuffled per
+round (a slower spell of the shared machine hits all arms alike); an arm's figure is its median
+block rate, the ratio is ours / baseline of those medians, at 1 torch thread (the headline, what
+training uses) and, in the full run, at 2. Then a cProfile breakdown of one update by part, at 1
+thread. Why each change is faster, and what each bought alone (an ablation), is written up in
+``analysis/bench/history/sac_updates.md``.
+"""
+
+from __future__ import annotations
+
+import statistics
+import time
+import traceback
+from collections.abc import Callable
+from typing import Any
+
+import numpy as np
+
+from hingelab.bench.table import BenchTable
+
+# the code this benchmark measures (the bench's own module is added by hingelab.bench.measured_paths)
+MEASURES = ("platform/hingelab/learning/sac_speed.py",)
+
+SEED = 0
+BATCH_SIZE = 256
+BUFFER_SIZE = 100_000
+WARMUP_UPDATES = 20  # untimed, in every worker, before its first block at a thread setting
+
+BASELINE = "SB3 SAC"
+OURS = "FastSAC + configure_torch"
+#: arm -> (role, algorithm, hingelab's process settings)
+ARMS: dict[str, tuple[str, str, bool]] = {
+    BASELINE: ("baseline", "SAC", False),
+    "SB3 SAC + configure_torch": ("baseline + our process settings", "SAC", True),
+    OURS: ("ours", "FastSAC", True),
+}
+COLUMNS = ["threads", "config", "role", "updates/s", "min", "max", "ms/update", "/ SB3 SAC"]
+
+
+# --- the model under test ------------------------------------------------------------------
+
+
+def dummy_goal_env() -> Any:
+    """An env with the spaces of the goal-conditioned low-level task; steps return random data."""
+    import gymnasium as gym
+    from gymnasium import spaces
+
+    class DummyGoalEnv(gym.Env):
+        observation_space = spaces.Dict(
+            {
+                "observation": spaces.Box(-10.0, 10.0, (26,), np.float32),
+                "achieved_goal": spaces.Box(-1.0, 1.0, (2,), np.float32),
+                "desired_goal": spaces.Box(-1.0, 1.0, (2,), np.float32),
+            }
+        )
+        action_space = spaces.Box(-1.0, 1.0, (9,), np.float32)
+
+        def reset(self, *, seed: int | None = None, options: dict | None = None) -> Any:
+            super().reset(seed=seed)
+            return self.observation_space.sample(), {}
+
+        def step(self, action: np.ndarray) -> Any:
+            return self.observation_space.sample(), 0.0, False, False, {}
+
+    return DummyGoalEnv()
+
+
+def make_filled_model(cls: type, seed: int = SEED, buffer_size: int = BUFFER_SIZE, **kwargs: Any) -> Any:
+    """SAC or FastSAC, MultiInputPolicy, 2 x 256, batch 256, on the dummy goal env, buffer full of noise."""
+    from stable_baselines3.common.logger import configure
+
+    policy_kwargs = dict(kwargs.pop("policy_kwargs", None) or {})
+    policy_kwargs.setdefault("net_arch", [256, 256])
+    model = cls("MultiInputPolicy", dummy_goal_env(), batch_size=BATCH_SIZE, buffer_size=buffer_size,
+                learning_starts=0, seed=seed, device="cpu", policy_kwargs=policy_kwargs, **kwargs)
+    rb = model.replay_buffer
+    rng = np.random.default_rng(seed)
+    for key in rb.observations:
+        rb.observations[key][:] = rng.standard_normal(rb.observations[key].shape)
+        rb.next_observations[key][:] = rng.standard_normal(rb.next_observations[key].shape)
+    rb.actions[:] = rng.uniform(-1.0, 1.0, rb.actions.shape)
+    rb.rewards[:] = rng.standard_normal(rb.rewards.shape)
+    rb.dones[:] = rng.random(rb.dones.shape) < 0.02
+    rb.full, rb.pos = True, 0
+    model.set_logger(configure(None, []))
+    return model
+
+
+def update_rate(model: Any, n_updates: int, batch_size: int = BATCH_SIZE,
+                clock: Callable[[], float] = time.perf_counter) -> float:
+    """Gradient updates per second of ``model.train(gradient_steps=n_updates, batch_size=...)``.
+
+    The replay buffer must already hold data. Wall time: measure the arms interleaved.
+    """
+    start = clock()
+    model.train(gradient_steps=n_updates, batch_size=batch_size)
+    return n_updates / (clock() - start)
+
+
+# --- where one update goes -------------------------------------------------------------------
+
+# (part, alternatives): the first alternative present in the profile is used, so that a FastSAC
+# function and the SB3 function it may fall back to are not counted twice.
+_PROFILE_PARTS: list[tuple[str, list[list[tuple[str, str]]]]] = [
+    ("replay sampling + to-tensor", [[("sac_speed.py", "_sample")], [("buffers.py", "sample")]]),
+    ("actor forward (obs + next_obs, with squashed Gaussian)",
+     [[("sac_speed.py", "_action_log_prob")], [("sac/policies.py", "action_log_prob")]]),
+    ("critic forward (target + critic loss + actor loss)",
+     [[("sac_speed.py", "_q_values"), ("sac_speed.py", "_critic_features")], [("common/policies.py", "forward")]]),
+    ("backward (3 losses)", [[("torch/_tensor.py", "backward")]]),
+    ("Adam step (3 optimizers)", [[("torch/optim/optimizer.py", "wrapper")]]),
+    ("zero_grad", [[("torch/optim/optimizer.py", "zero_grad")]]),
+    ("polyak update", [[("sac_speed.py", "_polyak")], [("common/utils.py", "polyak_update")]]),
+    (".item() syncs", [[("~", "<method 'item' of 'torch._C.TensorBase' objects>")]]),
+    ("logger.record", [[("logger.py", "record")]]),
+]
+REST = "rest (loss arithmetic, ent_coef, Python)"
+PROFILE_TOTAL = "total under cProfile"
+
+
+def profile_breakdown(model: Any, n_updates: int, batch_size: int = BATCH_SIZE) -> dict[str, float]:
+    """ms per update by part, from cProfile (which inflates the Python-heavy parts a little)."""
+    import cProfile
+    import pstats
+
+    model.train(gradient_steps=WARMUP_UPDATES, batch_size=batch_size)
+    profiler = cProfile.Profile()
+    start = time.perf_counter()
+    profiler.enable()
+    model.train(gradient_steps=n_updates, batch_size=batch_size)
+    profiler.disable()
+    total = time.perf_counter() - start
+    stats = pstats.Stats(profiler).stats  # type: ignore[attr-defined]
+    cumulative: dict[tuple[str, str], float] = {}
+    for (filename, _line, func), (_cc, _nc, _tt, ct, _callers) in stats.items():
+        for _part, alternatives in _PROFILE_PARTS:
+            for alternative in alternatives:
+                for suffix, name in alternative:
+                    if func == name and filename.endswith(suffix):
+                        cumulative[(suffix, name)] = cumulative.get((suffix, name), 0.0) + ct
+    parts: dict[str, float] = {}
+    for part, alternatives in _PROFILE_PARTS:
+        parts[part] = 0.0
+        for alternative in alternatives:
+            if any(key in cumulative for key in alternative):
+                parts[part] = sum(cumulative.get(key, 0.0) for key in alternative) / n_updates * 1e3
+                break
+    parts[REST] = total / n_updates * 1e3 - sum(parts.values())
+    parts[PROFILE_TOTAL] = total / n_updates * 1e3
+    return parts
+
+
+# --- one process per arm ---------------------------------------------------------------------
+
+
+def _worker(arm: str, connection: Any) -> None:
+    """Builds the arm's model, then answers ("rate" | "profile", threads, n_updates) until None."""
+    try:
+        import torch as th
+        from stable_baselines3 import SAC
+
+        from hingelab.learning.sac_speed import FastSAC, configure_torch
+
+        _role, algorithm, process_settings = ARMS[arm]
+        if process_settings:
+            configure_torch(1)
+        model = make_filled_model(FastSAC if algorithm == "FastSAC" else SAC)
+        warm_threads = None
+        connection.send(("ready", None))
+        while (message := connection.recv()) is not None:
+            command, threads, n_updates = message
+            th.set_num_threads(threads)
+            if command == "profile":
+                connection.send(("ok", profile_breakdown(model, n_updates)))
+                continue
+            if threads != warm_threads:  # first calls and a thread change: allocations, thread pool
+                model.train(gradient_steps=WARMUP_UPDATES, batch_size=BATCH_SIZE)
+                warm_threads = threads
+            connection.send(("ok", update_rate(model, n_updates)))
+    except Exception:  # noqa: BLE001 - the parent re-raises it with the arm's name
+        connection.send(("error", traceback.format_exc()))
+
+
+class _Arms:
+    """The arms' worker processes (spawned: nothing inherited), asked one at a time."""
+
+    def __init__(self, arms: list[str]):
+        import multiprocessing as mp
+
+        ctx = mp.get_context("spawn")
+        self.workers = {}
+        for arm in arms:
+            parent, child = ctx.Pipe()
+            process = ctx.Process(target=_worker, args=(arm, child), daemon=True, name=f"bench sac: {arm}")
+            process.start()
+            self.workers[arm] = (process, parent)
+        for arm in arms:
+            self._answer(arm)  # every model built before any timing starts
+
+    def ask(self, arm: str, command: str, threads: int, n_updates: int) -> Any:
+        self.workers[arm][1].send((command, threads, n_updates))
+        return self._answer(arm)
+
+    def _answer(self, arm: str) -> Any:
+        try:
+            status, value = self.workers[arm][1].recv()
+        except EOFError:
+            raise RuntimeError(f"bench sac: the worker of {arm!r} died "
+                               f"(exit code {self.workers[arm][0].exitcode})") from None
+        if status == "error":
+            raise RuntimeError(f"bench sac: the worker of {arm!r} failed:\n{value}")
+        return value
+
+    def close(self) -> None:
+        for process, connection in self.workers.values():
+            try:
+                connection.send(None)
+            except OSError:
+                pass
+        for process, _connection in self.workers.values():
+            process.join(timeout=30)
+            if process.is_alive():
+                process.terminate()
+                process.join(timeout=5)
+
+    def __enter__(self) -> _Arms:
+        return self
+
+    def __exit__(self, *exc: Any) -> None:
+        self.close()
+
+
+def interleaved_rates(arms: _Arms, threads: int, rounds: int, n_updates: int,
+                      rng: np.random.Generator, progress: Any = None) -> dict[str, list[float]]:
+    """Updates/s of each arm's blocks: one block per arm and round, the order shuffled per round."""
+    names = list(arms.workers)
+    rates: dict[str, list[float]] = {name: [] for name in names}
+    for _ in range(rounds):
+        for i in rng.permutation(len(names)):
+            rates[names[i]].append(arms.ask(names[i], "rate", threads, n_updates))
+            if progress is not None:
+                progress.update(1)
+    return rates
+
+
+# --- the table -------------------------------------------------------------------------------
+
+
+def ratio_name(threads: int) -> str:
+    return f"updates/s {OURS} / {BASELINE}, {threads} thread{'s' if threads > 1 else ''}"
+
+
+def build_table(block_rates: dict[int, dict[str, list[float]]], profile: dict[str, dict[str, float]],
+                config: dict) -> BenchTable:
+    """The table from the measured block rates (threads -> arm -> updates/s per block) and profile."""
+    rows, ratios = [], {}
+    for threads, rates in block_rates.items():
+        median = {arm: statistics.median(r) for arm, r in rates.items()}
+        for arm, r in rates.items():
+            rows.append({"threads": threads, "config": arm, "role": ARMS[arm][0], "updates/s": median[arm],
+                         "min": min(r), "max": max(r), "ms/update": 1e3 / median[arm],
+                         "/ SB3 SAC": median[arm] / median[BASELINE]})
+        ratios[ratio_name(threads)] = median[OURS] / median[BASELINE]
+    if 1 in block_rates and "SB3 SAC + configure_torch" in block_rates[1]:
+        rates = block_rates[1]
+        ratios["updates/s SB3 SAC + configure_torch / SB3 SAC, 1 thread (process settings alone)"] = (
+            statistics.median(rates["SB3 SAC + configure_torch"]) / statistics.median(rates[BASELINE]))
+    notes = [
+        f"setup: stable-baselines3 {config['stable_baselines3']}, torch {config['torch']}; MultiInputPolicy, Dict "
+        "observations 26 + 2 + 2, action 9, actor and twin critics 2 x 256 ReLU, batch "
+        f"{config['batch_size']}, ent_coef auto, a DictReplayBuffer of {config['buffer_size']:,} random "
+        "transitions",
+        f"method: {config['rounds']} rounds of one {config['updates_per_block']}-update block per arm (order "
+        "shuffled per round, one process per arm, after an untimed warm-up); updates/s is the median block "
+        "rate, min and max the slowest and fastest block; the block rates are in the .json (config)",
+        "the ratio that counts is ours / baseline at 1 thread (what training uses); at 2 threads a second "
+        "process on the other core makes OpenMP's threads wait on each other, so that figure holds for an idle "
+        "machine only",
+    ]
+    if profile:
+        arms = list(profile)
+        notes.append(f"cProfile, ms per update at 1 thread ({' / '.join(arms)}), {config['profile_updates']} "
+                     "updates; cProfile inflates the Python-heavy parts:")
+        for part in profile[arms[0]]:
+            notes.append(f"  {part}: " + " / ".join(f"{profile[arm][part]:.2f}" for arm in arms))
+    notes.append("why each change is faster, and an ablation: analysis/bench/history/sac_updates.md")
+    return BenchTable(name="sac", title="SAC gradient updates per second: hingelab's FastSAC vs bare "
+                      "stable-baselines3 SAC", columns=COLUMNS, rows=rows, ratios=ratios, notes=notes,
+                      config={**config, "block_rates": {str(t): r for t, r in block_rates.items()},
+                              "profile_ms_per_update": profile})
+
+
+def run(quick: bool = False) -> BenchTable:
+    import stable_baselines3
+    import torch
+    from tqdm import tqdm
+
+    threads_list = (1,) if quick else (1, 2)
+    rounds = 3 if quick else 7
+    n_updates = 20 if quick else 200
+    profile_updates = 20 if quick else 200
+    config = {"quick": quick, "threads": list(threads_list), "rounds": rounds, "updates_per_block": n_updates,
+              "profile_updates": profile_updates, "batch_size": BATCH_SIZE, "buffer_size": BUFFER_SIZE,
+              "seed": SEED, "torch": torch.__version__, "stable_baselines3": stable_baselines3.__version__}
+    rng = np.random.default_rng(SEED)
+    block_rates: dict[int, dict[str, list[float]]] = {}
+    with tqdm(total=rounds * len(ARMS) * len(threads_list) + len(ARMS), desc="bench sac: starting the workers",
+              unit="block") as progress, _Arms(list(ARMS)) as arms:
+        progress.set_description("bench sac")
+        for threads in threads_list:
+            block_rates[threads] = interleaved_rates(arms, threads, rounds, n_updates, rng, progress)
+        profile = {}
+        for arm in ARMS:
+            profile[arm] = arms.ask(arm, "profile", 1, profile_updates)
+            progress.update(1)
+    return build_table(block_rates, profile, config)
