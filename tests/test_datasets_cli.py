@@ -96,11 +96,13 @@ def test_recover_and_export_commands(dataset, tmp_path, capsys):
     assert "choose a new --out" in _one_line_error(capsys)
     for fmt in ("minari", "lerobot"):
         assert main(["datasets", "export", str(dataset), "--format", fmt, "--out", str(tmp_path / fmt)]) == 0
-        assert f"Exported 2 episodes" in capsys.readouterr().out
-    assert (tmp_path / "minari" / "data" / "main_data.hdf5").exists()
-    assert len(list((tmp_path / "lerobot" / "data" / "chunk-000").glob("*.parquet"))) == 2
-    assert main(["datasets", "export", str(dataset), "--format", "minari", "--out", str(tmp_path / "minari")]) == 1
-    assert "exists" in _one_line_error(capsys)
+        assert "Exported 2 episodes (20 steps)" in capsys.readouterr().out
+    assert (tmp_path / "minari" / "hingelab" / "cli-v0" / "data" / "main_data.hdf5").exists()  # --out: the root
+    assert (tmp_path / "minari" / "hingelab" / "cli-v0" / "data" / "metadata.json").exists()
+    assert [p.name for p in (tmp_path / "lerobot" / "data" / "chunk-000").glob("*.parquet")] == ["file-000.parquet"]
+    for fmt in ("minari", "lerobot"):
+        assert main(["datasets", "export", str(dataset), "--format", fmt, "--out", str(tmp_path / fmt)]) == 1
+        assert "exists" in _one_line_error(capsys)
 
 
 def test_bench_datasets_quick(tmp_path, capsys):

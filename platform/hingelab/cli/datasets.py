@@ -36,10 +36,29 @@ def add_parser(subparsers) -> None:
     recover.add_argument("--out", type=Path, required=True, help="the new episode file to write")
     recover.set_defaults(func=run_recover)
 
-    export = verbs.add_parser("export", help="export a dataset as Minari (HDF5) or LeRobot-style parquet")
+    export = verbs.add_parser(
+        "export", help="export a dataset as a Minari dataset or a LeRobotDataset (v3.0)",
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+        description=(
+            "Write a dataset in a layout its neighbours' own libraries load (details: datasets/README.md, Exports).\n\n"
+            "--format minari: --out is a Minari datasets root (what MINARI_DATASETS_PATH names; it may hold other\n"
+            "  datasets, e.g. ~/.minari/datasets). The export writes OUT/NAMESPACE/NAME-vN/data/{main_data.hdf5,\n"
+            "  metadata.json} with the id --dataset-id (default hingelab/<card name>-v0), and prints how to open it:\n"
+            "  MINARI_DATASETS_PATH=OUT, minari.load_dataset(ID). Episodes without a final observation\n"
+            "  (recovered files) are skipped and counted: Minari needs T+1 observations.\n"
+            "--format lerobot: --out is the new LeRobotDataset v3.0 folder (meta/info.json, stats.json,\n"
+            "  tasks.parquet, meta/episodes/, data/chunk-000/file-000.parquet): LeRobotDataset(REPO_ID, root=OUT).\n\n"
+            "Tool clouds are aligned to the observations by log time (Minari: infos/tool_points; LeRobot:\n"
+            "observation.points). A failed export leaves nothing behind: it writes a hidden temporary folder\n"
+            "and renames it into place at the end."),
+    )
     export.add_argument("dir", type=Path, help="dataset folder")
     export.add_argument("--format", choices=["minari", "lerobot"], required=True, help="target layout")
-    export.add_argument("--out", type=Path, required=True, help="output folder (must not exist)")
+    export.add_argument("--out", type=Path, required=True,
+                        help="minari: the datasets root (MINARI_DATASETS_PATH); lerobot: the new dataset folder")
+    export.add_argument("--dataset-id", default=None, metavar="NAMESPACE/NAME-vN",
+                        help="minari only: the dataset id (default hingelab/<card name>-v0); "
+                             "must not exist under --out")
     export.set_defaults(func=run_export)
 
 
@@ -105,6 +124,10 @@ def run_export(args: argparse.Namespace) -> int:
     from hingelab.episodes.export import export_dataset
 
     dataset = _open(args.dir)
-    out = export_dataset(dataset, args.format, args.out)
-    print(f"Exported {len(dataset)} episodes of {dataset.root} as {args.format} into {out}.")
+    result = export_dataset(dataset, args.format, args.out, dataset_id=args.dataset_id, progress=True)
+    skipped = "".join(f"; skipped {len(files)} ({reason}): {', '.join(files[:3])}{' ...' if len(files) > 3 else ''}"
+                      for reason, files in result.skipped.items())
+    notes = "".join(f"; {note}" for note in result.notes)
+    print(f"Exported {result.episodes} episodes ({result.frames} steps) of {dataset.root} as {args.format} into "
+          f"{result.path}{skipped}{notes}. Load it with {result.load}.")
     return 0
