@@ -48,6 +48,7 @@ ARMS: dict[str, tuple[str, str, bool]] = {
     "SB3 SAC + configure_torch": ("baseline + our process settings", "SAC", True),
     OURS: ("ours", "FastSAC", True),
 }
+UNEVEN_BLOCKS = 2.0  # an arm whose fastest block is this many times its slowest: a busy machine, flagged
 COLUMNS = ["threads", "config", "role", "updates/s", "min", "max", "ms/update", "/ SB3 SAC"]
 
 
@@ -291,6 +292,14 @@ def build_table(block_rates: dict[int, dict[str, list[float]]], profile: dict[st
         "process on the other core makes OpenMP's threads wait on each other, so that figure holds for an idle "
         "machine only",
     ]
+    for threads, rates in block_rates.items():
+        spread = {arm: max(r) / min(r) for arm, r in rates.items()}
+        uneven = [f"{arm} {min(rates[arm]):.3g}-{max(rates[arm]):.3g}" for arm, x in spread.items()
+                  if x > UNEVEN_BLOCKS]
+        if uneven:
+            notes.append(f"UNRELIABLE at {threads} thread{'s' if threads > 1 else ''}: block rates (updates/s) "
+                         f"spread more than {UNEVEN_BLOCKS:g}x ({'; '.join(uneven)}): the machine was busy "
+                         "during this run; do not read this thread setting's ratio")
     if profile:
         arms = list(profile)
         notes.append(f"cProfile, ms per update at 1 thread ({' / '.join(arms)}), {config['profile_updates']} "
