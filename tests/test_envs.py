@@ -45,6 +45,39 @@ def test_tool_shape_spaces_and_goal_env_contract(shape_env):
     assert set(info["reward_terms"]) == {"goal", "effort_tool", "effort_fingers"}
 
 
+def test_tool_shape_success_is_the_settled_verdict():
+    """info["is_success"] is z_bar averaged over the last SETTLE_STEPS steps within the threshold (fewer
+    after a reset; at reset z_bar alone), recomputed here from the observations; last_step_success is
+    the frame alone. A second episode's window does not hold the first one's latents."""
+    from hingelab.envs.tool_shape import SETTLE_STEPS
+
+    env = gym.make(TOOL_SHAPE_ID, goal_sampling="reachable")
+    threshold = env.unwrapped.success_threshold
+    rng = np.random.default_rng(0)
+    differ = 0
+    for seed in (0, 1):
+        obs, info = env.reset(seed=seed)
+        one_frame = np.linalg.norm(obs["achieved_goal"] - obs["desired_goal"])
+        assert info["settled_latent_distance"] == pytest.approx(one_frame, abs=1e-12)
+        assert info["is_success"] == float(one_frame < threshold) == info["last_step_success"]
+        latents = []
+        for _ in range(25):
+            obs, _, terminated, truncated, info = env.step(rng.uniform(-0.3, 0.3, 9))
+            latents.append(obs["achieved_goal"])
+            settled = np.linalg.norm(np.mean(latents[-SETTLE_STEPS:], axis=0) - obs["desired_goal"])
+            frame = np.linalg.norm(obs["achieved_goal"] - obs["desired_goal"])
+            assert info["settled_latent_distance"] == pytest.approx(settled, abs=1e-12)
+            assert info["latent_distance"] == pytest.approx(frame, abs=1e-12)
+            assert info["is_success"] == float(settled < threshold)
+            assert info["last_step_success"] == float(frame < threshold)
+            differ += settled != pytest.approx(frame, abs=1e-9)
+            if terminated or truncated:
+                break
+    assert differ > 20  # the two distances are different figures (the window is not one frame)
+    assert env.unwrapped.success_verdict == "settled_0.5s"
+    env.close()
+
+
 def test_effort_term_switches_off():
     env = gym.make(TOOL_SHAPE_ID, use_effort=False)
     env.reset(seed=0)
@@ -153,19 +186,77 @@ def test_nan_action_is_refused(shape_env):
 
 
 def test_sb3_sac_and_her_run_on_the_envs(tmp_path):
+    """SAC + HER on ToolShape-v0 and SAC on ToolPick-v0 (2000 steps each). What learn stored is checked
+    against the envs: ToolShape's buffer holds whole episodes (one goal each, next observation = the
+    following observation), its rewards are the env's compute_reward of the stored goals and infos,
+    and HER's relabelled goals are achieved goals of the same episode at or after the transition, with
+    rewards recomputed for them; ToolPick's buffer is what a fresh env gives for the stored actions."""
     from stable_baselines3 import SAC, HerReplayBuffer
 
     shape = gym.make(TOOL_SHAPE_ID)
     model = SAC("MultiInputPolicy", shape, replay_buffer_class=HerReplayBuffer,
-                replay_buffer_kwargs=dict(n_sampled_goal=4, goal_selection_strategy="future"),
+                replay_buffer_kwargs=dict(n_sampled_goal=4, goal_selection_strategy="future", copy_info_dict=True),
                 learning_starts=100, batch_size=32, policy_kwargs=dict(net_arch=[16]), seed=0, verbose=0)
     model.learn(total_timesteps=2000)
-    assert model.num_timesteps == 2000 and model.replay_buffer.size() > 0
+    buffer, env = model.replay_buffer, shape.unwrapped
+    n = buffer.pos
+    assert n == 2000 and buffer.size() == 2000
+    obs = {k: v[:n, 0] for k, v in buffer.observations.items()}
+    nxt = {k: v[:n, 0] for k, v in buffer.next_observations.items()}
+    infos = list(buffer.infos[:n, 0])
+    start, length = buffer.ep_start[:n, 0], buffer.ep_length[:n, 0]
+    ends = np.flatnonzero(buffer.dones[:n, 0])
+    assert ends[-1] == n - 1 or length[-1] == 0  # the last episode is complete or still running
+    first = 0
+    for end in ends:  # whole episodes, each with one goal, chained observations
+        assert (start[first:end + 1] == first).all() and (length[first:end + 1] == end + 1 - first).all()
+        assert (obs["desired_goal"][first:end + 1] == obs["desired_goal"][first]).all()
+        for key in obs:
+            np.testing.assert_array_equal(nxt[key][first:end], obs[key][first + 1:end + 1])
+        # ends: the tool dropped (terminated), else the 50-step limit (a timeout, not a terminal state)
+        steps, dropped = end + 1 - first, bool(infos[end]["dropped"])
+        assert steps <= 50 and (dropped or steps == 50)
+        assert bool(buffer.timeouts[end, 0]) == (steps == 50 and not dropped)
+        first = end + 1
+    assert len(ends) >= 2000 // 50 - 1
+    recomputed = env.compute_reward(nxt["achieved_goal"], obs["desired_goal"], infos)
+    np.testing.assert_allclose(buffer.rewards[:n, 0], recomputed, rtol=1e-5, atol=1e-6)
+    assert np.ptp(recomputed) > 0.1  # rewards that vary: the check compares something
+    # HER: relabelled samples (matched to their stored transition by the 26-D observation)
+    np.random.seed(0)
+    batch = buffer.sample(256)
+    sampled = batch.observations["observation"].numpy()
+    relabelled = 0
+    for row in range(len(sampled)):
+        i = int(np.argmin(np.abs(obs["observation"] - sampled[row]).sum(axis=1)))
+        np.testing.assert_allclose(obs["observation"][i], sampled[row], rtol=1e-6, atol=1e-6)
+        goal = batch.observations["desired_goal"][row].numpy()
+        if np.allclose(goal, obs["desired_goal"][i], atol=1e-6):
+            continue
+        relabelled += 1
+        later = nxt["achieved_goal"][i:start[i] + length[i]]  # this episode, from this transition on
+        assert np.abs(later - goal).max(axis=1).min() < 1e-6, "a relabelled goal is not a later achieved goal"
+        expected = env.compute_reward(nxt["achieved_goal"][i][None], goal[None].astype(float), [infos[i]])[0]
+        assert float(batch.rewards[row, 0]) == pytest.approx(expected, rel=1e-5, abs=1e-6)
+    assert 0.6 * 256 < relabelled < 0.95 * 256  # 4 sampled goals per real one: 80% relabelled
+
     pick = gym.make(TOOL_PICK_ID)
     model = SAC("MlpPolicy", pick, learning_starts=100, batch_size=32, policy_kwargs=dict(net_arch=[16]),
                 seed=0, verbose=0)
     model.learn(total_timesteps=2000)
-    assert model.num_timesteps == 2000
+    buffer = model.replay_buffer
+    assert buffer.pos == 2000
+    replay = gym.make(TOOL_PICK_ID)  # SB3 reset the env with seed 0 once, then without a seed
+    expected_obs, _ = replay.reset(seed=0)
+    for i in range(2000):
+        np.testing.assert_array_equal(buffer.observations[i, 0], expected_obs)
+        expected_obs, reward, terminated, truncated, _ = replay.step(buffer.actions[i, 0])
+        np.testing.assert_array_equal(buffer.next_observations[i, 0], expected_obs)
+        assert buffer.rewards[i, 0] == np.float32(reward) and buffer.dones[i, 0] == (terminated or truncated)
+        assert buffer.timeouts[i, 0] == (truncated and not terminated)
+        if terminated or truncated:
+            expected_obs, _ = replay.reset()
+    replay.close()
 
 
 def test_diverging_episode_is_truncated_with_its_reason(pick_env):
@@ -200,39 +291,89 @@ def test_tool_pick_ends_when_the_tool_leaves_the_hand():
     assert not terminated and info["tool_dropped"]
 
 
-def test_tool_pick_with_the_shipped_low_level_policy_follows_the_goal():
-    """A scripted high level (arm still) asks the shipped low-level policy for a nearly closed and
-    an open tweezer in turn; the tool's latent goes to each goal and the hinge follows (loose
-    bounds: 3 success thresholds in latent distance, and the order of the openings).
+class _Recording:
+    """A low-level model stand-in that records what the policy is asked and passes the call on."""
 
-    The open goal is 0.18 rad, at the low end of the open third of the reachable range
-    (0.17-0.26 rad): of 100 fresh goals the shipped policy settled 28 of 34 open ones, all six
-    misses beyond 0.22 rad (three overshot to the hinge limit); toward 0.22 rad it stopped at
-    0.14 in this episode. That weakness is what the evaluation reports, not what this test checks."""
+    def __init__(self, model):
+        self.model, self.seen = model, []
+
+    def predict(self, obs, deterministic=True):
+        self.seen.append({k: np.array(v, copy=True) for k, v in obs.items()})
+        return self.model.predict(obs, deterministic=deterministic)
+
+
+def test_tool_pick_gives_the_shipped_low_level_policy_the_commanded_goal():
+    """ToolPick-v0 with low_level="policy" loads the shipped experts; every step the policy's
+    desired_goal is the z_goal of the high-level action (3 x its first two entries) and its achieved
+    goal the tool's z_bar before the step. A closed then an open goal (0.03, 0.20 rad, 30 steps each):
+    over three seeds the hinge opens by more than half of the 0.17 rad asked for, on average (the
+    success rate itself is the slow test's, on fresh seeds)."""
     from hingelab.envs.low_level import SHIPPED_LOW_LEVEL
-    from hingelab.envs.tool_shape import latent_distance_for_gap
+    from hingelab.envs.tool_pick import Z_SCALE
 
     assert SHIPPED_LOW_LEVEL.exists(), "the shipped low-level policy is missing: see assets/checkpoints/README.md"
     env = gym.make(TOOL_PICK_ID, low_level="policy")
     unwrapped = env.unwrapped
-    assert unwrapped.low_level.kind == "policy"
+    assert unwrapped.low_level.kind == "policy" and unwrapped.low_level.path == SHIPPED_LOW_LEVEL
+    recorder = unwrapped.low_level.model = _Recording(unwrapped.low_level.model)
+    calibration = unwrapped.perception.calibration
+    opened = []
+    for seed in (0, 1, 2):
+        env.reset(seed=seed)
+        hinge = {}
+        for opening in (0.03, 0.20):
+            z_goal = np.asarray(calibration.z_for_opening(opening))
+            action = np.concatenate([z_goal / Z_SCALE, np.zeros(3)])
+            for _ in range(30):
+                z_before = unwrapped.sample.z_smoothed[0].copy()
+                *_, info = env.step(action)
+                asked = recorder.seen[-1]
+                np.testing.assert_allclose(asked["desired_goal"][0], z_goal, atol=1e-12)
+                np.testing.assert_array_equal(asked["achieved_goal"][0], z_before)
+            np.testing.assert_allclose(info["z_goal"], z_goal, atol=1e-12)
+            hinge[opening] = info["hinge_angle"]
+        opened.append(hinge[0.20] - hinge[0.03])
+    env.close()
+    assert len(recorder.seen) == 3 * 2 * 30
+    assert np.mean(opened) > 0.5 * (0.20 - 0.03), opened
+
+
+@pytest.mark.slow
+def test_tool_pick_shipped_low_level_settles_on_fresh_goals():
+    """The shipped low-level policy inside ToolPick-v0 (arm still, the high level asking one goal per
+    episode) settles z_bar on the goal, over 60 fresh reachable goals and episodes (goal seed 2027,
+    episode seeds 2_027_000 + i: never used to choose or measure a policy): success = ToolShape-v0's
+    verdict (z_bar averaged over the last 10 of 50 steps within the 2 mm threshold).
+
+    Bound: at least 50 of 60. The experts' measured settled rate on ToolShape-v0 with today's
+    perception code is 289/300 = 0.963, Wilson 95% [0.936, 0.979] (goal seeds 3-5,
+    analysis/low-level-experts/README.md, after_compiled_tracking). At the interval's lower end,
+    0.936, fewer than 50 of 60 happen with probability 0.14% (0.90: 3.4%); a policy at 0.75 passes
+    with probability 8.6%. (In ToolPick-v0 on exploration seeds not used here, 57 of 60 settled.)"""
+    from hingelab.envs.tool_pick import Z_SCALE
+    from hingelab.envs.tool_shape import SETTLE_STEPS, latent_distance_for_gap
+    from hingelab.learning.low_level_eval import sampled_goals
+    from hingelab.sim.finger_synergy import FingerSynergy
+
+    env = gym.make(TOOL_PICK_ID, low_level="policy")
+    unwrapped = env.unwrapped
     calibration = unwrapped.perception.calibration
     threshold = latent_distance_for_gap(calibration, 2.0)
-    env.reset(seed=4)
-    hinge, distance = {}, {}
-    for opening in (0.03, 0.18):
-        z_goal = np.asarray(calibration.z_for_opening(opening))
-        action = np.concatenate([z_goal / 3.0, np.zeros(3)])
-        z_seen = []
-        for _ in range(40):
-            *_, info = env.step(action)
-            z_seen.append(unwrapped.sample.z_smoothed[0].copy())
-        np.testing.assert_allclose(info["z_goal"], z_goal, atol=1e-6)
-        hinge[opening] = info["hinge_angle"]
-        distance[opening] = float(np.linalg.norm(np.mean(z_seen[-10:], axis=0) - z_goal))
+    goals = sampled_goals(calibration, FingerSynergy.load().theta_range, 60, seed=2027)
+    settled = []
+    for i, goal in enumerate(goals):
+        env.reset(seed=2_027_000 + i)
+        action = np.concatenate([goal["z_goal"] / Z_SCALE, np.zeros(3)])
+        latents = []
+        for _ in range(50):
+            _, _, terminated, truncated, _ = env.step(action)
+            latents.append(unwrapped.sample.z_smoothed[0].copy())
+            if terminated or truncated:
+                break
+        settled.append(np.linalg.norm(np.mean(latents[-SETTLE_STEPS:], axis=0) - goal["z_goal"]) < threshold)
     env.close()
-    assert max(distance.values()) < 3 * threshold, (distance, threshold)
-    assert hinge[0.18] - hinge[0.03] > 0.08, hinge
+    missed = [round(g["opening_rad"], 3) for g, ok in zip(goals, settled) if not ok]
+    assert sum(settled) >= 50, f"{sum(settled)}/60 settled; missed goal openings (rad): {missed}"
 
 
 def test_bench_envs_replays_the_same_steps_as_its_raw_baseline(shape_env):

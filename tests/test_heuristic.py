@@ -26,6 +26,10 @@ def test_heuristic_picks_the_sphere_and_records_every_step(sphere_dataset):
     assert all(s.success for s in summaries)
     index = Dataset(out).index
     assert len(index) == 3 and index["success"].all() and (index["source"] == "heuristic").all()
+    # one verdict (ToolPick-v0's: the object within 1 cm of the target), named, and no secondary one
+    assert (index["success_verdict"] == "object_within_1cm").all() and index["last_step_success"].isna().all()
+    by_seed = index.set_index("seed")["success"]
+    assert all(by_seed[s.seed] == s.success for s in summaries)
     episode = read_episode(out / "episodes" / index["file"].iloc[0])
     steps = episode["/step"]
     length = len(steps["action"])

@@ -46,7 +46,9 @@ def test_run_writes_config_metrics_rollouts_checkpoints(tiny_run):
     assert "git_commit" in doc and "hingelab_version" in doc
     metrics = pd.read_csv(run / "metrics.csv")
     assert list(metrics["env_steps"]) == [0, 60, 120]
-    assert {"success_rate", "return", "final_latent_distance", "tool_drift_mm_max"} <= set(metrics.columns)
+    assert {"success_rate", "return", "final_latent_distance", "tool_drift_mm_max", "last_step_success_rate",
+            "settled_latent_distance"} <= set(metrics.columns)
+    assert "settled_success_rate" not in metrics.columns  # one verdict: success_rate is the settled one
     # the critic is being trained: its loss is logged and changes between evaluations
     losses = metrics["critic_loss"].dropna()
     assert len(losses) == 2 and losses.iloc[0] != losses.iloc[1]
@@ -55,6 +57,10 @@ def test_run_writes_config_metrics_rollouts_checkpoints(tiny_run):
     dataset = Dataset(run / "dataset")
     assert len(dataset) >= 120 // TINY.max_episode_steps
     assert (dataset.index["source"] == "low_level_training").all()
+    assert (dataset.index["success_verdict"] == "settled_0.5s").all()
+    assert dataset.index["last_step_success"].notna().all()
+    # SB3's rollout success (info["is_success"] of every finished episode) counts what the episodes record
+    assert metrics["rollout_success_rate"].iloc[-1] == pytest.approx(dataset.index["success"].astype(float).mean())
     assert dataset.index["length"].sum() - len(dataset) <= 120  # steps (+1 reset row each) of finished episodes
     assert ckpt.latest_checkpoint(run).name == "step_000000000120"
     provenance = pickle.loads((ckpt.latest_checkpoint(run) / ckpt.STATE_FILE).read_bytes())
@@ -186,31 +192,62 @@ def test_eval_low_cli_writes_a_dataset_and_a_region_table(tiny_run, tmp_path):
                  str(tmp_path / "e2")]) == 1
 
 
-def test_eval_low_references_hold_still_and_synergy(tmp_path):
+def test_eval_low_references_hold_still_and_synergy(tmp_path, capsys):
     """The two references behind `hingelab eval low --baseline`: the scripted synergy (latent
     feedback) settles nearer its latent goals than holding still does. (The true hinge it ends at
     can differ from the goal's calibrated opening: the in-hand latent's offset varies by episode,
-    which ``tip_gap_error_mm`` reports.)"""
+    which ``tip_gap_error_mm`` reports.) One verdict: the region table counts the episodes' rows,
+    the rows are the episodes the dataset records, and `hingelab report` of the dataset counts the
+    same successes."""
+    from scipy.stats import binomtest
+
     from hingelab.cli.main import main
 
     distances, settled = {}, {}
     for baseline in ("hold-still", "synergy"):
         out = tmp_path / baseline
-        assert main(["eval", "low", "--baseline", baseline, "--episodes", "2", "--out", str(out),
+        assert main(["eval", "low", "--baseline", baseline, "--episodes", "3", "--out", str(out),
                      "--no-progress"]) == 0
+        printed = capsys.readouterr().out.strip().splitlines()[-1]
         episodes = pd.read_csv(out / "episodes.csv").sort_values("goal_opening_rad")
-        assert {"settled_success", "settled_latent_distance", "tip_gap_error_mm"} <= set(episodes.columns)
-        assert (episodes["tip_gap_error_mm"] >= 0).all() and len(Dataset(out)) == 2
+        assert {"success", "last_step_success", "settled_latent_distance", "tip_gap_error_mm"} <= set(episodes.columns)
+        assert "settled_success" not in episodes.columns
+        assert (episodes["tip_gap_error_mm"] >= 0).all() and len(Dataset(out)) == 3
+        # the verdict is the settled distance under the threshold; the secondary one the last frame's
+        threshold = float((out / "report.md").read_text().split("success threshold ")[1].split(" ")[0])
+        assert (episodes["success"] == (episodes["settled_latent_distance"] < threshold)).all()
+        assert (episodes["last_step_success"] == (episodes["final_latent_distance"] < threshold)).all()
         regions = pd.read_csv(out / "regions.csv").set_index("goal_region")
-        assert 0 <= regions.loc["all", "settled_success_rate"] <= 1
+        for region, part in [("all", episodes), *episodes.groupby("region")]:
+            row = regions.loc[region]
+            k, n = int(part["success"].sum()), len(part)
+            assert (row["episodes"], row["successes"]) == (n, k)
+            assert row["success_rate"] == pytest.approx(k / n)
+            interval = binomtest(k, n).proportion_ci(method="wilson")
+            assert (row["ci_low"], row["ci_high"]) == pytest.approx((interval.low, interval.high), abs=1e-9)
+            assert row["last_step_successes"] == int(part["last_step_success"].sum())
+        # the dataset records the same verdicts, episode by episode
+        index = Dataset(out).index.set_index("seed").loc[episodes["seed"]]
+        assert index["success"].tolist() == episodes["success"].tolist()
+        assert index["last_step_success"].tolist() == episodes["last_step_success"].tolist()
+        assert (index["success_verdict"] == "settled_0.5s").all()
+        # and the report of the dataset counts what eval printed
+        assert f"success (settled over the last 10 steps, the episodes' recorded verdict) " \
+               f"{int(episodes['success'].sum())}/3 = " in printed
+        assert main(["report", str(out), "--out", str(tmp_path / f"report-{baseline}")]) == 0
+        by_dataset = pd.read_csv(tmp_path / f"report-{baseline}" / "success_by_dataset.csv")
+        assert by_dataset["successes"].tolist() == [regions.loc["all", "successes"]]
+        assert by_dataset["verdict"].tolist() == ["settled over the last 0.5 s (ToolShape-v0)"]
+        markdown = (tmp_path / f"report-{baseline}" / "report.md").read_text()
+        assert "What success counts: " in markdown and "settled over the last 0.5 s (ToolShape-v0)" in markdown
         distances[baseline] = episodes["settled_latent_distance"].mean()
-        settled[baseline] = int(episodes["settled_success"].sum())
+        settled[baseline] = int(episodes["success"].sum())
     assert distances["synergy"] < distances["hold-still"] and settled["synergy"] >= 1, (distances, settled)
     from hingelab.analysis.low_level_summary import write_summary
 
     table = write_summary(tmp_path / "summary", [tmp_path / "hold-still", tmp_path / "synergy"])
-    assert list(table["policy"]) == ["hold-still", "synergy"] and (table["episodes"] == 2).all()
-    assert table.loc[1, "settled_success"].startswith(f"{settled['synergy'] / 2:.2f} [")
+    assert list(table["policy"]) == ["hold-still", "synergy"] and (table["episodes"] == 3).all()
+    assert table.loc[1, "success"].startswith(f"{settled['synergy'] / 3:.2f} [")
     assert (tmp_path / "summary.md").read_text().count("|") > 20
     assert main(["eval", "low", "x.zip", "--baseline", "synergy", "--out", str(tmp_path / "both")]) == 1
 

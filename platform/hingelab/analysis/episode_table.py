@@ -5,7 +5,10 @@ Columns: ``dataset`` (the card's name), ``dataset_path``, the index columns
 ``failure_reason``, ...; see ``hingelab.episodes.dataset.INDEX_COLUMNS``) and
 ``object_size`` (metres, float): the episode metadata fact ``object_size`` when a source
 records it (through ``EpisodeWriter(extra_metadata={"object_size": ...})``), else NaN.
-Reading ``object_size`` opens each file's metadata (no message is read).
+Reading ``object_size`` opens each file's metadata (no message is read). ``verdict``: what
+the episode's ``success`` counts, in words (``schemas.verdict_description``: its
+``success_verdict``, or for files written before schema 2 what their task recorded then,
+e.g. ToolShape-v0's last step).
 
 Everything comes from the episode files (the index is rebuilt from them when stale),
 so a report can be recomputed at any time.
@@ -19,6 +22,7 @@ import numpy as np
 import pandas as pd
 
 from hingelab.episodes import EpisodeFile
+from hingelab.episodes.schemas import verdict_description
 from hingelab.episodes.dataset import Dataset, open_dataset
 from hingelab.errors import HingelabError
 
@@ -61,6 +65,8 @@ def load_dataset_table(root) -> pd.DataFrame:
     table.insert(0, "dataset", dataset.card.name)
     table.insert(1, "dataset_path", str(root))
     table[OBJECT_SIZE_KEY] = object_sizes(dataset)
+    table["verdict"] = [verdict_description(v, t, s) for v, t, s in
+                        zip(table["success_verdict"], table["task"], table["schema_version"])]
     return table
 
 

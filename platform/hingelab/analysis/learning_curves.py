@@ -15,6 +15,14 @@ A run trained with several seeds either writes all of them into one ``metrics.cs
 the subfolder's position). Curves: per run and env_steps, the mean over seeds and a band
 of +- one standard deviation (``*_std``; 0 with one seed), and the seed count. Seeds
 are expected to evaluate at the same env_steps (a fixed evaluation interval).
+
+``success_rate`` is the run's one success verdict (``hingelab train low``: settled over the
+last 0.5 s, the env's ``is_success``; its secondary one-frame verdict is
+``last_step_success_rate``). ``hingelab train low`` wrote ``metrics.csv`` before episode
+schema 2 with ``success_rate`` = the last step's verdict and ``settled_success_rate`` = the
+settled one; such a file (``settled_success_rate`` present, ``last_step_success_rate``
+absent) is read under today's names (``OLD_TRAIN_LOW_COLUMNS``), so old and new runs plot
+the same verdict.
 """
 
 from __future__ import annotations
@@ -31,7 +39,22 @@ RUN_FILE = "run.json"
 REQUIRED_COLUMNS = ("env_steps", "seed", "success_rate", "return")
 CURVE_METRICS = ("success_rate", "return")
 # drawn too for the runs that record them (hingelab train low does); NaN for the others
-OPTIONAL_CURVE_METRICS = ("settled_success_rate", "final_latent_distance", "tool_drift_mm_mean")
+OPTIONAL_CURVE_METRICS = ("last_step_success_rate", "final_latent_distance", "tool_drift_mm_mean")
+# hingelab train low's metrics.csv before schema 2 -> today's names (the settled verdict is success)
+OLD_TRAIN_LOW_COLUMNS = {
+    "success_rate": "last_step_success_rate", "settled_success_rate": "success_rate",
+    "success_under_1cm": "last_step_success_under_1cm", "settled_success_under_1cm": "success_under_1cm",
+    "rollout_success_rate": "last_step_rollout_success_rate",
+    **{f"success_{region}": f"last_step_success_{region}" for region in ("closed", "middle", "open")},
+}
+
+
+def upgrade_metrics(frame: pd.DataFrame) -> pd.DataFrame:
+    """A metrics table under today's names: an old ``hingelab train low`` file's verdicts renamed
+    (``OLD_TRAIN_LOW_COLUMNS``); any other table as it is."""
+    if "settled_success_rate" not in frame.columns or "last_step_success_rate" in frame.columns:
+        return frame
+    return frame.rename(columns=OLD_TRAIN_LOW_COLUMNS)
 
 
 def run_name(run_dir: Path) -> str:
@@ -56,7 +79,7 @@ def load_run_metrics(run_dir) -> pd.DataFrame:
                                f"a run folder records columns {', '.join(REQUIRED_COLUMNS)}")
     frames = []
     for position, path in enumerate(files):
-        frame = pd.read_csv(path)
+        frame = upgrade_metrics(pd.read_csv(path))
         if "seed" not in frame.columns and path.parent != run_dir:
             frame["seed"] = position
         missing = [c for c in REQUIRED_COLUMNS if c not in frame.columns]
@@ -90,4 +113,4 @@ def load_learning_curves(run_dirs) -> pd.DataFrame:
     return learning_curves(pd.concat([load_run_metrics(d) for d in run_dirs], ignore_index=True))
 
 
-__all__ = ["OPTIONAL_CURVE_METRICS", "load_run_metrics", "learning_curves", "load_learning_curves", "METRICS_FILE", "REQUIRED_COLUMNS"]
+__all__ = ["OPTIONAL_CURVE_METRICS", "OLD_TRAIN_LOW_COLUMNS", "upgrade_metrics", "load_run_metrics", "learning_curves", "load_learning_curves", "METRICS_FILE", "REQUIRED_COLUMNS"]

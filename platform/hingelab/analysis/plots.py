@@ -88,7 +88,10 @@ def histograms(episodes: pd.DataFrame, column: str, path: Path, xlabel: str) -> 
     return _save(fig, path)
 
 
+# success_rate: the runs' one verdict; last_step_success_rate: ToolShape-v0's secondary one-frame verdict;
+# settled_success_rate: the column of learning_curves.csv tables written before schema 2 (their settled verdict)
 CURVE_PANELS = {"success_rate": "success rate", "settled_success_rate": "settled success rate",
+                "last_step_success_rate": "last-step success rate (secondary)",
                 "return": "return", "final_latent_distance": "final latent distance",
                 "tool_drift_mm_mean": "tool drift (mm, mean of episode max)"}
 

@@ -12,6 +12,13 @@ Writes into ``out`` (created if needed; files of an earlier report are replaced)
 
 Every number is recomputed from the datasets' episode files (their index) and the run
 folders' ``metrics.csv``: rerun the same command to refresh a report.
+
+Success is each episode's recorded ``success``: its task's one verdict, the one the env's
+info, the demo and ``eval`` count. The report says which verdict that is, per
+dataset (a line at the top, and the ``verdict`` column of the overall, by-source and
+by-dataset tables): the episodes' ``success_verdict`` (e.g. settled over the last 0.5 s for
+ToolShape-v0), or for episodes written before schema 2, what their task recorded then
+(ToolShape-v0: the last step).
 """
 
 from __future__ import annotations
@@ -55,8 +62,8 @@ def compute_tables(episodes: pd.DataFrame, curves: pd.DataFrame, attempts_k=(1, 
     """Every table of the report, by the name of its CSV file (without .csv)."""
     tables = {
         "overall": overall_success(episodes),
-        "success_by_source": success_rates(episodes, "source"),
-        "success_by_dataset": success_rates(episodes, ["dataset", "source"]),
+        "success_by_source": success_rates(episodes, "source", verdict=True),
+        "success_by_dataset": success_rates(episodes, ["dataset", "source"], verdict=True),
         "success_by_object": success_rates(episodes, ["source", "object"]),
         "success_by_size": success_rates(episodes, ["source", "object", "object_size"]),
         "attempts": attempt_rates(episodes, attempts_k),
@@ -78,7 +85,8 @@ def _attempt_summary(table: pd.DataFrame) -> pd.DataFrame:
 def _sections(tables: dict[str, pd.DataFrame], plot_files: dict[str, str]) -> list[Section]:
     sizes_known = (tables["success_by_size"]["object_size"] != "(unknown)").any()
     sections = [
-        Section("Overall", "All episodes of the datasets: success rate with its Wilson 95% interval.",
+        Section("Overall", "All episodes of the datasets: success rate with its Wilson 95% interval "
+                "(verdict: what success counts; several if the datasets' tasks differ).",
                 tables["overall"], "overall.csv"),
         Section("Success rate by source", "Per producing source (heuristic, low_level, high_level, real, ...).",
                 tables["success_by_source"], "success_by_source.csv", [plot_files["success_by_source"]]),
@@ -102,7 +110,10 @@ def _sections(tables: dict[str, pd.DataFrame], plot_files: dict[str, str]) -> li
     ]
     if "learning_curves" in tables:
         sections.append(Section(
-            "Learning curves", f"From the run folders' {METRICS_FILE}: mean over seeds, band +- one std.",
+            "Learning curves", f"From the run folders' {METRICS_FILE}: mean over seeds, band +- one std. "
+            "success_rate is each run's evaluations' success verdict (hingelab train low: settled over the last "
+            "0.5 s; its metrics.csv written before schema v2 recorded the last step as success_rate and the "
+            "settled verdict as settled_success_rate: read here as last_step_success_rate and success_rate).",
             None, "learning_curves.csv", [plot_files["learning_curves"]]))
     return sections
 
@@ -125,6 +136,13 @@ def _plots(out: Path, episodes: pd.DataFrame, tables: dict[str, pd.DataFrame]) -
     if "learning_curves" in tables:
         written["learning_curves"] = plots.learning_curve_plot(tables["learning_curves"], out / "learning_curves.png")
     return {name: path.name for name, path in written.items()}
+
+
+def verdict_line(episodes: pd.DataFrame) -> str:
+    """The report's statement of what success counts, per dataset (and source)."""
+    parts = [f"{dataset} ({source}): {'; '.join(sorted(set(part['verdict'])))}"
+             for (dataset, source), part in episodes.groupby(["dataset", "source"], sort=True)]
+    return "What success counts: " + "; ".join(parts) + "."
 
 
 def build_report(datasets, out, runs=(), title: str | None = None, attempts_k=(1, 2, 3)) -> Report:
@@ -150,6 +168,7 @@ def build_report(datasets, out, runs=(), title: str | None = None, attempts_k=(1
         f"{len(episodes)} episodes from {len(datasets)} dataset(s) ({names}); overall success "
         f"{overall['success_rate']:.3f} [{overall['success_ci_low']:.3f}, {overall['success_ci_high']:.3f}] "
         "(Wilson 95%)." + (f" Learning curves from {len(runs)} run folder(s)." if runs else ""),
+        verdict_line(episodes),
         "Recompute with: hingelab report " + " ".join(str(d) for d in datasets)
         + (" --runs " + " ".join(str(r) for r in runs) if runs else "") + f" --out {out}",
     ]
@@ -168,4 +187,4 @@ def build_report(datasets, out, runs=(), title: str | None = None, attempts_k=(1
     return Report(out=out, episodes=episodes, tables=tables, files=files)
 
 
-__all__ = ["build_report", "compute_tables", "Report"]
+__all__ = ["build_report", "compute_tables", "verdict_line", "Report"]

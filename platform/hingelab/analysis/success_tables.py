@@ -1,7 +1,9 @@
 """The report's tables, from the episode table (``episode_table.py``) with pandas.
 
-- ``success_rates(episodes, by)``: episodes, successes, rate and its Wilson 95% interval
-  per group (``by``: ``source``, ``object``, ``object_size``, or several).
+- ``success_rates(episodes, by, verdict=False)``: episodes, successes, rate and its Wilson
+  95% interval per group (``by``: ``source``, ``object``, ``object_size``, or several);
+  ``verdict=True`` adds the column ``verdict``: what ``success`` counts in the group (the
+  episode table's ``verdict``, several joined by "; " if the group mixes them).
 - ``attempt_rates(episodes, ks)``: the paper's real-robot table: per source and object,
   the share of **trials** that succeeded at the first attempt and within k attempts.
   A trial is the episodes sharing (dataset, source, object, object_size, seed): one
@@ -41,19 +43,26 @@ def _size_labels(episodes: pd.DataFrame) -> pd.DataFrame:
     return episodes.assign(object_size=label)
 
 
-def success_rates(episodes: pd.DataFrame, by: str | Sequence[str]) -> pd.DataFrame:
-    """Per group: episodes, successes, success_rate, ci_low, ci_high (Wilson 95%)."""
+def _joined(values: pd.Series) -> str:
+    return "; ".join(sorted(set(values.astype(str))))
+
+
+def success_rates(episodes: pd.DataFrame, by: str | Sequence[str], verdict: bool = False) -> pd.DataFrame:
+    """Per group: episodes, successes, success_rate, ci_low, ci_high (Wilson 95%); with ``verdict``,
+    a ``verdict`` column after the group keys (what success counts there)."""
     by = [by] if isinstance(by, str) else list(by)
     frame = _size_labels(episodes) if "object_size" in by else episodes
-    table = frame.groupby(by, sort=True, dropna=False).agg(
-        episodes=("success", "size"), successes=("success", "sum")).reset_index()
+    grouped = frame.groupby(by, sort=True, dropna=False)
+    table = grouped.agg(episodes=("success", "size"), successes=("success", "sum")).reset_index()
     table["successes"] = table["successes"].astype("int64")
+    if verdict and "verdict" in frame.columns:
+        table.insert(len(by), "verdict", grouped["verdict"].agg(_joined).to_numpy())
     return _with_interval(table, "successes", "episodes", "success_")
 
 
 def overall_success(episodes: pd.DataFrame) -> pd.DataFrame:
-    """One row over all episodes: episodes, successes, rate and interval."""
-    return success_rates(episodes.assign(all="all"), "all")
+    """One row over all episodes: episodes, successes, rate and interval, and what success counts."""
+    return success_rates(episodes.assign(all="all"), "all", verdict=True)
 
 
 def attempt_rates(episodes: pd.DataFrame, ks: Sequence[int] = (1, 2, 3)) -> pd.DataFrame:

@@ -121,12 +121,16 @@ def step_low_level_policy(seed: int) -> dict:
     rows = episodes.to_dict("records")
     for row in rows:
         print(f"  goal opening {row['goal_opening_rad']:.3f} rad: hinge reached {row['final_hinge_rad']:.3f} rad, "
-              f"tip-gap error {row['tip_gap_error_mm']:.1f} mm, latent distance {row['settled_latent_distance']:.3f} "
-              f"(threshold {threshold:.3f}), tool moved at most {row['tool_drift_mm_max']:.1f} mm")
+              f"tip-gap error {row['tip_gap_error_mm']:.1f} mm, latent distance over the last 0.5 s "
+              f"{row['settled_latent_distance']:.3f} (threshold {threshold:.3f}): "
+              f"{'success' if row['success'] else 'failure'}, tool moved at most {row['tool_drift_mm_max']:.1f} mm")
     overall = region_table(episodes).iloc[-1]
-    print(f"  {SHIPPED_LOW_LEVEL.name}: settled success {int(overall['settled_successes'])}/3 in "
-          f"{time.perf_counter() - started:.1f} s, recorded in {DEMO_LOW_LEVEL_DATASET}")
-    return {"dataset": str(DEMO_LOW_LEVEL_DATASET), "settled_success_rate": float(overall["settled_success_rate"]),
+    # the env's verdict (settled over the last 0.5 s), as each episode records it: report counts the same
+    print(f"  {SHIPPED_LOW_LEVEL.name}: success {int(overall['successes'])}/{len(rows)} (settled over the last 0.5 s) "
+          f"in {time.perf_counter() - started:.1f} s, recorded in {DEMO_LOW_LEVEL_DATASET}")
+    return {"dataset": str(DEMO_LOW_LEVEL_DATASET), "episodes": len(rows), "successes": int(overall["successes"]),
+            "success_rate": float(overall["success_rate"]),
+            "last_step_success_rate": float(overall["last_step_success_rate"]),
             "tip_gap_error_mm": [r["tip_gap_error_mm"] for r in rows]}
 
 
@@ -137,11 +141,15 @@ def step_report_and_recording(seed: int) -> dict:
 
     report = build_report([DEMO_DATASET, DEMO_LOW_LEVEL_DATASET], DEMO_OUT)
     result, _ = view(DEMO_DATASET, save=DEMO_OUT / "demo_heuristic.rrd", progress=False)
-    overall = report.tables["overall"].iloc[0]
-    print(f"  report {report.html}: success {overall.success_rate:.0%} "
-          f"(95% CI {overall.success_ci_low:.0%} to {overall.success_ci_high:.0%}); "
-          f"Rerun recording {result.saved_to} ({result.seconds:.1f} s)")
-    return {"success_rate": float(overall.success_rate), "report": str(report.html), "rrd": str(result.saved_to)}
+    # one line per dataset: the two tasks count different verdicts (the report names each)
+    by_dataset = report.tables["success_by_dataset"]
+    figures = "; ".join(f"{r.dataset} {r.successes}/{r.episodes} ({r.verdict})"
+                        for r in by_dataset.itertuples())
+    print(f"  report {report.html}: success {figures}; Rerun recording {result.saved_to} ({result.seconds:.1f} s)")
+    return {"report": str(report.html), "rrd": str(result.saved_to),
+            "by_dataset": {r.dataset: {"episodes": int(r.episodes), "successes": int(r.successes),
+                                       "success_rate": float(r.success_rate), "verdict": r.verdict}
+                           for r in by_dataset.itertuples()}}
 
 
 STEPS = [

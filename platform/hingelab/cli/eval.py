@@ -3,6 +3,8 @@
 ``low``: the low-level policy on ToolShape-v0 toward reachable goals stratified over the
 opening range; every episode is an MCAP episode in ``--out``; the report is the success
 rate per goal region (thirds of the reachable opening range) with Wilson 95% intervals.
+Success is the env's one verdict (ToolShape-v0: settled over the last 0.5 s), the episodes'
+recorded ``success``, so ``hingelab report`` of ``--out`` counts the same episodes.
 """
 
 from __future__ import annotations
@@ -43,8 +45,8 @@ def run_low(args: argparse.Namespace) -> int:
     from hingelab.envs.rewards import LowLevelRewardConfig
     from hingelab.episodes import create_dataset
     from hingelab.errors import ConfigError
-    from hingelab.learning.low_level_eval import (SETTLE_STEPS, evaluate_sampled_goals, make_eval_env,
-                                                  reference_policy, region_table)
+    from hingelab.envs.tool_shape import SETTLE_STEPS
+    from hingelab.learning.low_level_eval import evaluate_sampled_goals, make_eval_env, reference_policy, region_table
 
     if args.baseline and args.checkpoint is not None:
         raise ConfigError("give a checkpoint or --baseline, not both")
@@ -82,18 +84,18 @@ def run_low(args: argparse.Namespace) -> int:
         f"# Low-level evaluation of {label}\n\n{args.episodes} episodes, seed {args.seed}, "
         f"env {json.dumps(env_args)}; success threshold {unwrapped.success_threshold:.4f} (latent distance "
         f"of 2 mm tip gap); regions are thirds of the reachable opening range "
-        f"{unwrapped.reachable_range[0]:.3f}..{unwrapped.reachable_range[1]:.3f} rad. `success`: z_bar within "
-        f"the threshold at the last step (the env's is_success); `settled_`: z_bar averaged over the last "
-        f"{SETTLE_STEPS} steps (0.5 s) within it; `tip_gap_error_mm`: the privileged tip gap over those steps "
-        f"against the gap of the goal's calibrated opening.\n\n"
+        f"{unwrapped.reachable_range[0]:.3f}..{unwrapped.reachable_range[1]:.3f} rad. `success` (the env's "
+        f"verdict, `{unwrapped.success_verdict}`, recorded as each episode's success): z_bar averaged over the last "
+        f"{SETTLE_STEPS} steps (0.5 s) within the threshold; `last_step_` (secondary, not counted as success): "
+        f"z_bar of the last step alone within it; `tip_gap_error_mm`: the privileged tip gap over the last "
+        f"{SETTLE_STEPS} steps against the gap of the goal's calibrated opening.\n\n"
         + markdown_table(table.round(3)) + "\n")
     print(table.to_string(index=False, float_format=lambda v: f"{v:.3f}"))
     overall = table[table["goal_region"] == "all"].iloc[0]
-    print(f"Evaluated {label} on {args.episodes} reachable goals: success at the last step "
+    print(f"Evaluated {label} on {args.episodes} reachable goals: success (settled over the last {SETTLE_STEPS} "
+          f"steps, the episodes' recorded verdict) {int(overall['successes'])}/{args.episodes} = "
           f"{overall['success_rate']:.2f} [{overall['ci_low']:.2f}, {overall['ci_high']:.2f}] (with the tool "
-          f"drifting under 1 cm {overall['success_and_drift_under_1cm']:.2f}); settled over the last "
-          f"{SETTLE_STEPS} steps {overall['settled_success_rate']:.2f} [{overall['settled_ci_low']:.2f}, "
-          f"{overall['settled_ci_high']:.2f}] (under 1 cm {overall['settled_success_and_drift_under_1cm']:.2f}); "
-          f"median tip-gap error {overall['tip_gap_error_mm_median']:.1f} mm. Dataset, episodes.csv, regions.csv, "
-          f"report.md in {args.out}.")
+          f"drifting under 1 cm {overall['success_and_drift_under_1cm']:.2f}); secondary, the last step alone "
+          f"{overall['last_step_success_rate']:.2f}; median tip-gap error {overall['tip_gap_error_mm_median']:.1f} mm. "
+          f"Dataset, episodes.csv, regions.csv, report.md in {args.out}.")
     return 0

@@ -7,6 +7,11 @@ the action, the action executed, reward, terminated, truncated, info scalars). T
 episode file is finished when the episode ends; an episode cut short by ``reset`` or
 ``close`` is discarded (a half episode is not data), and one whose step raised keeps its
 ``.partial`` file for ``hingelab datasets recover``.
+
+The episode's ``success`` is the env's one verdict, ``info["is_success"]`` of the last step,
+and ``success_verdict`` names it (``success_verdict(env)``; written at open, so a cut-off
+file says it too). A secondary verdict the env reports (ToolShape-v0's
+``info["last_step_success"]``) is recorded under its own key, never as ``success``.
 """
 
 from __future__ import annotations
@@ -17,6 +22,7 @@ import gymnasium as gym
 import numpy as np
 
 from hingelab.episodes import EpisodeWriter
+from hingelab.episodes import schemas as S
 from hingelab.episodes.card import load_card
 from hingelab.sim import names
 
@@ -51,6 +57,20 @@ def _scalars(info: dict) -> dict[str, float]:
     return out
 
 
+def success_verdict(env: gym.Env) -> str | None:
+    """The name of the verdict ``info["is_success"]`` gives (a key of ``schemas.SUCCESS_VERDICTS``).
+
+    An env says it with its ``success_verdict`` attribute (ToolShape-v0: ``"settled_0.5s"``);
+    ToolPick-v0's verdict is the object within its reward's success radius of the target
+    (``"object_within_1cm"`` at the default 1 cm). None for an env that does not say.
+    """
+    unwrapped = env.unwrapped
+    verdict = getattr(unwrapped, "success_verdict", None)
+    if verdict is None and type(unwrapped).__name__ == "ToolPickEnv":
+        verdict = f"object_within_{100 * unwrapped.reward_config.success_radius:g}cm"
+    return verdict
+
+
 class RecordingWrapper(gym.Wrapper):
     """Writes each episode of ``env`` into ``dataset_dir`` (made by ``create_dataset``)."""
 
@@ -64,6 +84,7 @@ class RecordingWrapper(gym.Wrapper):
         self.object_name = object_name
         self.action_level = action_level
         self.extra_metadata = extra_metadata or {}
+        self.success_verdict = success_verdict(env)
         self.writer: EpisodeWriter | None = None
         self.episode_seed: int | None = None
         self.last_obs = None
@@ -75,7 +96,8 @@ class RecordingWrapper(gym.Wrapper):
         self.episode_seed = seed
         self.writer = EpisodeWriter(self.dataset_dir, source=self.source, task=self.task, object=self.object_name,
                                     seed=seed, action_level=self.action_level, joint_names=SVH_JOINTS,
-                                    extra_metadata=self.extra_metadata)
+                                    extra_metadata={S.KEY_SUCCESS_VERDICT: self.success_verdict,
+                                                    **self.extra_metadata})
         self.writer.open()
         self._write(obs_before=None, action=None, reward=0.0, terminated=False, truncated=False, info=info)
         self.last_obs = obs
@@ -118,11 +140,14 @@ class RecordingWrapper(gym.Wrapper):
         )
 
     def _finish(self, final_obs, info: dict) -> None:
-        success = bool(info.get("is_success", 0.0))
+        success = bool(info.get("is_success", 0.0))  # the env's one verdict
         reason = None if success else info.get("failure_reason", "timeout")
+        secondary = {}
+        if "last_step_success" in info:  # ToolShape-v0's one-frame verdict: its own key
+            secondary[S.KEY_LAST_STEP_SUCCESS] = bool(info["last_step_success"])
         self.writer.write_final_observation(final_obs)
         self.writer.set_outcome(success, failure_reason=reason, attempt=int(info.get("attempt", 1)),
-                                first_attempt_success=bool(info.get("first_attempt_success", success)))
+                                first_attempt_success=bool(info.get("first_attempt_success", success)), **secondary)
         self.paths.append(self.writer.close())
         self.writer = None
 

@@ -42,10 +42,21 @@ that squeezes the tweezer shut misses goals of 1-3 mm of tip gap (the same kind 
 the reachable range), to train an expert for one band (``hingelab compose low`` routes goals to it).
 
 ## Success
-``||z_bar - z_goal|| < success_threshold``. The default is the latent distance that 2 mm
-of tip gap spans along the calibration curve (mid-range), so success means "the tips are
-within about 2 mm of the opening asked for", a precision that matters for 1.5 to 2.5 cm
-objects; computed from the encoder's calibration at construction (``info["success_threshold"]``).
+One verdict, ``info["is_success"]`` (the episode's recorded ``success``, with metadata
+``success_verdict`` = ``"settled_0.5s"``: ``hingelab.episodes.schemas``): z_bar **settled**, i.e.
+the mean of z_bar over the last ``SETTLE_STEPS`` = 10 steps (0.5 s at 20 Hz; fewer in an
+episode's first steps, and at reset the reset's z_bar alone), within ``success_threshold`` of
+z_goal (``info["settled_latent_distance"]`` is that mean's distance). The env keeps that window
+itself. Why not one frame: at rest the in-hand latent jitters by 0.04 to 0.10 from frame to frame,
+about the threshold itself, so one frame's verdict measures the camera as much as the policy
+(``analysis/low-level-ablation/README.md``). The one-frame verdict stays as a secondary field,
+never the success: ``info["last_step_success"]`` (``||z_bar - z_goal|| < success_threshold`` at
+this step; ``info["latent_distance"]`` its distance). The threshold's default is the latent
+distance that 2 mm of tip gap spans along the calibration curve (mid-range), so success means
+"the tips are within about 2 mm of the opening asked for", a precision that matters for 1.5 to
+2.5 cm objects; computed from the encoder's calibration at construction
+(``info["success_threshold"]``). The reward and ``compute_reward`` (hence HER's relabelling) do
+not use the verdict: they read z_bar of the step (and the effort from ``info``) only.
 
 ## Episode End
 Truncated after ``max_episode_steps`` (50 = 2.5 s, the time limit wrapper) or when the
@@ -67,6 +78,11 @@ frame-to-frame jitter from 0.04-0.10 to about a quarter of that), ``terminate_on
 ## Version History
 v0: first version (later options that default to v0's behaviour: ``effort_weight``,
 ``drift_weight``, ``goal_openings``, ``goal_sampling="reachable_open"`` and ``"reachable_closed"``).
+v0, from episode schema 2: ``info["is_success"]`` is the settled verdict (z_bar over the last
+0.5 s); before, it was the last step's z_bar alone (now ``info["last_step_success"]``). Recorded
+episodes name their verdict (``success_verdict``). Observations, dynamics, the reward and
+``compute_reward`` are unchanged, so the id stays v0; version-1 episodes' ``success`` is the old
+verdict, and ``hingelab report`` says so.
 """
 
 from __future__ import annotations
@@ -92,11 +108,14 @@ OPEN_SHARE = 0.4  # "reachable_open": the top part of the reachable range that g
 CLOSED_SHARE = 0.25  # "reachable_closed": the bottom part of the reachable range that gets half of the goals
 DROP_DISTANCE_M = 0.03
 SUCCESS_GAP_MM = 2.0
+SETTLE_STEPS = 10  # the last 0.5 s at 20 Hz: the success verdict's window (where the policy holds the tool)
+SUCCESS_VERDICT = "settled_0.5s"  # the metadata value of success_verdict (hingelab.episodes.schemas.SUCCESS_VERDICTS)
 CANONICAL_OPENING = 0.15  # rad: the canonical cloud the effort term moves
 
 
 class ToolShapeEnv(SimRenderMixin, gym.Env):
     metadata = {"render_modes": ["rgb_array"], "render_fps": 20}
+    success_verdict = SUCCESS_VERDICT  # what info["is_success"] means; recorded with every episode
 
     def __init__(self, use_effort: bool = True, goal_sampling: str = "normal", randomize: bool = True,
                  success_threshold: float | None = None, action_scale: float = 0.05,
@@ -144,6 +163,9 @@ class ToolShapeEnv(SimRenderMixin, gym.Env):
             "desired_goal": spaces.Box(-np.inf, np.inf, (2,), np.float64),
         })
         self.goal = np.zeros(2)
+        # the smoothed latents of the last SETTLE_STEPS steps (a ring; _settled_count since reset)
+        self._settle_window = np.zeros((SETTLE_STEPS, 2))
+        self._settled_count = 0
         self.sample = None
         self.start_state = None
         self.state = None
@@ -157,6 +179,7 @@ class ToolShapeEnv(SimRenderMixin, gym.Env):
         self.perception.reset(episode_seed)
         self.goal = self._sample_goal() if not (options and "goal" in options) else np.asarray(options["goal"], float)
         self.sample = self.perception.observe(self.sim)
+        self._settled_count = 0  # the window holds the steps' latents; at reset, the verdict reads this one
         obs = self._observation()
         info = self._info(terms={"goal": 0.0, "effort_tool": 0.0, "effort_fingers": 0.0})
         self.last_record = self._record(None, 0.0, info)
@@ -171,6 +194,8 @@ class ToolShapeEnv(SimRenderMixin, gym.Env):
         result = self.sim.step(hand_action=np.minimum(np.maximum(action, -1.0), 1.0) * self.action_scale)
         self.state = result.state
         self.sample = self.perception.observe(self.sim)
+        self._settle_window[self._settled_count % SETTLE_STEPS] = self.sample.z_smoothed[0]
+        self._settled_count += 1
         obs = self._observation()
         qdot = self.sim.hand.qdot(self.sim.data)
         goal = float(goal_reward(obs["achieved_goal"], self.goal, self.reward_config.c1))
@@ -242,10 +267,17 @@ class ToolShapeEnv(SimRenderMixin, gym.Env):
         # sqrt(x @ x) is np.linalg.norm's own formula for a vector, without its call overhead
         moved = self.state.tool_pos_hand - self.start_state.tool_pos_hand
         drift = math.sqrt(moved @ moved)
-        apart = self.sample.z_smoothed[0] - self.goal
+        z_bar = self.sample.z_smoothed[0]
+        apart = z_bar - self.goal
         distance = math.sqrt(apart @ apart)
+        n = min(self._settled_count, SETTLE_STEPS)
+        settled = self._settle_window[:n].sum(axis=0) / n if n else z_bar
+        apart = settled - self.goal
+        settled_distance = math.sqrt(apart @ apart)
         return {
-            "is_success": float(distance < self.success_threshold),
+            "is_success": float(settled_distance < self.success_threshold),  # the one verdict: settled
+            "settled_latent_distance": settled_distance,
+            "last_step_success": float(distance < self.success_threshold),  # secondary: this frame alone
             "latent_distance": distance,
             "success_threshold": self.success_threshold,
             "effort": terms["effort_tool"] + terms["effort_fingers"],

@@ -29,6 +29,8 @@ INDEX_COLUMNS = {
     "success": "boolean", "failure_reason": "string", "config_hash": "string", "recovered": "boolean",
     "schema_version": "Int64", "start_time_s": "float64", "end_time_s": "float64", "bytes": "int64",
     "mtime_ns": "int64",
+    # schema v2: which verdict ``success`` is, and ToolShape-v0's secondary one; NA for version-1 files
+    "success_verdict": "string", "last_step_success": "boolean",
 }
 
 
@@ -92,7 +94,9 @@ class Dataset:
         if index_path.exists() and not rebuild:
             try:
                 old = pd.read_parquet(index_path)
-                cached = {row["file"]: row for row in old.to_dict("records")}
+                # an index written before a column existed is rebuilt: its rows lack the new facts
+                if set(INDEX_COLUMNS) <= set(old.columns):
+                    cached = {row["file"]: row for row in old.to_dict("records")}
             except (OSError, ValueError):  # unreadable cache: rebuild from the files
                 cached = {}
         rows, changed = [], len(cached) != len(files)

@@ -32,9 +32,10 @@ from hingelab.episodes import schemas as S
 from hingelab.episodes.errors import DatasetError
 from hingelab.episodes.metadata import parse_metadata
 
-# Schema versions this reader understands. A version-2 reader keeps 1 here and
-# maps old topics/fields onto new names in ``_upgrade`` (nothing to map yet).
-SUPPORTED_SCHEMA_VERSIONS = frozenset({1})
+# Schema versions this reader understands. A newer reader keeps the older ones here and
+# maps old topics/fields onto new names when a version renames them. Version 2 added metadata keys only
+# (``success_verdict``, ``last_step_success``): a version-1 file reads as before, without them.
+SUPPORTED_SCHEMA_VERSIONS = frozenset({1, 2})
 
 
 @dataclass

@@ -24,7 +24,11 @@ from foxglove_schemas_protobuf.PoseInFrame_pb2 import PoseInFrame
 
 # Version of topics, schemas and metadata keys. Bump on any incompatible change
 # and keep the reader able to read every older version.
-SCHEMA_VERSION = 1
+#   1: first version.
+#   2: metadata keys ``success_verdict`` and ``last_step_success``; ToolShape-v0's ``success`` is
+#      the settled verdict (version 1 recorded its last step's). Messages unchanged: the proto file
+#      stays ``episodes_v1.proto``, and a version-1 file reads as before (no ``success_verdict``).
+SCHEMA_VERSION = 2
 
 # --- frames -------------------------------------------------------------------
 FRAME_HAND = "hand_base"  # the SVH hand's base frame; every position below is in it
@@ -77,6 +81,38 @@ KEY_HINGELAB_VERSION = "hingelab_version"
 KEY_GIT_COMMIT = "git_commit"
 KEY_JOINT_NAMES = "joint_names"
 KEY_ACTION_LEVEL = "action_level"
+KEY_SUCCESS_VERDICT = "success_verdict"  # (v2) which verdict ``success`` is: a key of SUCCESS_VERDICTS
+KEY_LAST_STEP_SUCCESS = "last_step_success"  # (v2) ToolShape-v0's secondary, one-frame verdict; never ``success``
+
+# The verdicts ``success`` may be (the ``success_verdict`` values): one per task, the one the
+# env's info["is_success"], the demo, eval, report and the benches count.
+# value -> what a report prints for it (datasets/README.md gives each one's full definition)
+SUCCESS_VERDICTS = {
+    # the smoothed latent z_bar averaged over the last 10 steps within the env's success threshold of z_goal
+    "settled_0.5s": "settled over the last 0.5 s (ToolShape-v0)",
+    # the object within 1 cm of the target (the episode ends on it; the heuristic's episodes too)
+    "object_within_1cm": "object within 1 cm of the target (ToolPick-v0)",
+}
+# What version-1 episodes (no ``success_verdict``) recorded as ``success``, by task
+SCHEMA_V1_VERDICTS = {
+    "hingelab/ToolShape-v0": "last step (ToolShape-v0, recorded before schema v2)",
+    "hingelab/ToolPick-v0": "object within 1 cm of the target (ToolPick-v0, recorded before schema v2)",
+}
+UNNAMED_VERDICT = "as its source recorded it (no success_verdict)"
+
+
+def verdict_description(verdict, task, schema_version) -> str:
+    """What an episode's ``success`` counts, in words: its ``success_verdict`` (schema >= 2), else
+    what its task recorded before schema 2 (``SCHEMA_V1_VERDICTS``), else ``UNNAMED_VERDICT``."""
+    if isinstance(verdict, str) and verdict:
+        return SUCCESS_VERDICTS.get(verdict, verdict)
+    try:
+        old = int(schema_version) < 2
+    except (TypeError, ValueError):  # not recorded (a foreign writer): version 1's reading
+        old = True
+    if old and isinstance(task, str) and task in SCHEMA_V1_VERDICTS:
+        return SCHEMA_V1_VERDICTS[task]
+    return UNNAMED_VERDICT
 
 REQUIRED_EPISODE_KEYS = (
     KEY_SOURCE, KEY_TASK, KEY_OBJECT, KEY_SEED, KEY_LENGTH, KEY_RETURN, KEY_SUCCESS,
@@ -219,5 +255,5 @@ KNOWN_SCHEMA_NAMES = frozenset(cls.DESCRIPTOR.full_name for cls in TOPIC_TYPES.v
 __all__ = [name for name in dir() if name.isupper()] + [
     "ToolLatent", "Action", "LatentGoal", "RewardTerms", "PrivilegedState", "Step", "Column",
     "EpisodeColumns", "PointCloud", "PoseInFrame", "FrameTransform", "JointStates",
-    "Point3InFrame", "PackedElementField",
+    "Point3InFrame", "PackedElementField", "verdict_description",
 ]

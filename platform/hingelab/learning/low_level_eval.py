@@ -1,9 +1,11 @@
 """Evaluating a low-level policy: fixed or sampled reachable goals, deterministic actions.
 
-An episode succeeds when its smoothed latent ends within the env's success threshold of
-the goal (``info["is_success"]`` at the last step: the tool must *stay* shaped, not pass
-through the goal); ``run_episode`` also gives the settled verdict (the last 0.5 s averaged)
-and the privileged tip-gap error. Tool drift is the privileged distance of the tool from
+An episode succeeds by the env's one verdict, ``info["is_success"]`` at its last step (the
+recorded ``success``): ToolShape-v0's smoothed latent averaged over the last 0.5 s
+(``SETTLE_STEPS``, owned by the env) within the success threshold of the goal, so the tool
+must *stay* shaped, not pass through the goal. ``run_episode`` also gives the one-frame
+verdict as ``last_step_success`` (secondary, never counted as success) and the privileged
+tip-gap error. Tool drift is the privileged distance of the tool from
 where the episode started (hand frame), its maximum over the episode. ``HoldStillPolicy``
 and ``SynergyPolicy`` are the references (``reference_policy``).
 """
@@ -17,6 +19,7 @@ import numpy as np
 import pandas as pd
 
 from hingelab.analysis.wilson import wilson_interval
+from hingelab.envs.tool_shape import SETTLE_STEPS
 from hingelab.learning.low_level_config import ENV_ID
 from hingelab.learning.low_level_envs import EVAL_SEED_BASE, REGIONS, region_of
 
@@ -84,40 +87,36 @@ def reference_policy(name: str, env: gym.Env):
     raise ValueError(f"unknown reference policy {name!r}; choose one of {REFERENCES}")
 
 
-SETTLE_STEPS = 10  # the last 0.5 s at 20 Hz: where the policy holds the tool, not one camera frame
-
-
 def run_episode(policy, env: gym.Env, goal: dict) -> dict:
     """One deterministic episode toward ``goal`` (dict with z_goal, seed, region, opening_rad).
 
-    Three verdicts: ``success`` is the env's own (z_bar within the threshold at the last
-    step); ``settled_success`` asks the same of z_bar averaged over the last SETTLE_STEPS
-    steps, because one frame's z carries the perception's jitter (0.04 to 0.10 latent rms
-    at rest, about the threshold itself); ``tip_gap_error_mm`` is the privileged truth:
-    the tips' gap over those steps against the gap of the goal's calibrated opening.
+    ``success`` is the env's verdict at the last step (``info["is_success"]``: z_bar averaged
+    over the last SETTLE_STEPS steps within the threshold; ``settled_latent_distance`` that
+    mean's distance), the same the recording wrapper writes as the episode's ``success``;
+    ``last_step_success`` and ``final_latent_distance`` are the last frame's alone (secondary:
+    one frame's z carries the perception's jitter, 0.04 to 0.10 latent rms at rest, about the
+    threshold itself); ``tip_gap_error_mm`` is the privileged truth: the tips' gap over the
+    last SETTLE_STEPS steps against the gap of the goal's calibrated opening.
     """
     obs, info = env.reset(seed=int(goal["seed"]), options={"goal": goal["z_goal"]})
     if hasattr(policy, "reset"):  # scripted references keep per-episode state
         policy.reset()
     unwrapped = env.unwrapped
     total, steps, drift_max, done = 0.0, 0, 0.0, False
-    latents, gaps = [], []
+    gaps = []
     while not done:
         action, _ = policy.predict(obs, deterministic=True)
         obs, reward, terminated, truncated, info = env.step(action)
         total += float(reward)
         steps += 1
         drift_max = max(drift_max, float(info["tool_drift_m"]))
-        latents.append(np.asarray(obs["achieved_goal"], float))
         gaps.append(float(unwrapped.state.tip_gap))
         done = terminated or truncated
-    settled_z = np.mean(latents[-SETTLE_STEPS:], axis=0)
-    settled_distance = float(np.linalg.norm(settled_z - np.asarray(goal["z_goal"], float)))
     goal_gap_mm = float(unwrapped.calibration.tip_gap_mm_for_opening(goal["opening_rad"]))
     return {"region": goal["region"], "goal_opening_rad": goal["opening_rad"], "seed": int(goal["seed"]),
-            "success": bool(info["is_success"]), "final_latent_distance": float(info["latent_distance"]),
-            "settled_success": settled_distance < float(info["success_threshold"]),
-            "settled_latent_distance": settled_distance,
+            "success": bool(info["is_success"]), "settled_latent_distance": float(info["settled_latent_distance"]),
+            "last_step_success": bool(info["last_step_success"]),
+            "final_latent_distance": float(info["latent_distance"]),
             "tip_gap_error_mm": abs(1000.0 * float(np.mean(gaps[-SETTLE_STEPS:])) - goal_gap_mm),
             "final_hinge_rad": float(info["hinge_angle"]), "return": total, "length": steps,
             "tool_drift_mm_max": 1000 * drift_max, "failure_reason": info.get("failure_reason", "")}
@@ -128,17 +127,24 @@ def evaluate(policy, env: gym.Env, goals: list[dict]) -> pd.DataFrame:
 
 
 def summarize(episodes: pd.DataFrame) -> dict:
-    """The metrics row of one evaluation (``metrics.csv`` columns beyond env_steps/seed)."""
+    """The metrics row of one evaluation (``metrics.csv`` columns beyond env_steps/seed).
+
+    ``success_rate`` counts the env's verdict (settled); ``last_step_success_rate`` the
+    secondary one-frame verdict. (``metrics.csv`` files written before episode schema 2 have
+    ``success_rate`` = last step and ``settled_success_rate``; ``hingelab report`` reads them
+    under these names: ``hingelab.analysis.learning_curves``.)
+    """
+    under_1cm = episodes["tool_drift_mm_max"] < 10
     out = {
         "success_rate": float(episodes["success"].mean()),
         "return": float(episodes["return"].mean()),
         "final_latent_distance": float(episodes["final_latent_distance"].mean()),
+        "settled_latent_distance": float(episodes["settled_latent_distance"].mean()),
         "tool_drift_mm_max": float(episodes["tool_drift_mm_max"].max()),
         "tool_drift_mm_mean": float(episodes["tool_drift_mm_max"].mean()),
-        "success_under_1cm": float((episodes["success"] & (episodes["tool_drift_mm_max"] < 10)).mean()),
-        "settled_success_rate": float(episodes["settled_success"].mean()),
-        "settled_success_under_1cm": float((episodes["settled_success"]
-                                            & (episodes["tool_drift_mm_max"] < 10)).mean()),
+        "success_under_1cm": float((episodes["success"] & under_1cm).mean()),
+        "last_step_success_rate": float(episodes["last_step_success"].mean()),
+        "last_step_success_under_1cm": float((episodes["last_step_success"] & under_1cm).mean()),
         "tip_gap_error_mm_median": float(episodes["tip_gap_error_mm"].median()),
     }
     for region in REGIONS:
@@ -148,7 +154,9 @@ def summarize(episodes: pd.DataFrame) -> dict:
 
 
 def region_table(episodes: pd.DataFrame) -> pd.DataFrame:
-    """Per goal region and overall: episodes, both success verdicts with Wilson 95% intervals, drift, truth."""
+    """Per goal region and overall: episodes, the success verdict (``successes``, ``success_rate``,
+    ``ci_low``, ``ci_high``: the env's, settled) and the secondary one-frame verdict (``last_step_``
+    prefix), each with Wilson 95% intervals and with the tool's drift under 1 cm; distances, truth."""
     rows = []
     for region in (*REGIONS, "all"):
         part = episodes if region == "all" else episodes[episodes["region"] == region]
@@ -156,7 +164,7 @@ def region_table(episodes: pd.DataFrame) -> pd.DataFrame:
             continue
         n = len(part)
         row = {"goal_region": region, "episodes": n}
-        for verdict, prefix in (("success", ""), ("settled_success", "settled_")):
+        for verdict, prefix in (("success", ""), ("last_step_success", "last_step_")):
             k = int(part[verdict].sum())
             low, high = wilson_interval(np.array([k]), np.array([n]))
             row |= {f"{prefix}successes": k, f"{prefix}success_rate": k / n,

@@ -4,7 +4,8 @@ A run folder holds everything the run made::
 
     RUNDIR/config.json      the LowLevelTrainConfig, seed, code version, env id
     RUNDIR/run.json         the curve label for ``hingelab report``
-    RUNDIR/metrics.csv      one row per evaluation (env_steps, seed, success_rate, return, ...)
+    RUNDIR/metrics.csv      one row per evaluation (env_steps, seed, success_rate, return, ...; success_rate
+                            is the env's verdict, settled over the last 0.5 s: ``low_level_eval.summarize``)
     RUNDIR/dataset/         every training rollout, one MCAP episode each (source low_level_training)
     RUNDIR/checkpoints/     resumable checkpoints (model, replay buffer, RNG, counters)
     RUNDIR/model.zip        the last policy;  RUNDIR/best_model.zip  the best evaluated one

@@ -38,6 +38,8 @@ class TrainingCallback(BaseCallback):
                         desc=f"train low {self.run.name}", disable=not self.progress, smoothing=0.05)
 
     def _rollout_rate(self) -> float:
+        # SB3 keeps info["is_success"] of each finished training episode: the env's one verdict
+        # (ToolShape-v0: settled over the last 0.5 s), as the evaluations' success_rate and the datasets count it
         buf = self.model.ep_success_buffer
         return float(np.mean(buf)) if len(buf) else float("nan")
 
