@@ -93,6 +93,25 @@ def test_resume_from_a_checkpoint_continues_exactly(tiny_run, tmp_path):
     pd.testing.assert_frame_equal(before, after)
 
 
+def test_metrics_log_keeps_every_value_in_its_column(tmp_path):
+    """metrics.csv: a row with its columns in another order, or with new ones, lands in the right
+    columns; resuming a run whose rows predate schema 2 renames them (success_rate = settled)."""
+    from hingelab.learning.train_low import MetricsLog
+
+    log = MetricsLog(tmp_path / "metrics.csv")
+    log.append({"env_steps": 0, "success_rate": 0.1, "settled_success_rate": 0.5, "wall_time_s": 0.0, "offline": 1})
+    log.append({"env_steps": 20, "success_rate": 0.2, "settled_success_rate": 0.6, "offline": 1, "wall_time_s": 5.5})
+    assert pd.read_csv(tmp_path / "metrics.csv")["wall_time_s"].tolist() == [0.0, 5.5]
+    log.truncate_after(20)
+    log.append({"env_steps": 40, "success_rate": 0.7, "last_step_success_rate": 0.3, "offline": 1,
+                "wall_time_s": 7.5, "settled_latent_distance": 0.03})
+    table = pd.read_csv(tmp_path / "metrics.csv")
+    assert table["success_rate"].tolist() == [0.5, 0.6, 0.7]
+    assert table["last_step_success_rate"].tolist() == [0.1, 0.2, 0.3]
+    assert table["wall_time_s"].tolist() == [0.0, 5.5, 7.5] and "settled_success_rate" not in table
+    assert table["settled_latent_distance"].isna().tolist() == [True, True, False]
+
+
 def test_resume_keeps_the_config_and_refuses_misuse(tiny_run, tmp_path):
     run, _ = tiny_run
     with pytest.raises(ConfigError, match="already holds a run"):

@@ -114,18 +114,43 @@ class MetricsLog:
             return list(csv.DictReader(f))
 
     def truncate_after(self, env_steps: int) -> None:
-        """Drop rows past a checkpoint we resume from (they will be evaluated again)."""
+        """Drop rows past a checkpoint we resume from (they will be evaluated again). Rows written
+        before episode schema 2 (success_rate = last step, settled_success_rate) get today's names,
+        so that a resumed run's success_rate is one verdict throughout."""
+        from hingelab.analysis.learning_curves import OLD_TRAIN_LOW_COLUMNS
+
         rows = [r for r in self.rows() if int(float(r["env_steps"])) <= env_steps]
+        if rows and "settled_success_rate" in rows[0] and "last_step_success_rate" not in rows[0]:
+            rows = [{OLD_TRAIN_LOW_COLUMNS.get(k, k): v for k, v in r.items()} for r in rows]
         if self.path.exists():
             self.path.unlink()
         for r in rows:
             self.append(r)
 
+    def _header(self) -> list[str] | None:
+        if not self.path.exists():
+            return None
+        with open(self.path, newline="") as f:
+            return next(csv.reader(f), None)
+
     def append(self, row: dict) -> None:
-        new = not self.path.exists()
+        """One row, under the file's header (a row's columns in another order go to their own
+        columns; a row with new columns rewrites the file under the union, atomically)."""
+        header = self._header()
+        if header is not None and not set(row) <= set(header):
+            rows = self.rows() + [row]
+            fields = list(dict.fromkeys([*header, *row]))
+            tmp = self.path.with_name(self.path.name + ".tmp")
+            with open(tmp, "w", newline="") as f:
+                writer = csv.DictWriter(f, fieldnames=fields, restval="")
+                writer.writeheader()
+                writer.writerows(rows)
+                f.flush()
+            tmp.replace(self.path)
+            return
         with open(self.path, "a", newline="") as f:
-            writer = csv.DictWriter(f, fieldnames=list(row))
-            if new:
+            writer = csv.DictWriter(f, fieldnames=header or list(row), restval="")
+            if header is None:
                 writer.writeheader()
             writer.writerow(row)
             f.flush()
