@@ -161,7 +161,7 @@ def test_tool_pick_observation_is_in_the_hand_frame(pick_env):
 def test_tool_pick_privileged_low_level_opens_to_the_goal(pick_env):
     env = pick_env.unwrapped
     pick_env.reset(seed=2)
-    z_open = env.calibration_z(0.22) if hasattr(env, "calibration_z") else env.low_level.calibration.z_for_opening(0.22)
+    z_open = env.low_level.calibration.z_for_opening(0.22)
     action = np.concatenate([np.asarray(z_open) / 3.0, np.zeros(3)])
     for _ in range(15):
         *_, info = pick_env.step(action)

@@ -116,7 +116,8 @@ def run(args: argparse.Namespace) -> int:
     report = build_report(args.datasets, args.out, runs=args.runs, title=args.title, attempts_k=args.attempts)
     overall = report.tables["overall"].iloc[0]
     by_source = report.tables["success_by_source"]
-    sources = ", ".join(f"{r.source} {r.success_rate:.3f} ({r.successes}/{r.episodes})"
+    sources = ", ".join(f"{r.source} {r.success_rate:.3f} ({r.successes}/{r.episodes}"
+                        + (f"; success = {r.verdict}" if isinstance(getattr(r, "verdict", None), str) else "") + ")"
                         for r in by_source.itertuples())
     print(f"Counted {len(report.episodes)} episodes in {time.perf_counter() - started:.1f} s: overall success "
           f"{overall['success_rate']:.3f} [{overall['success_ci_low']:.3f}, {overall['success_ci_high']:.3f}] "

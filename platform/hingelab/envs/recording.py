@@ -60,15 +60,11 @@ def _scalars(info: dict) -> dict[str, float]:
 def success_verdict(env: gym.Env) -> str | None:
     """The name of the verdict ``info["is_success"]`` gives (a key of ``schemas.SUCCESS_VERDICTS``).
 
-    An env says it with its ``success_verdict`` attribute (ToolShape-v0: ``"settled_0.5s"``);
-    ToolPick-v0's verdict is the object within its reward's success radius of the target
-    (``"object_within_1cm"`` at the default 1 cm). None for an env that does not say.
+    An env says it with its ``success_verdict`` attribute (ToolShape-v0: ``"settled_0.5s"``;
+    ToolPick-v0: ``"object_within_1cm"`` at its default success radius). None for an env that
+    does not say.
     """
-    unwrapped = env.unwrapped
-    verdict = getattr(unwrapped, "success_verdict", None)
-    if verdict is None and type(unwrapped).__name__ == "ToolPickEnv":
-        verdict = f"object_within_{100 * unwrapped.reward_config.success_radius:g}cm"
-    return verdict
+    return getattr(env.unwrapped, "success_verdict", None)
 
 
 class RecordingWrapper(gym.Wrapper):

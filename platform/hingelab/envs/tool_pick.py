@@ -93,6 +93,8 @@ class ToolPickEnv(SimRenderMixin, gym.Env):
             checkpoint = SHIPPED_LOW_LEVEL if low_level == "policy" else low_level
             self.low_level = PolicyLowLevel(checkpoint, encoder=self.perception.encoder)
         self.reward_config = reward or HighLevelRewardConfig()
+        # the one success verdict (is_success, the episode's success): the object within the radius of the target
+        self.success_verdict = f"object_within_{100 * self.reward_config.success_radius:g}cm"
         self.placement_half_width = placement_half_width
         self.max_episode_steps = max_episode_steps
         self.terminate_on_drop = terminate_on_drop
