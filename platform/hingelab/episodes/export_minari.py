@@ -46,7 +46,7 @@ import numpy as np
 from hingelab.episodes import schemas as S
 from hingelab.episodes.card import create_dataset
 from hingelab.episodes.errors import DatasetError
-from hingelab.episodes.export import ExportResult, atomic_folder
+from hingelab.episodes.export_output import ExportResult, atomic_folder
 from hingelab.episodes.export_source import (
     ExportLog,
     ExportSchema,
