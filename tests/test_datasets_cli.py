@@ -113,3 +113,13 @@ def test_bench_datasets_quick(tmp_path, capsys):
     formats = [row["format"] for row in result["rows"]]
     assert formats[:3] == ["hingelab MCAP", "h5py, group per episode", "parquet, file per episode"]
     assert all(np.isfinite(v) and v > 0 for v in result["ratios"].values())
+
+
+def test_verify_reads_length_by_schema_version():
+    """Schema 2's length counts steps; version 1's also counted an env recording's reset record."""
+    from hingelab.episodes.verify import _steps_match
+
+    assert _steps_match([0, 1, 2], 3, 2) and _steps_match([1, 2, 3], 3, 2)  # with and without a reset record
+    assert not _steps_match([1, 2, 3], 4, 2) and not _steps_match([0, 1, 2], 2, 2)
+    assert _steps_match([1, 2, 3], 4, 1)  # a version-1 env recording: steps + the reset record
+    assert not _steps_match([1, 2, 3], 5, 1)

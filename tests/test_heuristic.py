@@ -35,6 +35,8 @@ def test_heuristic_picks_the_sphere_and_records_every_step(sphere_dataset):
     length = len(steps["action"])
     assert episode.points.shape == (length + 1, 256, 3)  # the reset's cloud and one per step
     assert steps["observation"].shape == (length, 14)
+    assert episode.length == length  # the steps; the reset's record is not one (schema 2)
+    assert int(index["length"].sum()) == sum(s.length for s in summaries)  # datasets info = the rollouts' count
     # the recorded action: the reached latent as z_goal (paper), in the normalized action space
     z_bar = episode["/tool/latent"]["z_smoothed"][1:]
     np.testing.assert_allclose(steps["action"][:, :2], np.clip(z_bar / 3.0, -1, 1), atol=1e-9)
@@ -43,7 +45,7 @@ def test_heuristic_picks_the_sphere_and_records_every_step(sphere_dataset):
     assert hinge.max() - hinge.min() > 0.05  # it opened and closed the tweezer
     assert steps["terminated"][-1] and not steps["terminated"][:-1].any()
     assert episode.metadata["object_size"] in ("0.02", 0.02)
-    good, problems = verify_dataset(out)  # length counts the reset's record too: still sound
+    good, problems = verify_dataset(out)  # /step indices 1..length after the reset record: sound
     assert len(good) == 3 and problems == []
 
 

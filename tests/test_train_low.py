@@ -127,7 +127,7 @@ def test_prefill_from_the_runs_dataset_and_offline_training(tiny_run, tmp_path):
     config = replace(TINY, from_datasets=(str(run / "dataset"),), offline_updates=40, eval_every=20)
     summary = train_low(config, tmp_path / "offline", progress=False)
     prefill = summary["prefill"]
-    n_transitions = int((Dataset(run / "dataset").index["length"] - 1).sum())
+    n_transitions = int(Dataset(run / "dataset").index["length"].sum())  # length counts steps (schema 2)
     assert prefill["transitions"] == n_transitions and prefill["transitions_per_s"] > 0
     metrics = pd.read_csv(tmp_path / "offline" / "metrics.csv")
     assert list(metrics["env_steps"]) == [0, 20, 40]  # offline runs: x = updates

@@ -62,17 +62,22 @@ def verify_episode(path: Path) -> Problem | None:
     except Exception as exc:  # noqa: BLE001 - any failure to read a message is corruption
         return Problem(path, "corrupt", f"{type(exc).__name__}: {exc}; restore it, or salvage with "
                                         f"hingelab datasets recover {path} --out NEWFILE")
-    if S.KEY_LENGTH in meta and indices and not _steps_match(sorted(indices), int(meta[S.KEY_LENGTH])):
+    version = int(meta.get(S.KEY_SCHEMA_VERSION) or 1)
+    if S.KEY_LENGTH in meta and indices and not _steps_match(sorted(indices), int(meta[S.KEY_LENGTH]), version):
         return Problem(path, "corrupt", f"/step messages {indices[0]}..{indices[-1]} ({len(indices)} of them) do "
                                         f"not match length={meta[S.KEY_LENGTH]}")
     return None
 
 
-def _steps_match(indices: list[int], length: int) -> bool:
-    """Whether the /step indices are those of ``length`` logged steps: one per step, or one per
-    step after the first when that first step is the reset's record (an env's recording logs the
-    reset observation with no transition, so its first /step has index 1)."""
-    return indices in (list(range(length)), list(range(1, length)))
+def _steps_match(indices: list[int], length: int, schema_version: int = 2) -> bool:
+    """Whether the /step indices are those of ``length`` steps: indices 0..length-1, or 1..length
+    when the first record is an env recording's reset (no transition, so no /step message).
+    Version-1 files counted that reset record in ``length`` (1..length-1); a recovered file of any
+    version counts the steps it salvaged."""
+    accepted = [list(range(length)), list(range(1, length + 1))]
+    if schema_version < 2:
+        accepted.append(list(range(1, length)))
+    return indices in accepted
 
 
 def verify_dataset(root, progress: bool = False) -> tuple[list[Path], list[Problem]]:

@@ -143,7 +143,8 @@ class EpisodeWriter:
         self._steps_since_flush = 0
         self._final: dict[str, np.ndarray] = {}
         self._last_ns: int | None = None
-        self.length = 0
+        self.length = 0  # records (write_step calls): the /step index of the next record
+        self.transitions = 0  # records with a transition: the episode's steps
         self._reward_sum = 0.0
         self._outcome: dict = {}
         self.closed = False
@@ -183,7 +184,9 @@ class EpisodeWriter:
         self._flush_block()
         self._write_columns()
         facts = dict(self.facts)
-        facts.update({S.KEY_LENGTH: self.length, S.KEY_RETURN: self._reward_sum, S.KEY_SUCCESS: False,
+        # length = the steps: an env recording's reset record (no transition) is not one
+        steps = self.transitions if self.transitions else self.length
+        facts.update({S.KEY_LENGTH: steps, S.KEY_RETURN: self._reward_sum, S.KEY_SUCCESS: False,
                       S.KEY_END_TIME: ((self._last_ns or self.time_offset_ns) / 1e9)})
         facts.update({k: v for k, v in self._outcome.items() if v is not None})
         self._mcap.add_metadata(S.METADATA_EPISODE, format_metadata(facts))
@@ -296,6 +299,7 @@ class EpisodeWriter:
                                       info_values=list(info.values()), **fields)
         fields.update({"info." + k: np.float64(v) for k, v in info.items()})
         self._reward_sum += reward
+        self.transitions += 1
         self._emit(S.TOPIC_STEP, t, payload, **fields)
 
     # --- internals -----------------------------------------------------------------------
