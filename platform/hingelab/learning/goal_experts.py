@@ -92,7 +92,7 @@ def _merged_provenance(manifest: Path, models: list, bounds: list[float]) -> dic
 
 def load_experts(manifest: str | Path, encoder=None) -> GoalRegionExperts:
     """Read a manifest and load its experts (each checked as ``PolicyLowLevel`` checks a checkpoint)."""
-    from hingelab.envs.low_level import load_sac_checkpoint
+    from hingelab.learning.low_level_checkpoint import load_sac_checkpoint
     from hingelab.perception.encoder import shipped_encoder
 
     manifest = Path(manifest)

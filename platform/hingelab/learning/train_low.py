@@ -41,9 +41,6 @@ CONFIG_FILE = "config.json"
 METRICS_FILE = "metrics.csv"
 DATASET_DIR = "dataset"
 PROVENANCE_ATTRIBUTE = "hingelab_provenance"  # saved inside every model.zip
-# a checkpoint waits for all envs to finish an episode together, but not forever (drops
-# desynchronize the envs): after this many episode lengths it is taken mid-episode
-CHECKPOINT_PATIENCE_EPISODES = 3
 
 
 def algorithm_class(name: str):

@@ -14,7 +14,9 @@ import numpy as np
 from stable_baselines3.common.callbacks import BaseCallback
 from tqdm import tqdm
 
-from hingelab.learning.train_low import CHECKPOINT_PATIENCE_EPISODES
+# a checkpoint waits for all envs to finish an episode together, but not forever (drops
+# desynchronize the envs): after this many episode lengths it is taken mid-episode
+CHECKPOINT_PATIENCE_EPISODES = 3
 
 
 class TrainingCallback(BaseCallback):

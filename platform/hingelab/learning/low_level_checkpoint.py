@@ -1,0 +1,41 @@
+"""Loading a low-level policy checkpoint (a ``hingelab train low`` SAC zip), checked against the task.
+
+Shared by ``PolicyLowLevel`` (ToolPick-v0's low level) and the goal-region experts
+(``hingelab.learning.goal_experts``), which load one such checkpoint per expert.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+from hingelab.errors import ConfigError
+
+
+def load_sac_checkpoint(path: Path, encoder=None):
+    """A ``hingelab train low`` SAC zip, checked: ToolShape-v0's spaces, and latents of ``encoder``
+    (default: the shipped one; a checkpoint that recorded another encoder's fingerprint is refused)."""
+    from stable_baselines3 import SAC
+
+    try:
+        model = SAC.load(str(path), device="cpu")
+    except Exception as exc:  # SB3 raises many kinds on a foreign file
+        raise ConfigError(f"{path} is not a stable-baselines3 SAC checkpoint ({type(exc).__name__})") from exc
+    space = model.observation_space
+    shapes = {k: tuple(v.shape) for k, v in getattr(space, "spaces", {}).items()}
+    if shapes != {"observation": (26,), "achieved_goal": (2,), "desired_goal": (2,)} or \
+            tuple(model.action_space.shape) != (9,):
+        raise ConfigError(f"{path} does not match ToolShape-v0 (observation {shapes or space}, action "
+                          f"{model.action_space.shape}); give a checkpoint from `hingelab train low`")
+    trained_with = (getattr(model, "hingelab_provenance", None) or {}).get("encoder_fingerprint")
+    if trained_with is not None:  # checkpoints made before the fingerprint was recorded: not checked
+        from hingelab.perception.encoder import shipped_encoder
+
+        current = encoder if encoder is not None else shipped_encoder()
+        if not current.accepts(trained_with):
+            raise ConfigError(f"{path} learned from the latents of another tool encoder (fingerprint "
+                              f"{trained_with}, this env's is {current.fingerprint}); retrain it with "
+                              "`hingelab train low` on this encoder")
+    return model
+
+
+__all__ = ["load_sac_checkpoint"]
