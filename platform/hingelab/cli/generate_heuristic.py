@@ -22,8 +22,12 @@ def add_heuristic_parser(sources) -> None:
                     "the number of workers.",
     )
     p.add_argument("--episodes", type=int, default=d.episodes, help=f"number of episodes (default {d.episodes})")
-    p.add_argument("--object", default=d.object, help="sphere, cube, cylinder or tetrahedron (default sphere)")
-    p.add_argument("--size", type=float, default=d.size, help=f"object width in metres (default {d.size})")
+    p.add_argument("--object", default=d.object,
+                   help="sphere, cube, cylinder, tetrahedron, or mesh:PATH (an STL, OBJ or PLY file: collided "
+                        "through its convex hull, scaled so its largest extent is --size, placed unrotated with "
+                        "its z axis up; recorded as mesh:<file name> with the file's sha256) (default sphere)")
+    p.add_argument("--size", type=float, default=d.size,
+                   help=f"object width in metres; a mesh's largest extent (default {d.size})")
     p.add_argument("--mass", type=float, default=d.mass, help=f"object mass in kg (default {d.mass})")
     p.add_argument("--out", type=Path, required=True,
                    help=f"dataset folder to create (for example {DATASETS_DIR / 'heuristic_sphere'})")

@@ -17,6 +17,7 @@ import numpy as np
 
 from hingelab.episodes import create_dataset
 from hingelab.errors import ConfigError
+from hingelab.sim.mesh_objects import is_mesh, mesh_sha256, object_label
 
 SEED_STRIDE = 100_003
 
@@ -26,7 +27,7 @@ class HeuristicRunConfig:
     """What ``hingelab generate heuristic`` runs (saved in the dataset card)."""
 
     episodes: int = 100
-    object: str = "sphere"
+    object: str = "sphere"  # a shape name or mesh:PATH (an STL, OBJ or PLY file)
     size: float = 0.02  # m, the object's width (sphere: diameter)
     mass: float = 0.01  # kg
     seed: int = 0
@@ -60,8 +61,11 @@ def make_env(config: HeuristicRunConfig, dataset_dir: Path | None = None):
     env = gym.make(TOOL_PICK_ID, object=config.object, size=config.size, mass=config.mass,
                    randomize=config.randomize, max_episode_steps=config.max_episode_steps)
     if dataset_dir is not None:
-        env = RecordingWrapper(env, dataset_dir, source="heuristic", object_name=config.object,
-                               action_level="high", extra_metadata={"object_size": config.size})
+        extra = {"object_size": config.size}
+        if is_mesh(config.object):  # object "mesh:<file name>"; the file's content named by its hash
+            extra["object_mesh_sha256"] = mesh_sha256(config.object)
+        env = RecordingWrapper(env, dataset_dir, source="heuristic", object_name=object_label(config.object),
+                               action_level="high", extra_metadata=extra)
     return env
 
 
@@ -119,9 +123,11 @@ def generate_heuristic_dataset(out: Path, config: HeuristicRunConfig, progress: 
         raise ConfigError(f"{out} already holds {len(existing)} episodes; write into a new --out folder "
                           "(a dataset is the output of one run) or delete it")
     create_dataset(out, name=name or out.name, source="heuristic", config=asdict(config), seed=config.seed,
-                   description=f"privileged heuristic demos on ToolPick-v0, {config.object} {config.size * 100:g} cm")
+                   description=f"privileged heuristic demos on ToolPick-v0, {object_label(config.object)} "
+                               f"{config.size * 100:g} cm")
     seeds = [episode_seed(config.seed, k) for k in range(config.episodes)]
-    bar = tqdm(total=len(seeds), desc=f"heuristic {config.object}", unit="episode", disable=not progress)
+    bar = tqdm(total=len(seeds), desc=f"heuristic {object_label(config.object)}", unit="episode",
+               disable=not progress)
     summaries: list[EpisodeSummary] = []
     if config.workers == 1:
         _init_worker(config, str(out))
