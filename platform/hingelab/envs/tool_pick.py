@@ -71,6 +71,7 @@ ALPHA = 0.9  # smoothing of t and theta (the paper smooths the high-level tool s
 
 class ToolPickEnv(SimRenderMixin, gym.Env):
     metadata = {"render_modes": ["rgb_array"], "render_fps": 20}
+    env_name = "ToolPick-v0"  # in the error messages
 
     def __init__(self, object: str = "sphere", size: float = 0.02, mass: float = 0.01,
                  low_level: str = "privileged", randomize: bool = True, placement_half_width: float = 0.05,
@@ -143,8 +144,9 @@ class ToolPickEnv(SimRenderMixin, gym.Env):
 
     def step(self, action):
         action = np.asarray(action, dtype=float)
-        if action.shape != (5,) or not np.isfinite(action).all():
-            raise ConfigError(f"ToolPick-v0 takes 5 finite values in [-1, 1], got {action!r}")
+        if action.shape != self.action_space.shape or not np.isfinite(action).all():
+            raise ConfigError(f"{self.env_name} takes {self.action_space.shape[0]} finite values in [-1, 1], "
+                              f"got {action!r}")
         # a view into MjData: in the privileged branch it is read after the step, as it always was
         rot_hand = self.sim.data.xmat[self._hand_body].reshape(3, 3)
         if self._privileged_command is not None:
@@ -156,9 +158,7 @@ class ToolPickEnv(SimRenderMixin, gym.Env):
             executed = None  # filled below, once the reached latent is known
         else:
             action = np.clip(action, -1, 1)
-            self.z_goal = action[:2] * Z_SCALE
-            velocity_hand = action[2:] * MAX_SPEED
-            command = self.low_level.act(self.sim, self.z_goal, self._low_level_observation())
+            command, velocity_hand = self._finger_action(action)
             result = self.sim.step(arm_velocity=rot_hand @ velocity_hand, **command)
             executed = action
         self.steps += 1
@@ -191,6 +191,16 @@ class ToolPickEnv(SimRenderMixin, gym.Env):
         return self.object_start, 0.5, 135, -25
 
     # ------------------------------------------------------------------ parts
+    def _finger_action(self, action: np.ndarray) -> tuple[dict, np.ndarray]:
+        """The clipped action -> (the finger command, ``sim.step``'s keywords; the hand-frame velocity, m/s).
+
+        Here the low level turns the latent goal into finger motion; ToolPickFlat-v0 (the flat
+        baseline) overrides this to move the fingers by the action itself.
+        """
+        self.z_goal = action[:2] * Z_SCALE
+        velocity_hand = action[2:] * MAX_SPEED
+        return self.low_level.act(self.sim, self.z_goal, self._low_level_observation()), velocity_hand
+
     def _to_hand(self, p_world: np.ndarray) -> np.ndarray:
         """World point (m) -> hand_base frame (m)."""
         d = self.sim.data
