@@ -34,7 +34,9 @@ episode: the object stays where it fell and the next grasp is attempt 2
 (``info["attempt"]``; ``info["first_attempt_success"]``).
 
 ## Arguments
-``object`` ("sphere"), ``size`` (0.02 m), ``mass`` (0.01 kg), ``low_level`` ("privileged";
+``object`` ("sphere"; a shape of ``hingelab.sim.objects.SHAPES``, or "mesh:PATH" for an STL, OBJ or
+PLY file scaled so its largest extent is ``size``: ``hingelab.sim.mesh_objects``), ``size`` (0.02 m),
+``mass`` (0.01 kg), ``low_level`` ("privileged";
 "policy": the shipped low-level policy ``assets/checkpoints/low_level_experts.json``; or a checkpoint
 path), ``randomize`` (True: object friction 1-5, finger friction, gains
 60-150% of hand and arm servos, observation delays up to 150 ms), ``placement_half_width``
