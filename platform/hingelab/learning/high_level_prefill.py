@@ -1,0 +1,262 @@
+"""The paper's privileged replay buffer: heuristic demos pre-fill the high-level SAC buffer.
+
+``high_level_transitions`` turns recorded ToolPick-v0 episodes (``hingelab generate heuristic``,
+or any high-level recording of ToolPick-v0) into transitions of the env's own spaces
+(observation 14-D, action 5-D); ``fill_high_level_buffer`` writes them into an SB3 buffer.
+
+The action (paper: "we treat the current latent state of the tweezer as the high-level
+policy's action output from the previous time step"). ToolPickEnv.step, when the heuristic
+drives it (``command_privileged``), reports ``info["executed_action"]`` =
+``clip([z_bar / 3, v_hand / 0.08], -1, 1)``: z_bar the smoothed latent the tool reached at the
+end of the step, v_hand the heuristic's commanded arm velocity in the hand frame.
+RecordingWrapper records that as the ``/step`` action. Here the latent half is rebuilt from
+``/tool/latent`` ``z_smoothed`` at the step's time (``actions="reached"``, the default): for
+heuristic recordings this equals the recorded action bit for bit; for a policy's recording it
+replaces the commanded goal by the reached latent (``actions="recorded"`` keeps the command).
+The velocity half is the recorded one: the heuristic's commanded (not measured) arm velocity,
+turned into the hand frame with the hand's rotation after the step. It is clipped to the action
+box: the heuristic clips its world-frame components to 0.08 m/s, so a hand-frame component can
+exceed 0.08 m/s and is stored as +-1, the nearest action the policy has (3 sphere episodes:
+5.6% of steps have a velocity component at +-1). The recording cannot give the unclipped value
+(the hand's world rotation is not recorded).
+
+The reward is recomputed with the env's own ``high_level_terms`` for ``reward_config``:
+the object-target distance, success and table collision are the recorded step infos
+(``object_target_distance``, ``is_success``, ``table_collision``: exact); the tool-object
+distance (tool = the grip point between the tips, which needs the world z axis that the
+recording does not hold) is recovered from the recorded ``tool_object`` term,
+``d = -ln(term) / c_h2`` of the config the episode was recorded with (``recorded_reward``,
+default ``HighLevelRewardConfig()``, what ``generate heuristic`` runs; every episode is
+checked against it: its sparse, object-target and penalty terms, its step reward = the sum
+of its terms, and the recovered distance against the tips' midpoint in ``/sim/privileged``).
+With the default config the relabelled rewards equal the recorded ones (to ~1e-15); another
+weight relabels old demos. A different ``success_radius`` is refused: it would change which
+step ends the episode, which a recording cannot relabel.
+
+Filling: ``fill_high_level_buffer`` adds through the buffer's own ``add`` (one transition
+at a time, n_envs 1) or in bulk through ``replay_prefill.insert_transitions`` (the
+platform's documented bulk path: whole rows of ``n_envs`` transitions, ``pos``/``full``
+advanced as ``add`` would).
+
+Kept demo share (design note, not built yet; the issue chooses between the two later).
+Plain pre-fill lets SAC's own transitions overwrite the demos once the buffer wraps, and
+dilutes them before that. The alternative, a ``DemoShareReplayBuffer(ReplayBuffer)``:
+it holds the demos in a separate fixed store (a second ``ReplayBuffer`` of exactly
+``len(transitions)`` rows, filled once with ``fill_high_level_buffer``) next to the
+ordinary ring buffer that ``add`` writes; ``sample(batch_size)`` draws
+``round(demo_share * batch_size)`` rows from the demo store and the rest from the ring
+(all from the demos while the ring is empty), concatenating the two
+``ReplayBufferSamples``; ``demo_share`` constant or annealed by a callback (to 0 for the
+plain-SAC limit). SAC takes it as ``replay_buffer_class=DemoShareReplayBuffer,
+replay_buffer_kwargs={"demos": transitions, "demo_share": 0.25}``; a checkpoint's
+``save_replay_buffer`` pickles both stores. Rewards of the demo store are relabelled once,
+at construction, with the run's ``HighLevelRewardConfig``.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from hingelab.envs import TOOL_PICK_ID
+from hingelab.envs.rewards import HighLevelRewardConfig, high_level_terms
+from hingelab.envs.tool_pick import Z_SCALE
+from hingelab.episodes import schemas as S
+from hingelab.episodes.dataset import Dataset
+from hingelab.episodes.errors import DatasetError
+from hingelab.episodes.transitions import Transitions, concat_transitions, episode_transitions, fill_replay_buffer
+from hingelab.errors import ConfigError
+
+OBSERVATION_DIM = 14
+ACTION_DIM = 5
+TERMS = ("sparse", "tool_object", "object_target", "penalty")
+NEEDED_INFOS = ("object_target_distance", "is_success", "table_collision")
+TOPICS = [S.TOPIC_STEP, S.TOPIC_REWARD, S.TOPIC_LATENT, S.TOPIC_PRIVILEGED]
+ACTION_MODES = ("reached", "recorded")
+
+
+@dataclass
+class HighLevelPrefillStats:
+    datasets: int
+    episodes: int
+    transitions: int  # added to the buffer
+    read_s: float
+    insert_s: float
+
+
+def relabel_rewards(tool_object_m: np.ndarray, object_target_m: np.ndarray, table_collision: np.ndarray,
+                    config: HighLevelRewardConfig) -> np.ndarray:
+    """The env's reward for each step from its distances (m) and table collisions, through the
+    env's own ``high_level_terms`` (positions on one axis: ``||(d, 0, 0)|| == d`` exactly)."""
+    zero = np.zeros(3)
+    out = np.empty(len(tool_object_m))
+    for i, (d_tool, d_target, collided) in enumerate(zip(tool_object_m, object_target_m, table_collision)):
+        terms = high_level_terms(np.array([d_tool, 0.0, 0.0]), zero, np.array([d_target, 0.0, 0.0]),
+                                 bool(collided), config)
+        out[i] = float(sum(terms.values()))
+    return out
+
+
+def _at(topic: dict, times: np.ndarray, path: Path, name: str) -> np.ndarray:
+    """Rows of ``topic`` logged at exactly ``times`` (the step's log times)."""
+    logged = topic["log_time_ns"]
+    rows = np.searchsorted(logged, times)
+    if (rows >= len(logged)).any() or (logged[np.minimum(rows, len(logged) - 1)] != times).any():
+        raise DatasetError(f"{path}: {name} is not logged at every step's time; the recording is incomplete")
+    return rows
+
+
+def _check_episode(episode, path: Path) -> None:
+    meta = episode.metadata
+    task, level = meta.get(S.KEY_TASK), meta.get(S.KEY_ACTION_LEVEL)
+    if task != TOOL_PICK_ID or level != "high":
+        raise DatasetError(f"{path} is a {task} episode (action level {level!r}), not a {TOOL_PICK_ID} high-level "
+                           "recording; give heuristic datasets (hingelab generate heuristic) or high-level ones")
+    step = episode.topics.get(S.TOPIC_STEP, {})
+    if "reward" not in step:
+        raise DatasetError(f"{path} has no learner transitions (/step with reward); record it with RecordingWrapper")
+    obs, act = step.get("observation"), step["action"]
+    if obs is None or obs.shape[1:] != (OBSERVATION_DIM,) or act.shape[1:] != (ACTION_DIM,):
+        raise DatasetError(f"{path} has observations {None if obs is None else obs.shape[1:]} and actions "
+                           f"{act.shape[1:]}, not {TOOL_PICK_ID}'s ({OBSERVATION_DIM},) and ({ACTION_DIM},)")
+    missing = [f"info.{k}" for k in NEEDED_INFOS if f"info.{k}" not in step]
+    terms = episode.topics.get(S.TOPIC_REWARD, {})
+    missing += [f"{S.TOPIC_REWARD}:{k}" for k in TERMS if k not in terms]
+    if S.TOPIC_LATENT not in episode.topics:
+        missing.append(f"{S.TOPIC_LATENT}:z_smoothed")
+    if missing:
+        raise DatasetError(f"{path} does not record {', '.join(missing)}, which the reward relabelling needs; "
+                           "re-record it with this hingelab")
+
+
+def _episode(episode, index: int, config: HighLevelRewardConfig, recorded: HighLevelRewardConfig,
+             actions: str) -> Transitions:
+    path = episode.path
+    _check_episode(episode, path)
+    tr = episode_transitions(episode, index)
+    m = len(tr)
+    step = episode.topics[S.TOPIC_STEP]
+    times = step["log_time_ns"][:m]
+    terms_topic = episode.topics[S.TOPIC_REWARD]
+    rows = _at(terms_topic, times, path, S.TOPIC_REWARD)
+    terms = {k: np.asarray(terms_topic[k][rows], float) for k in TERMS}
+    d_target = np.asarray(tr.infos["object_target_distance"], float)
+    success = np.asarray(tr.infos["is_success"], float) > 0.5
+    collided = np.asarray(tr.infos["table_collision"], float) > 0.5
+    with np.errstate(divide="ignore"):
+        d_tool = -np.log(terms["tool_object"]) / recorded.c_h2  # exp underflow (term 0): infinitely far
+    # the recording against the config it is said to be recorded with
+    penalty = (d_tool > recorded.far) | (d_target > recorded.far) | collided
+    problems = []
+    if not np.allclose(terms["sparse"], recorded.c_h1 * success, rtol=0, atol=1e-12):
+        problems.append("sparse")
+    if not np.allclose(terms["object_target"], recorded.c_h3 * np.exp(-recorded.c_h4 * d_target), rtol=1e-9,
+                       atol=1e-12):
+        problems.append("object_target")
+    if not np.allclose(terms["penalty"], -recorded.c_h5 * penalty, rtol=0, atol=1e-12):
+        problems.append("penalty")
+    if not np.allclose(tr.rewards, sum(terms.values()), rtol=1e-12, atol=1e-12):
+        problems.append("reward = sum of the terms")
+    privileged = episode.topics.get(S.TOPIC_PRIVILEGED)
+    if privileged is not None and {"tip_a", "tip_b", "object_position"} <= privileged.keys():
+        p = _at(privileged, times, path, S.TOPIC_PRIVILEGED)
+        a, b, obj = privileged["tip_a"][p], privileged["tip_b"][p], privileged["object_position"][p]
+        # the grip point lies within half the tip gap of the tips' midpoint
+        slack = 0.5 * np.linalg.norm(a - b, axis=1) + 1e-4
+        if (np.abs(d_tool - np.linalg.norm(0.5 * (a + b) - obj, axis=1)) > slack).any():
+            problems.append("tool_object (against the tips in /sim/privileged)")
+    if problems:
+        raise DatasetError(f"{path}: the recorded reward terms ({', '.join(problems)}) do not match the reward "
+                           f"config it is read as recorded with ({recorded}); pass recorded_reward=")
+    tr.infos["tool_object_distance"] = d_tool
+    tr.rewards = relabel_rewards(d_tool, d_target, collided, config)
+    if actions == "reached":
+        latent = episode.topics[S.TOPIC_LATENT]
+        z_bar = np.asarray(latent["z_smoothed"][_at(latent, times, path, S.TOPIC_LATENT)], float)
+        tr.actions = np.concatenate([np.clip(z_bar / Z_SCALE, -1.0, 1.0), np.asarray(tr.actions[:, 2:], float)],
+                                    axis=1)
+    return tr
+
+
+def high_level_transitions(datasets, reward_config: HighLevelRewardConfig | None = None,
+                           recorded_reward: HighLevelRewardConfig | None = None, actions: str = "reached",
+                           progress: bool = False) -> Transitions:
+    """The transitions of every episode of ``datasets`` (dataset folders) for ToolPick-v0's
+    14-D / 5-D spaces, rewards relabelled with ``reward_config`` (default: the env's default).
+
+    ``recorded_reward``: the config the episodes were recorded with (default: the env's
+    default, what ``hingelab generate heuristic`` records). ``actions``: "reached" (the
+    paper's: the reached latent / 3 clipped, and the recorded hand velocity) or "recorded".
+    Each transition's infos add ``tool_object_distance`` (m). A dataset or episode that is
+    not a ToolPick-v0 high-level recording is a one-line DatasetError naming its file.
+    """
+    config = reward_config or HighLevelRewardConfig()
+    recorded = recorded_reward or HighLevelRewardConfig()
+    if actions not in ACTION_MODES:
+        raise ConfigError(f"actions must be one of {', '.join(ACTION_MODES)}, not {actions!r}")
+    if config.success_radius != recorded.success_radius:
+        raise ConfigError(f"a success radius of {config.success_radius} m (recorded: {recorded.success_radius} m) "
+                          "would change where the recorded episodes end; relabelling cannot change that")
+    if isinstance(datasets, (str, Path)):
+        datasets = [datasets]
+    parts, index = [], 0
+    for root in datasets:
+        root = Path(root)
+        if not root.exists():
+            raise ConfigError(f"dataset {root} does not exist; give a dataset folder "
+                              "(hingelab datasets info lists one)")
+        dataset = Dataset(root)
+        if len(dataset) == 0:
+            raise DatasetError(f"dataset {root} has no finished episodes to learn from")
+        for episode in dataset.iter_episodes(topics=TOPICS, progress=progress):
+            parts.append(_episode(episode, index, config, recorded, actions))
+            index += 1
+    if not parts:
+        raise ConfigError("no datasets given to pre-fill from")
+    return concat_transitions(parts)
+
+
+def fill_high_level_buffer(buffer, transitions: Transitions, method: str = "add") -> int:
+    """Write ``transitions`` into an SB3 ``ReplayBuffer`` of ToolPick-v0's spaces; the number added.
+
+    ``method``: "add" (the buffer's own ``add``, one transition at a time; n_envs 1) or "bulk"
+    (``replay_prefill.insert_transitions``: whole rows of n_envs transitions; a remainder of
+    fewer than n_envs is left out). The demos must fit in the room left: pre-filling past the
+    end would overwrite the first demos with the last.
+    """
+    from hingelab.learning.replay_prefill import _check_shapes, insert_transitions
+
+    if getattr(buffer.observation_space, "spaces", None) is not None or hasattr(buffer, "ep_length"):
+        raise ConfigError("the high-level pre-fill takes a plain ReplayBuffer (ToolPick-v0 has flat observations), "
+                          f"not a {type(buffer).__name__}")
+    _check_shapes(buffer, transitions)
+    room = (buffer.buffer_size - buffer.pos) * buffer.n_envs
+    if len(transitions) > room:
+        raise ConfigError(f"the datasets hold {len(transitions)} transitions, the replay buffer has room for {room}; "
+                          "raise buffer_size or pre-fill from fewer datasets")
+    if method == "bulk":
+        return insert_transitions(buffer, transitions)
+    if method != "add":
+        raise ConfigError(f"method must be 'add' or 'bulk', not {method!r}")
+    if buffer.n_envs != 1:
+        raise ConfigError(f"method 'add' fills a buffer of one env, this one has {buffer.n_envs}; use method='bulk'")
+    return fill_replay_buffer(buffer, transitions)
+
+
+def prefill_high_level(buffer, datasets, reward_config: HighLevelRewardConfig | None = None,
+                       method: str = "add", progress: bool = False, **kwargs) -> HighLevelPrefillStats:
+    """``high_level_transitions`` then ``fill_high_level_buffer``, timed for a training report."""
+    datasets = [datasets] if isinstance(datasets, (str, Path)) else list(datasets)
+    t0 = time.perf_counter()
+    transitions = high_level_transitions(datasets, reward_config, progress=progress, **kwargs)
+    t1 = time.perf_counter()
+    added = fill_high_level_buffer(buffer, transitions, method=method)
+    return HighLevelPrefillStats(len(datasets), int(len(np.unique(transitions.episode_index))), added,
+                                 t1 - t0, time.perf_counter() - t1)
+
+
+__all__ = ["high_level_transitions", "fill_high_level_buffer", "prefill_high_level", "relabel_rewards",
+           "HighLevelPrefillStats"]
