@@ -5,6 +5,10 @@ opening range; every episode is an MCAP episode in ``--out``; the report is the 
 rate per goal region (thirds of the reachable opening range) with Wilson 95% intervals.
 Success is the env's one verdict (ToolShape-v0: settled over the last 0.5 s), the episodes'
 recorded ``success``, so ``hingelab report`` of ``--out`` counts the same episodes.
+
+``high``: a high-level SAC checkpoint, or a baseline (heuristic, scripted, random), on ToolPick-v0
+(``hingelab.learning.high_level_eval``): success within 200 steps and at the first attempt,
+attempts and failure reasons per episode; a table with Wilson 95% intervals (table.csv, report.md).
 """
 
 from __future__ import annotations
@@ -38,6 +42,29 @@ def add_parser(subparsers) -> None:
     low.add_argument("--no-randomize", action="store_true", help="evaluate without domain randomization")
     low.add_argument("--no-progress", action="store_true", help="no progress bar")
     low.set_defaults(func=run_low)
+    high = what.add_parser(
+        "high", help="a high-level policy (or a baseline) on ToolPick-v0",
+        description="Run a high-level SAC checkpoint, or a baseline, for N episodes of hingelab/ToolPick-v0 "
+                    "(deterministic actions, domain randomization as in training, seeds paired across "
+                    "policies) and write each episode into the dataset --out, with a success table "
+                    "(first attempt and within 200 steps, Wilson 95%% intervals, failure reasons: table.csv, "
+                    "report.md) and one row per episode (episodes.csv).")
+    high.add_argument("checkpoint", type=Path, nargs="?", default=None,
+                      help="a stable-baselines3 SAC zip trained on ToolPick-v0 (or a folder with model.zip); "
+                           "there is no shipped high-level policy yet")
+    high.add_argument("--object", default="sphere", help="object shape (default sphere)")
+    high.add_argument("--size", type=float, default=0.02, help="object size in m (default 0.02)")
+    high.add_argument("--episodes", type=int, default=20, help="evaluation episodes (default 20)")
+    high.add_argument("--out", type=Path, required=True, help="dataset folder to write (must be new or empty)")
+    high.add_argument("--seed", type=int, default=0, help="seed of the episodes (default 0)")
+    high.add_argument("--baseline", choices=("heuristic", "scripted", "random"), default=None,  # high_level_eval
+                      help="evaluate a baseline instead of a checkpoint: heuristic (privileged, commands the "
+                           "hinge), scripted (the heuristic's motion as latent goals over the low level), random")
+    high.add_argument("--low-level", default="policy",
+                      help="the frozen low level: a low-level checkpoint or 'privileged' (default: the shipped "
+                           "low-level policy)")
+    high.add_argument("--no-progress", action="store_true", help="no progress bar")
+    high.set_defaults(func=run_high)
 
 
 def run_low(args: argparse.Namespace) -> int:
@@ -98,4 +125,64 @@ def run_low(args: argparse.Namespace) -> int:
           f"drifting under 1 cm {overall['success_and_drift_under_1cm']:.2f}); secondary, the last step alone "
           f"{overall['last_step_success_rate']:.2f}; median tip-gap error {overall['tip_gap_error_mm_median']:.1f} mm. "
           f"Dataset, episodes.csv, regions.csv, report.md in {args.out}.")
+    return 0
+
+
+def run_high(args: argparse.Namespace) -> int:
+    from hingelab.analysis.documents import markdown_table
+    from hingelab.episodes import create_dataset
+    from hingelab.errors import ConfigError
+    from hingelab.learning import high_level_eval as H
+
+    if args.baseline and args.checkpoint is not None:
+        raise ConfigError("give a checkpoint or --baseline, not both")
+    if args.checkpoint is None and not args.baseline:
+        raise ConfigError("there is no shipped high-level policy yet: give a SAC checkpoint trained on "
+                          "ToolPick-v0, or --baseline heuristic|scripted|random")
+    if args.episodes < 1:
+        raise ConfigError("--episodes must be at least 1")
+    if args.out.exists() and any(args.out.iterdir()):
+        raise ConfigError(f"{args.out} is not empty; evaluate into a new folder")
+    if args.baseline:
+        policy, label = H.baseline_policy(args.baseline), args.baseline
+    else:
+        from hingelab.learning.high_level_checkpoint import load_high_level_checkpoint
+
+        policy, label = H.ModelPolicy(load_high_level_checkpoint(args.checkpoint)), str(args.checkpoint)
+    # the heuristic bypasses the low level: privileged, as in hingelab generate heuristic
+    low_level = "privileged" if args.baseline == "heuristic" else args.low_level
+    H.make_eval_env(args.object, args.size, low_level).close()  # bad object or low level: an error before files
+    config = {"policy": label, "object": args.object, "size": args.size, "episodes": args.episodes,
+              "low_level": low_level, "seeds": f"{H.SEED_BASE} + seed * {H.SEED_STRIDE} + episode"}
+    name = f"eval-high-{args.baseline or Path(args.checkpoint).stem}"
+    create_dataset(args.out, name=name, source="high_level_evaluation", config=config, seed=args.seed,
+                   description=f"hingelab eval high: {label} on ToolPick-v0, {args.object} {args.size * 100:g} cm")
+    env = H.make_eval_env(args.object, args.size, low_level, record_dir=args.out,
+                          extra_metadata={"policy": label, "low_level": low_level})
+    try:
+        episodes = H.evaluate(policy, env, args.episodes, args.seed, progress=not args.no_progress,
+                              label=f"eval high {label}")
+    finally:
+        env.close()
+    table = H.success_table(episodes, args.object, args.size)
+    episodes.to_csv(args.out / "episodes.csv", index=False)
+    table.to_csv(args.out / "table.csv", index=False)
+    row = table.iloc[0]
+    failures = ", ".join(f"{r} {int(row[f'failures_{r}'])}" for r in H.FAILURE_REASONS if row[f"failures_{r}"])
+    summary = (f"Evaluated {label} (low level {low_level}) on {args.episodes} episodes of ToolPick-v0 with a "
+               f"{args.object} of {args.size * 100:g} cm, seed {args.seed}: success within 200 steps (object within "
+               f"1 cm of the target, the episodes' recorded verdict) {int(row['successes'])}/{args.episodes} = "
+               f"{row['success_rate']:.2f} [{row['ci_low']:.2f}, {row['ci_high']:.2f}], at the first attempt "
+               f"{int(row['first_attempt_successes'])}/{args.episodes} = {row['first_attempt_success_rate']:.2f} "
+               f"[{row['first_attempt_ci_low']:.2f}, {row['first_attempt_ci_high']:.2f}], mean attempts "
+               f"{row['mean_attempts']:.2f}; failures: {failures or 'none'}. Dataset, episodes.csv, table.csv, "
+               f"report.md in {args.out}.")
+    (args.out / "report.md").write_text(
+        f"# High-level evaluation of {label}\n\n{args.episodes} episodes, seed {args.seed} (episode i reset with "
+        f"seed {H.SEED_BASE} + {args.seed} * {H.SEED_STRIDE} + i, the same for every policy), low level "
+        f"{low_level}. `success`: the env's verdict, object within 1 cm of the target within 200 steps; "
+        f"`first_attempt_`: that before any grasp was lost; intervals are Wilson 95%; failure reasons as in "
+        f"`hingelab.learning.high_level_eval`.\n\n" + markdown_table(table.round(3)) + "\n\n" + summary + "\n")
+    print(table.to_string(index=False, float_format=lambda v: f"{v:.3f}"))
+    print(summary)
     return 0

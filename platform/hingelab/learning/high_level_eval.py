@@ -1,0 +1,220 @@
+"""Evaluating a high-level policy (or a baseline) on ``hingelab/ToolPick-v0``: ``hingelab eval high``.
+
+Every episode is an MCAP episode (``RecordingWrapper``, source ``high_level_evaluation``);
+its ``success`` is the env's one verdict (object within 1 cm of the target, ``info["is_success"]``
+at the last step), ``first_attempt_success`` and ``attempt`` are the env's (``_count_attempts``).
+
+Seeds (paired): episode i of ``--seed K`` is reset with ``episode_seed(K, i) = SEED_BASE + K *
+SEED_STRIDE + i`` (SEED_BASE = 900_000_000, SEED_STRIDE = 100_003), the same for every baseline
+and checkpoint, so their episodes start from the same object placement, randomization and
+noise. (``hingelab generate heuristic`` uses ``K * 100_003 + i``: the evaluation seeds are other ones.)
+The random baseline draws its actions from ``numpy.random.default_rng(episode seed)``.
+
+Failure reasons (``FailureReasonWrapper``, recorded as the episode's ``failure_reason``): the env
+gives ``divergence``, ``tool_drop``, and at the time limit ``drop`` (a grasp held and was lost,
+attempt > 1) or ``timeout``. From what the episode did (privileged state, every step) they become,
+first match wins: ``divergence``; ``tool_drop``; ``slip`` (the env's ``drop``: the object was held
+off the platform and lost); ``table_collision`` (the hand or tool touched the table during the
+episode); ``missed_grasp`` (the object was never held, though the tweezer's grip point came within
+2 cm of it); ``timeout`` (anything else: never got near, or held but not brought to the target).
+The env's own reason stays in ``episodes.csv`` as ``env_failure_reason``.
+
+Baselines: ``heuristic`` (the privileged heuristic, ``hingelab.heuristic``: hinge commanded
+directly through ``command_privileged``); ``scripted`` (the heuristic's arm motion, its hinge
+command turned into a latent goal, ``calibration.z_for_opening(opening) / Z_SCALE`` clipped to
+[-1, 1], and its world velocity into the hand frame / MAX_SPEED, acting through the env's normal
+5-D action over the low level); ``random`` (uniform actions in [-1, 1]).
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import gymnasium as gym
+import numpy as np
+import pandas as pd
+
+from hingelab.analysis.wilson import wilson_interval
+
+SEED_BASE = 900_000_000
+SEED_STRIDE = 100_003
+BASELINES = ("heuristic", "scripted", "random")
+MISSED_GRASP_DISTANCE_M = 0.02
+FAILURE_REASONS = ("divergence", "tool_drop", "slip", "table_collision", "missed_grasp", "timeout")
+
+
+def episode_seed(seed: int, index: int) -> int:
+    """The reset seed of episode ``index`` of an evaluation with ``--seed seed`` (paired across policies)."""
+    return SEED_BASE + int(seed) * SEED_STRIDE + int(index)
+
+
+class FailureReasonWrapper(gym.Wrapper):
+    """Refines ToolPick-v0's ``failure_reason`` at the episode's end (module doc); under the recorder."""
+
+    def reset(self, **kwargs):
+        self.held_ever, self.collided, self.closest = False, False, np.inf
+        return self.env.reset(**kwargs)
+
+    def step(self, action):
+        from hingelab.sim import scripted
+
+        obs, reward, terminated, truncated, info = self.env.step(action)
+        pick = self.env.unwrapped
+        self.held_ever |= bool(pick.held)
+        self.collided |= bool(info.get("table_collision", False))
+        grip = scripted.grip_point(pick.sim)
+        self.closest = min(self.closest, float(np.linalg.norm(grip - pick.state.object_pos_world)))
+        if (terminated or truncated) and not info.get("is_success", 0.0):
+            info = dict(info)
+            info["env_failure_reason"] = info.get("failure_reason", "timeout")
+            info["failure_reason"] = self.classify(info["env_failure_reason"])
+        return obs, reward, terminated, truncated, info
+
+    def classify(self, env_reason: str) -> str:
+        if env_reason in ("divergence", "tool_drop"):
+            return env_reason
+        if env_reason == "drop":
+            return "slip"
+        if self.collided:
+            return "table_collision"
+        if not self.held_ever and self.closest < MISSED_GRASP_DISTANCE_M:
+            return "missed_grasp"
+        return "timeout"
+
+
+def make_eval_env(object: str, size: float, low_level: str, record_dir: Path | None = None,
+                  extra_metadata: dict | None = None, max_episode_steps: int = 200):
+    """ToolPick-v0 (randomized as in training), failure reasons refined, recorded into ``record_dir``."""
+    from hingelab.envs import TOOL_PICK_ID
+    from hingelab.envs.recording import RecordingWrapper
+    from hingelab.sim.mesh_objects import object_label
+
+    env = FailureReasonWrapper(gym.make(TOOL_PICK_ID, object=object, size=size, low_level=low_level,
+                                        max_episode_steps=max_episode_steps))
+    if record_dir is not None:
+        env = RecordingWrapper(env, record_dir, source="high_level_evaluation", object_name=object_label(object),
+                               action_level="high", extra_metadata={"object_size": size, **(extra_metadata or {})})
+    return env
+
+
+# ------------------------------------------------------------------ policies
+class RandomPolicy:
+    """Uniform random actions in [-1, 1]^5, seeded per episode."""
+
+    def reset(self, env, seed: int) -> None:
+        self.rng = np.random.default_rng(seed)
+
+    def act(self, env, obs) -> np.ndarray:
+        return self.rng.uniform(-1.0, 1.0, 5).astype(np.float32)
+
+
+class ModelPolicy:
+    """A stable-baselines3 model (deterministic actions)."""
+
+    def __init__(self, model):
+        self.model = model
+
+    def reset(self, env, seed: int) -> None:
+        pass
+
+    def act(self, env, obs) -> np.ndarray:
+        action, _ = self.model.predict(obs, deterministic=True)
+        return np.asarray(action, np.float32)
+
+
+class HeuristicPolicy:
+    """The privileged heuristic: each step commands the arm and the hinge directly (``command_privileged``)."""
+
+    privileged = True
+
+    def reset(self, env, seed: int) -> None:
+        from hingelab.heuristic.controller import PrivilegedHeuristic
+        from hingelab.sim.finger_synergy import FingerSynergy
+
+        pick = env.unwrapped
+        self.heuristic = PrivilegedHeuristic(pick.sim, FingerSynergy.load(), pick.object)
+        self.heuristic.reset(pick.state, pick.target)
+
+    def act(self, env, obs) -> np.ndarray:
+        pick = env.unwrapped
+        command = self.heuristic.act(pick.state)
+        pick.command_privileged(command.arm_velocity, command.hinge_target, command.hand_targets)
+        return np.zeros(5, np.float32)
+
+
+class ScriptedPolicy(HeuristicPolicy):
+    """The heuristic's arm motion and hinge command as ToolPick-v0's 5-D action over the low level."""
+
+    privileged = False
+
+    def act(self, env, obs) -> np.ndarray:
+        from hingelab.envs.tool_pick import MAX_SPEED, Z_SCALE
+
+        pick = env.unwrapped
+        command = self.heuristic.act(pick.state)
+        opening = command.hinge_target if command.hinge_target is not None else pick.state.hinge_angle
+        z_goal = np.asarray(pick.perception.calibration.z_for_opening(opening), float)
+        rot_hand = pick.sim.data.xmat[pick.sim.reader.hand_body].reshape(3, 3)
+        velocity_hand = rot_hand.T @ np.asarray(command.arm_velocity, float)
+        return np.clip(np.concatenate([z_goal / Z_SCALE, velocity_hand / MAX_SPEED]), -1, 1).astype(np.float32)
+
+
+def baseline_policy(name: str):
+    policies = {"heuristic": HeuristicPolicy, "scripted": ScriptedPolicy, "random": RandomPolicy}
+    if name not in policies:
+        raise ValueError(f"unknown baseline {name!r}; choose one of {BASELINES}")
+    return policies[name]()
+
+
+# ------------------------------------------------------------------ rollouts
+def run_episode(policy, env, seed: int) -> dict:
+    """One episode from reset seed ``seed``; a row of the episode table."""
+    obs, info = env.reset(seed=seed)
+    policy.reset(env, seed)
+    total, length = 0.0, 0
+    while True:
+        obs, reward, terminated, truncated, info = env.step(policy.act(env, obs))
+        total += float(reward)
+        length += 1
+        if terminated or truncated:
+            break
+    success = bool(info.get("is_success", 0.0))
+    return {"seed": seed, "success": success, "first_attempt_success": bool(info.get("first_attempt_success", 0.0)),
+            "attempts": int(info.get("attempt", 1)), "failure_reason": "" if success else info["failure_reason"],
+            "env_failure_reason": "" if success else info.get("env_failure_reason", ""), "length": length,
+            "return": total, "object_target_distance_m": float(info["object_target_distance"])}
+
+
+def evaluate(policy, env, episodes: int, seed: int, progress: bool = False, label: str = "eval high") -> pd.DataFrame:
+    """``episodes`` episodes, episode i from ``episode_seed(seed, i)``; one row each."""
+    from tqdm import tqdm
+
+    rows = []
+    with tqdm(range(episodes), desc=label, unit="episode", disable=not progress) as bar:
+        for i in bar:
+            if hasattr(env, "extra_metadata"):
+                env.extra_metadata = {**env.extra_metadata, "episode_index": str(i)}
+            rows.append({"episode": i, **run_episode(policy, env, episode_seed(seed, i))})
+            bar.set_postfix(success=f"{sum(r['success'] for r in rows) / len(rows):.2f}")
+    return pd.DataFrame(rows)
+
+
+def success_table(episodes: pd.DataFrame, object: str, size: float) -> pd.DataFrame:
+    """One row per shape and size: success (the env's verdict) and first-attempt success with Wilson 95%
+    intervals, mean attempts, and the count of each failure reason."""
+    n = len(episodes)
+    row = {"object": object, "size_cm": round(100 * size, 3), "episodes": n}
+    for verdict, prefix in (("success", ""), ("first_attempt_success", "first_attempt_")):
+        k = int(episodes[verdict].sum())
+        low, high = wilson_interval(np.array([k]), np.array([n]))
+        row |= {f"{prefix}successes": k, f"{prefix}success_rate": k / n if n else float("nan"),
+                f"{prefix}ci_low": float(low[0]), f"{prefix}ci_high": float(high[0])}
+    row["mean_attempts"] = float(episodes["attempts"].mean()) if n else float("nan")
+    for reason in FAILURE_REASONS:
+        row[f"failures_{reason}"] = int((episodes["failure_reason"] == reason).sum())
+    return pd.DataFrame([row])
+
+
+__all__ = ["BASELINES", "FAILURE_REASONS", "SEED_BASE", "SEED_STRIDE", "FailureReasonWrapper", "HeuristicPolicy",
+           "ModelPolicy", "RandomPolicy", "ScriptedPolicy", "baseline_policy", "episode_seed", "evaluate",
+           "make_eval_env", "run_episode", "success_table"]
