@@ -104,3 +104,22 @@ def test_one_line_errors(tmp_path, capsys):
 def test_no_checkpoint_error_names_the_baselines(tmp_path, capsys):
     assert _eval(tmp_path / "e") == 1
     assert "--baseline" in capsys.readouterr().err
+
+
+def test_failure_reasons_from_the_env_reason_and_the_episode():
+    """The env's reason refined by what the episode did (first match wins; module doc)."""
+    from hingelab.learning.high_level_eval import FailureReasonWrapper
+
+    wrapper = FailureReasonWrapper.__new__(FailureReasonWrapper)  # classify reads only the tracked facts
+
+    def reason(env_reason, held=False, collided=False, closest=1.0):
+        wrapper.held_ever, wrapper.collided, wrapper.closest = held, collided, closest
+        return wrapper.classify(env_reason)
+
+    assert reason("divergence", collided=True) == "divergence"
+    assert reason("tool_drop", collided=True) == "tool_drop"
+    assert reason("drop", held=True, collided=True) == "slip"
+    assert reason("timeout", collided=True) == "table_collision"
+    assert reason("timeout", closest=0.01) == "missed_grasp"
+    assert reason("timeout", held=True, closest=0.0) == "timeout"
+    assert reason("timeout") == "timeout"
