@@ -139,3 +139,41 @@ def test_a_low_level_dataset_is_a_one_line_error_naming_it(tmp_path, heuristic):
     assert "\n" not in str(err.value)
     with pytest.raises(ConfigError, match="success radius"):
         high_level_transitions([heuristic], HighLevelRewardConfig(success_radius=0.02))
+
+
+def test_demo_share_buffer_keeps_the_demos_in_every_batch(heuristic):
+    import pickle
+
+    from stable_baselines3 import SAC
+
+    from hingelab.learning.high_level_prefill import DemoShareReplayBuffer
+
+    tr = high_level_transitions([heuristic])
+    # a demo row: its observation (the buffer keeps the float64 observation space) and float32 action; a
+    # reset observation alone may be a demo's too (the same episode seed)
+    demo_rows = {(tuple(o), tuple(a)) for o, a in zip(tr.observations, tr.actions.astype(np.float32))}
+
+    def in_demos(samples):
+        return np.array([(tuple(o), tuple(a)) in demo_rows
+                         for o, a in zip(samples.observations.numpy(), samples.actions.numpy())])
+    env = gym.make(TOOL_PICK_ID)
+    try:
+        model = SAC("MlpPolicy", env, buffer_size=500, learning_starts=1000, device="cpu", seed=0,
+                    replay_buffer_class=DemoShareReplayBuffer, replay_buffer_kwargs={"demos": tr, "demo_share": 0.25})
+        buffer = model.replay_buffer
+        assert buffer.demos.size() == len(tr) and buffer.size() == 0
+        empty = buffer.sample(40)  # nothing of its own yet: all demos
+        assert in_demos(empty).all()
+        model.learn(total_timesteps=30)  # random actions, no training (learning_starts)
+    finally:
+        env.close()
+    assert buffer.size() == 30 and buffer.demos.size() == len(tr)
+    batch = buffer.sample(100)
+    from_demos = in_demos(batch)
+    assert from_demos[:25].all() and not from_demos[25:].any() and batch.rewards.shape == (100, 1)
+    model.train(gradient_steps=2, batch_size=32)  # SAC's updates take the mixed batches
+    assert model._n_updates == 2
+    copy = pickle.loads(pickle.dumps(buffer))  # what save_replay_buffer does
+    assert copy.demo_share == 0.25 and copy.demos.size() == len(tr)
+    with pytest.raises(ConfigError, match="demo_share"):
+        DemoShareReplayBuffer(10, buffer.observation_space, buffer.action_space, demos=tr, demo_share=1.5)

@@ -29,7 +29,8 @@ recording does not hold) is recovered from the recorded ``tool_object`` term,
 default ``HighLevelRewardConfig()``, what ``generate heuristic`` runs; every episode is
 checked against it: its sparse, object-target and penalty terms, its step reward = the sum
 of its terms, and the recovered distance against the tips' midpoint in ``/sim/privileged``).
-With the default config the relabelled rewards equal the recorded ones (to ~1e-15); another
+With the default config the relabelled rewards equal the recorded ones (bit for bit on the
+test datasets; the recovered distance could differ in the last bit); another
 weight relabels old demos. A different ``success_radius`` is refused: it would change which
 step ends the episode, which a recording cannot relabel.
 
@@ -38,19 +39,17 @@ at a time, n_envs 1) or in bulk through ``replay_prefill.insert_transitions`` (t
 platform's documented bulk path: whole rows of ``n_envs`` transitions, ``pos``/``full``
 advanced as ``add`` would).
 
-Kept demo share (design note, not built yet; the issue chooses between the two later).
-Plain pre-fill lets SAC's own transitions overwrite the demos once the buffer wraps, and
-dilutes them before that. The alternative, a ``DemoShareReplayBuffer(ReplayBuffer)``:
-it holds the demos in a separate fixed store (a second ``ReplayBuffer`` of exactly
-``len(transitions)`` rows, filled once with ``fill_high_level_buffer``) next to the
-ordinary ring buffer that ``add`` writes; ``sample(batch_size)`` draws
-``round(demo_share * batch_size)`` rows from the demo store and the rest from the ring
-(all from the demos while the ring is empty), concatenating the two
-``ReplayBufferSamples``; ``demo_share`` constant or annealed by a callback (to 0 for the
-plain-SAC limit). SAC takes it as ``replay_buffer_class=DemoShareReplayBuffer,
-replay_buffer_kwargs={"demos": transitions, "demo_share": 0.25}``; a checkpoint's
-``save_replay_buffer`` pickles both stores. Rewards of the demo store are relabelled once,
-at construction, with the run's ``HighLevelRewardConfig``.
+Kept demo share (``DemoShareReplayBuffer``; the issue chooses between it and plain pre-fill
+later). Plain pre-fill lets SAC's own transitions overwrite the demos once the buffer wraps,
+and dilutes them before that. ``DemoShareReplayBuffer`` holds the demos in a separate fixed
+store (a plain ``ReplayBuffer`` of exactly ``len(demos)`` rows, filled once through
+``fill_high_level_buffer``) next to the ordinary ring buffer that ``add`` writes;
+``sample(batch_size)`` draws ``round(demo_share * batch_size)`` rows from the demos and the rest
+from the ring (all from the demos while the ring is empty). SAC takes it as
+``replay_buffer_class=DemoShareReplayBuffer, replay_buffer_kwargs={"demos": transitions,
+"demo_share": 0.25}``; ``demo_share`` is a plain attribute (a callback may anneal it, 0 = plain
+SAC on its own data); ``save_replay_buffer`` pickles both stores. The demos' rewards are those of
+the transitions given: relabel them for the run's ``HighLevelRewardConfig`` first.
 """
 
 from __future__ import annotations
@@ -60,6 +59,9 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
+import torch
+from stable_baselines3.common.buffers import ReplayBuffer
+from stable_baselines3.common.type_aliases import ReplayBufferSamples
 
 from hingelab.envs import TOOL_PICK_ID
 from hingelab.envs.rewards import HighLevelRewardConfig, high_level_terms
@@ -258,5 +260,34 @@ def prefill_high_level(buffer, datasets, reward_config: HighLevelRewardConfig | 
                                  t1 - t0, time.perf_counter() - t1)
 
 
+class DemoShareReplayBuffer(ReplayBuffer):
+    """SAC's ring buffer plus a kept store of demos, ``demo_share`` of every batch (module docstring)."""
+
+    def __init__(self, buffer_size, observation_space, action_space, device="auto", n_envs: int = 1,
+                 optimize_memory_usage: bool = False, handle_timeout_termination: bool = True,
+                 demos: Transitions | None = None, demo_share: float = 0.25):
+        super().__init__(buffer_size, observation_space, action_space, device=device, n_envs=n_envs,
+                         optimize_memory_usage=optimize_memory_usage,
+                         handle_timeout_termination=handle_timeout_termination)
+        if demos is None or len(demos) == 0:
+            raise ConfigError("DemoShareReplayBuffer needs demos (high_level_transitions of heuristic datasets)")
+        if not 0.0 <= demo_share <= 1.0:
+            raise ConfigError(f"demo_share is a fraction of the batch in [0, 1], not {demo_share}")
+        self.demo_share = float(demo_share)
+        self.demos = ReplayBuffer(len(demos), observation_space, action_space, device=device, n_envs=1,
+                                  handle_timeout_termination=handle_timeout_termination)
+        fill_high_level_buffer(self.demos, demos)
+
+    def sample(self, batch_size: int, env=None) -> ReplayBufferSamples:
+        n_demo = batch_size if self.size() == 0 else int(round(self.demo_share * batch_size))
+        if n_demo == 0:
+            return super().sample(batch_size, env=env)
+        demo = self.demos.sample(n_demo, env=env)
+        if n_demo == batch_size:
+            return demo
+        own = super().sample(batch_size - n_demo, env=env)
+        return ReplayBufferSamples(*(None if a is None else torch.cat([a, b]) for a, b in zip(demo, own)))
+
+
 __all__ = ["high_level_transitions", "fill_high_level_buffer", "prefill_high_level", "relabel_rewards",
-           "HighLevelPrefillStats"]
+           "HighLevelPrefillStats", "DemoShareReplayBuffer"]
