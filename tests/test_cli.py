@@ -53,6 +53,14 @@ def test_demo_runs_and_measures_the_platform(tmp_path):
     assert reported_heuristic["successes"] == int(heuristic_index["success"].sum())
     assert reported_heuristic["success_rate"] == pytest.approx(heuristic["success_rate"])
     assert reported_heuristic["verdict"] == "object within 1 cm of the target (ToolPick-v0)"
+    # the scripted high level over the shipped low-level policy: printed = recorded = reported
+    hierarchy = json.loads(out_file.read_text())["step_scripted_hierarchy"]
+    hierarchy_index = Dataset(hierarchy["dataset"]).index
+    assert len(hierarchy_index) == hierarchy["episodes"] == 2
+    assert (hierarchy_index["source"] == "high_level_evaluation").all()
+    assert hierarchy["successes"] == int(hierarchy_index["success"].sum())
+    assert reported[Dataset(hierarchy["dataset"]).card.name]["successes"] == hierarchy["successes"]
+    assert f"success {hierarchy['successes']}/2 (object within 1 cm of the target)" in result.stdout
 
 
 def test_bench_sim_writes_its_table(tmp_path):

@@ -30,7 +30,8 @@ def add_parser(subparsers) -> None:
             "area of the platform with the Jacobian arm controller, grasps and lifts the sphere "
             "with the privileged hinge command; then records 3 privileged-heuristic episodes of "
             "ToolPick-v0 into datasets/demo_heuristic, runs the shipped low-level policy toward 3 "
-            "latent goals on ToolShape-v0 (datasets/demo_low_level), reports on both (analysis/demo/report.html) "
+            "latent goals on ToolShape-v0 (datasets/demo_low_level), picks the sphere twice with a scripted high level "
+            "over that policy (datasets/demo_scripted_hierarchy), reports on all three (analysis/demo/report.html) "
             "and saves a Rerun recording (analysis/demo/demo_heuristic.rrd). Prints what it measured."
         ),
     )
@@ -134,12 +135,45 @@ def step_low_level_policy(seed: int) -> dict:
             "tip_gap_error_mm": [r["tip_gap_error_mm"] for r in rows]}
 
 
+DEMO_HIERARCHY_DATASET = DATASETS_DIR / "demo_scripted_hierarchy"
+HIERARCHY_EPISODES = 2
+
+
+def step_scripted_hierarchy(seed: int) -> dict:
+    """Issue 26, until a high-level policy is shipped: the hierarchy with a scripted high level (the
+    heuristic's arm motion, its hinge command as a latent goal) over the shipped low-level policy."""
+    from hingelab.envs.low_level import SHIPPED_LOW_LEVEL
+    from hingelab.episodes import create_dataset
+    from hingelab.learning import high_level_eval as H
+
+    shutil.rmtree(DEMO_HIERARCHY_DATASET, ignore_errors=True)
+    create_dataset(DEMO_HIERARCHY_DATASET, name="demo-scripted-hierarchy", source="high_level_evaluation",
+                   config={"policy": "scripted", "low_level": "policy", "object": "sphere", "size": 0.02,
+                           "episodes": HIERARCHY_EPISODES}, seed=seed,
+                   description="hingelab demo: hingelab eval high --baseline scripted over the shipped low level")
+    env = H.make_eval_env("sphere", 0.02, "policy", record_dir=DEMO_HIERARCHY_DATASET,
+                          extra_metadata={"policy": "scripted", "low_level": "policy"})
+    started = time.perf_counter()
+    try:
+        episodes = H.evaluate(H.baseline_policy("scripted"), env, HIERARCHY_EPISODES, seed)
+    finally:
+        env.close()
+    for row in episodes.itertuples():
+        outcome = "picked and lifted to the target" if row.success else f"failed ({row.failure_reason})"
+        print(f"  episode {row.episode}: {outcome} in {row.length} steps, {row.attempts} attempt(s)")
+    successes = int(episodes["success"].sum())
+    print(f"  scripted high level over {SHIPPED_LOW_LEVEL.name}: success {successes}/{len(episodes)} (object within "
+          f"1 cm of the target) in {time.perf_counter() - started:.1f} s, recorded in {DEMO_HIERARCHY_DATASET}")
+    return {"dataset": str(DEMO_HIERARCHY_DATASET), "episodes": len(episodes), "successes": successes,
+            "first_attempt_successes": int(episodes["first_attempt_success"].sum())}
+
+
 def step_report_and_recording(seed: int) -> dict:
     """Issue 6: a success-rate report and a Rerun recording of the demo dataset."""
     from hingelab.analysis import build_report
     from hingelab.viewers.view import view
 
-    report = build_report([DEMO_DATASET, DEMO_LOW_LEVEL_DATASET], DEMO_OUT)
+    report = build_report([DEMO_DATASET, DEMO_LOW_LEVEL_DATASET, DEMO_HIERARCHY_DATASET], DEMO_OUT)
     result, _ = view(DEMO_DATASET, save=DEMO_OUT / "demo_heuristic.rrd", progress=False)
     # one line per dataset: the two tasks count different verdicts (the report names each)
     by_dataset = report.tables["success_by_dataset"]
@@ -156,6 +190,8 @@ STEPS = [
     ("robot platform (scene, hand, tweezer, arm)", step_platform),
     ("heuristic demos on ToolPick-v0 (privileged heuristic, perception on)", step_heuristic_demos),
     ("the shipped low-level policy on ToolShape-v0 (3 reachable latent goals)", step_low_level_policy),
+    ("a scripted high level over the shipped low-level policy on ToolPick-v0 (the 2 cm sphere)",
+     step_scripted_hierarchy),
     ("report and Rerun recording of the demo datasets", step_report_and_recording),
 ]
 
