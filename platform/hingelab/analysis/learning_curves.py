@@ -49,12 +49,18 @@ OLD_TRAIN_LOW_COLUMNS = {
 }
 
 
+def old_metrics_renames(columns) -> dict[str, str]:
+    """``OLD_TRAIN_LOW_COLUMNS`` if ``columns`` are an old ``hingelab train low`` metrics.csv's
+    (``settled_success_rate`` and no ``last_step_success_rate``), else no renames."""
+    columns = set(columns)
+    old = "settled_success_rate" in columns and "last_step_success_rate" not in columns
+    return OLD_TRAIN_LOW_COLUMNS if old else {}
+
+
 def upgrade_metrics(frame: pd.DataFrame) -> pd.DataFrame:
     """A metrics table under today's names: an old ``hingelab train low`` file's verdicts renamed
     (``OLD_TRAIN_LOW_COLUMNS``); any other table as it is."""
-    if "settled_success_rate" not in frame.columns or "last_step_success_rate" in frame.columns:
-        return frame
-    return frame.rename(columns=OLD_TRAIN_LOW_COLUMNS)
+    return frame.rename(columns=old_metrics_renames(frame.columns))
 
 
 def run_name(run_dir: Path) -> str:
@@ -113,4 +119,4 @@ def load_learning_curves(run_dirs) -> pd.DataFrame:
     return learning_curves(pd.concat([load_run_metrics(d) for d in run_dirs], ignore_index=True))
 
 
-__all__ = ["OPTIONAL_CURVE_METRICS", "OLD_TRAIN_LOW_COLUMNS", "upgrade_metrics", "load_run_metrics", "learning_curves", "load_learning_curves", "METRICS_FILE", "REQUIRED_COLUMNS"]
+__all__ = ["OPTIONAL_CURVE_METRICS", "OLD_TRAIN_LOW_COLUMNS", "old_metrics_renames", "upgrade_metrics", "load_run_metrics", "learning_curves", "load_learning_curves", "METRICS_FILE", "REQUIRED_COLUMNS"]

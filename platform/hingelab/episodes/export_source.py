@@ -31,9 +31,7 @@ so that a re-export aligns the clouds the same way).
 
 from __future__ import annotations
 
-import ast
 import dataclasses
-import importlib.util
 import json
 from collections.abc import Iterator
 from dataclasses import dataclass, field
@@ -298,19 +296,15 @@ def export_episodes(dataset, schema: ExportSchema, log: ExportLog, progress: boo
 
 # --- the environment the episodes were recorded with ---------------------------------------------------
 def _constructor_parameters(entry_point: str) -> set[str]:
-    """Parameter names of an env class's ``__init__``, read from its source (importing it loads MuJoCo)."""
-    module, _, name = entry_point.partition(":")
+    """Parameter names of an env class's constructor (imports its module), or none if it cannot load."""
+    import inspect
+
+    from gymnasium.envs.registration import load_env_creator
+
     try:
-        origin = importlib.util.find_spec(module).origin
-        tree = ast.parse(Path(origin).read_text())
-    except (ImportError, AttributeError, TypeError, ValueError, OSError, SyntaxError):
+        return set(inspect.signature(load_env_creator(entry_point)).parameters)
+    except (ImportError, AttributeError, ValueError, TypeError):
         return set()
-    for node in tree.body:
-        if isinstance(node, ast.ClassDef) and node.name == name:
-            for item in node.body:
-                if isinstance(item, ast.FunctionDef) and item.name == "__init__":
-                    return {a.arg for a in item.args.args[1:] + item.args.kwonlyargs}
-    return set()
 
 
 def recorded_env(dataset, schema: ExportSchema) -> dict | None:

@@ -26,6 +26,19 @@ BUFFER_FILE = "replay_buffer.pkl"
 STATE_FILE = "state.pkl"
 
 
+def load_sac_zip(path):
+    """A stable-baselines3 SAC zip, loaded on the CPU; a file SB3 cannot load is a one-line ConfigError.
+
+    The policies' loaders (``low_level_checkpoint``, ``high_level_checkpoint``) check its spaces.
+    """
+    from stable_baselines3 import SAC
+
+    try:
+        return SAC.load(str(path), device="cpu")
+    except Exception as exc:  # SB3 raises many kinds on a foreign file
+        raise ConfigError(f"{path} is not a stable-baselines3 SAC checkpoint ({type(exc).__name__})") from exc
+
+
 def rng_states() -> dict:
     return {"torch": torch.get_rng_state(), "numpy": np.random.get_state(), "python": random.getstate()}
 

@@ -30,13 +30,10 @@ def resolve_checkpoint(path) -> Path:
 
 def load_high_level_checkpoint(path):
     """A SAC zip trained on ToolPick-v0 (14-D observation, 5-D action), loaded on the CPU."""
-    from stable_baselines3 import SAC
+    from hingelab.learning.checkpoints import load_sac_zip
 
     path = resolve_checkpoint(path)
-    try:
-        model = SAC.load(str(path), device="cpu")
-    except Exception as exc:  # SB3 raises many kinds on a foreign file
-        raise ConfigError(f"{path} is not a stable-baselines3 SAC checkpoint ({type(exc).__name__})") from exc
+    model = load_sac_zip(path)
     space = model.observation_space
     if getattr(space, "spaces", None) is not None or tuple(space.shape or ()) != OBSERVATION_SHAPE or \
             tuple(model.action_space.shape or ()) != ACTION_SHAPE:

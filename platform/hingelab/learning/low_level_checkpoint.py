@@ -14,12 +14,9 @@ from hingelab.errors import ConfigError
 def load_sac_checkpoint(path: Path, encoder=None):
     """A ``hingelab train low`` SAC zip, checked: ToolShape-v0's spaces, and latents of ``encoder``
     (default: the shipped one; a checkpoint that recorded another encoder's fingerprint is refused)."""
-    from stable_baselines3 import SAC
+    from hingelab.learning.checkpoints import load_sac_zip
 
-    try:
-        model = SAC.load(str(path), device="cpu")
-    except Exception as exc:  # SB3 raises many kinds on a foreign file
-        raise ConfigError(f"{path} is not a stable-baselines3 SAC checkpoint ({type(exc).__name__})") from exc
+    model = load_sac_zip(path)
     space = model.observation_space
     shapes = {k: tuple(v.shape) for k, v in getattr(space, "spaces", {}).items()}
     if shapes != {"observation": (26,), "achieved_goal": (2,), "desired_goal": (2,)} or \

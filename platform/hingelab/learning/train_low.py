@@ -114,11 +114,11 @@ class MetricsLog:
         """Drop rows past a checkpoint we resume from (they will be evaluated again). Rows written
         before episode schema 2 (success_rate = last step, settled_success_rate) get today's names,
         so that a resumed run's success_rate is one verdict throughout."""
-        from hingelab.analysis.learning_curves import OLD_TRAIN_LOW_COLUMNS
+        from hingelab.analysis.learning_curves import old_metrics_renames
 
         rows = [r for r in self.rows() if int(float(r["env_steps"])) <= env_steps]
-        if rows and "settled_success_rate" in rows[0] and "last_step_success_rate" not in rows[0]:
-            rows = [{OLD_TRAIN_LOW_COLUMNS.get(k, k): v for k, v in r.items()} for r in rows]
+        renames = old_metrics_renames(rows[0]) if rows else {}
+        rows = [{renames.get(k, k): v for k, v in r.items()} for r in rows]
         if self.path.exists():
             self.path.unlink()
         for r in rows:
