@@ -65,13 +65,13 @@ def low_eval(tmp_path_factory):
 def low_train(tmp_path_factory):
     """ToolShape-v0 training rollouts, as ``hingelab train low`` records them."""
     from hingelab.learning.low_level_config import LowLevelTrainConfig
-    from hingelab.learning.low_level_envs import TRAIN_SOURCE, _make_training_env
+    from hingelab.learning.training_envs import _make_training_env
 
     root = tmp_path_factory.mktemp("low_train") / "low_train"
     config = LowLevelTrainConfig(max_episode_steps=STEPS, n_envs=1, randomize=False)
-    create_dataset(root, name="run-rollouts", source=TRAIN_SOURCE,
+    create_dataset(root, name="run-rollouts", source=config.train_source,
                    config={k: v for k, v in config.to_dict().items() if k != "steps"}, seed=0)
-    _run(_make_training_env(config.to_dict(), str(root), 0), (None, None), 9)
+    _run(_make_training_env(LowLevelTrainConfig, config.to_dict(), str(root), 0), (None, None), 9)
     return root
 
 

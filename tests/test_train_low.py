@@ -96,7 +96,7 @@ def test_resume_from_a_checkpoint_continues_exactly(tiny_run, tmp_path):
 def test_metrics_log_keeps_every_value_in_its_column(tmp_path):
     """metrics.csv: a row with its columns in another order, or with new ones, lands in the right
     columns; resuming a run whose rows predate schema 2 renames them (success_rate = settled)."""
-    from hingelab.learning.train_low import MetricsLog
+    from hingelab.learning.run_folder import MetricsLog
 
     log = MetricsLog(tmp_path / "metrics.csv")
     log.append({"env_steps": 0, "success_rate": 0.1, "settled_success_rate": 0.5, "wall_time_s": 0.0, "offline": 1})
@@ -358,29 +358,32 @@ def test_a_goal_band_is_part_of_the_config_and_the_env():
 
 def test_learning_from_demonstrations_pretrains_and_anchors_the_actor(tiny_run, tmp_path):
     """--bc-pretrain fits the actor to the --from episodes' actions; --bc-weight keeps a
-    Q-filtered BC term in the actor loss; the checkpoint does not carry the demonstrations."""
-    from hingelab.learning.demo_bc import DemoBC, pretrain_actor
+    Q-filtered BC term in the actor loss (DemoSAC owns it); the checkpoint does not carry the
+    demonstrations."""
+    from hingelab.learning.demo_sac import DemoSAC, Demonstrations
     from hingelab.learning.replay_prefill import read_transitions
-    from hingelab.learning.sac_speed import FastSAC
 
     run, _ = tiny_run
     transitions, _ = read_transitions([run / "dataset"])
-    model = FastSAC.load(run / "model.zip", device="cpu")
+    model = DemoSAC.load(run / "model.zip", device="cpu", bc_weight=1.0)
     # the tiny run's own actions are random; a demonstrator acts as a function of the state
     transitions.actions = np.tanh(3 * transitions.observations["observation"][:, :9]).astype(np.float32)
-    demo = DemoBC.from_transitions(transitions, weight=1.0)
-    losses = pretrain_actor(model, demo, updates=300, batch_size=32)
+    model.set_demonstrations(Demonstrations.from_transitions(transitions))
+    losses = model.pretrain_actor(updates=300, batch_size=32)
     assert losses[-1] < 0.5 * losses[0], losses
-    model.demo_bc = demo
-    term = demo.loss(model, 64)
-    assert term.requires_grad and 0 <= float(term) <= float(DemoBC.from_transitions(transitions, 1.0, q_filter=False)
-                                                             .loss(model, 64)) + 9 * 4
+    term = model.bc_loss(64)
+    model.q_filter = False
+    unfiltered = model.bc_loss(64)
+    assert term.requires_grad and 0 <= float(term) <= float(unfiltered) + 9 * 4
+    assert model._extra_actor_loss(64) is not None
+    model.bc_weight = 0.0
+    assert model._extra_actor_loss(64) is None  # weight 0: plain SAC
     config = replace(TINY, steps=60, from_datasets=(str(run / "dataset"),), demo_bc_weight=1.0,
                      bc_pretrain_updates=50, algorithm="fast_sac", eval_every=60, checkpoint_every=60)
     summary = train_low(config, tmp_path / "bc", progress=False)
     assert summary["env_steps"] == 60
-    saved = FastSAC.load(tmp_path / "bc" / "model.zip", device="cpu")
-    assert saved.demo_bc is None
+    saved = DemoSAC.load(tmp_path / "bc" / "model.zip", device="cpu")
+    assert saved.demonstrations is None and saved.bc_weight == 1.0
     (tmp_path / "bc" / "run.json").write_text(json.dumps({"name": "relabelled"}))  # a new curve label
     train_low(replace(config, steps=90), tmp_path / "bc", resume=True, progress=False)  # demos re-read on resume
     assert Dataset(tmp_path / "bc" / "dataset").card.name == "bc-rollouts"  # the card keeps its name

@@ -9,7 +9,7 @@ glibc's heap, differ between them):
 - ``SB3 SAC``: ``stable_baselines3.SAC`` as it comes: the baseline;
 - ``SB3 SAC + configure_torch``: the same with hingelab's process settings, which separates
   them from FastSAC's own changes;
-- ``FastSAC + configure_torch``: ``hingelab.learning.sac_speed``, what ``hingelab train low``
+- ``FastSAC + configure_torch``: ``hingelab.learning.fast_sac``, what ``hingelab train low``
   uses: ours.
 
 In each round every arm runs one block of updates, one arm at a time, in an order shuffled per
@@ -33,7 +33,7 @@ import numpy as np
 from hingelab.bench.table import BenchTable
 
 # the code this benchmark measures (the bench's own module is added by hingelab.bench.measured_paths)
-MEASURES = ("platform/hingelab/learning/sac_speed.py",)
+MEASURES = ("platform/hingelab/learning/fast_sac.py",)
 
 SEED = 0
 BATCH_SIZE = 256
@@ -117,15 +117,15 @@ def update_rate(model: Any, n_updates: int, batch_size: int = BATCH_SIZE,
 # (part, alternatives): the first alternative present in the profile is used, so that a FastSAC
 # function and the SB3 function it may fall back to are not counted twice.
 _PROFILE_PARTS: list[tuple[str, list[list[tuple[str, str]]]]] = [
-    ("replay sampling + to-tensor", [[("sac_speed.py", "_sample")], [("buffers.py", "sample")]]),
+    ("replay sampling + to-tensor", [[("fast_sac.py", "_sample")], [("buffers.py", "sample")]]),
     ("actor forward (obs + next_obs, with squashed Gaussian)",
-     [[("sac_speed.py", "_action_log_prob")], [("sac/policies.py", "action_log_prob")]]),
+     [[("fast_sac.py", "_action_log_prob")], [("sac/policies.py", "action_log_prob")]]),
     ("critic forward (target + critic loss + actor loss)",
-     [[("sac_speed.py", "_q_values"), ("sac_speed.py", "_critic_features")], [("common/policies.py", "forward")]]),
+     [[("fast_sac.py", "_q_values"), ("fast_sac.py", "_critic_features")], [("common/policies.py", "forward")]]),
     ("backward (3 losses)", [[("torch/_tensor.py", "backward")]]),
     ("Adam step (3 optimizers)", [[("torch/optim/optimizer.py", "wrapper")]]),
     ("zero_grad", [[("torch/optim/optimizer.py", "zero_grad")]]),
-    ("polyak update", [[("sac_speed.py", "_polyak")], [("common/utils.py", "polyak_update")]]),
+    ("polyak update", [[("fast_sac.py", "_polyak")], [("common/utils.py", "polyak_update")]]),
     (".item() syncs", [[("~", "<method 'item' of 'torch._C.TensorBase' objects>")]]),
     ("logger.record", [[("logger.py", "record")]]),
 ]
@@ -174,7 +174,7 @@ def _worker(arm: str, connection: Any) -> None:
         import torch as th
         from stable_baselines3 import SAC
 
-        from hingelab.learning.sac_speed import FastSAC, configure_torch
+        from hingelab.learning.fast_sac import FastSAC, configure_torch
 
         _role, algorithm, process_settings = ARMS[arm]
         if process_settings:

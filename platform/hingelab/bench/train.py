@@ -62,7 +62,8 @@ def bench_updates(blocks: int, per_block: int, rows: list, ratios: dict, notes: 
 
     from hingelab.learning.low_level_config import LowLevelTrainConfig
     from hingelab.learning.low_level_eval import make_eval_env
-    from hingelab.learning.train_low import algorithm_class, build_model
+    from hingelab.learning.sac_run import algorithm_class
+    from hingelab.learning.train_low import build_model
 
     default_threads = torch.get_num_threads()
     config = LowLevelTrainConfig(buffer_size=20_000)
@@ -87,7 +88,7 @@ def bench_updates(blocks: int, per_block: int, rows: list, ratios: dict, notes: 
     torch.set_num_threads(default_threads)
     env.close()
     median = {name: statistics.median(r) for name, r in rates.items()}
-    ours_label = f"{algorithm_class(config.algorithm).__name__}, {config.torch_threads} thread(s)"
+    ours_label = f"{algorithm_class(config).__name__}, {config.torch_threads} thread(s)"
     for name, label in (("bare", f"bare SB3 SAC, torch default threads ({default_threads})"),
                         ("bare_1", "bare SB3 SAC, 1 thread")):
         rows.append({"what": "SAC updates/s (batch 256, 2x256)", "baseline": label, "baseline rate": median[name],

@@ -50,8 +50,8 @@ def add_parser(subparsers) -> None:
                     "(first attempt and within 200 steps, Wilson 95%% intervals, failure reasons: table.csv, "
                     "report.md) and one row per episode (episodes.csv).")
     high.add_argument("checkpoint", type=Path, nargs="?", default=None,
-                      help="a stable-baselines3 SAC zip trained on ToolPick-v0 (or a folder with model.zip); "
-                           "there is no shipped high-level policy yet")
+                      help="a stable-baselines3 SAC zip trained on ToolPick-v0 (or a run folder with model.zip; "
+                           "default: the shipped assets/checkpoints/high_level.zip once there is one)")
     high.add_argument("--object", default="sphere", help="object shape (default sphere)")
     high.add_argument("--size", type=float, default=0.02, help="object size in m (default 0.02)")
     high.add_argument("--episodes", type=int, default=20, help="evaluation episodes (default 20)")
@@ -60,19 +60,19 @@ def add_parser(subparsers) -> None:
     high.add_argument("--baseline", choices=("heuristic", "scripted", "random"), default=None,  # high_level_eval
                       help="evaluate a baseline instead of a checkpoint: heuristic (privileged, commands the "
                            "hinge), scripted (the heuristic's motion as latent goals over the low level), random")
-    high.add_argument("--low-level", default="policy",
-                      help="the frozen low level: a low-level checkpoint or 'privileged' (default: the shipped "
-                           "low-level policy)")
+    high.add_argument("--low-level", default=None,
+                      help="the frozen low level: policy (the shipped low-level policy), privileged, or a low-level "
+                           "checkpoint (default: the one the checkpoint learned over; for baselines, policy)")
     high.add_argument("--no-progress", action="store_true", help="no progress bar")
     high.set_defaults(func=run_high)
 
 
 def run_low(args: argparse.Namespace) -> int:
     from hingelab.envs.low_level import SHIPPED_LOW_LEVEL, PolicyLowLevel
-    from hingelab.envs.rewards import LowLevelRewardConfig
     from hingelab.episodes import create_dataset
     from hingelab.errors import ConfigError
     from hingelab.envs.tool_shape import SETTLE_STEPS
+    from hingelab.learning.low_level_checkpoint import recorded_env_arguments
     from hingelab.learning.low_level_eval import evaluate_sampled_goals, make_eval_env, reference_policy, region_table
 
     if args.baseline and args.checkpoint is not None:
@@ -86,11 +86,10 @@ def run_low(args: argparse.Namespace) -> int:
     model = None if args.baseline else PolicyLowLevel(args.checkpoint).model
     label = args.baseline or str(args.checkpoint)
     provenance = getattr(model, "hingelab_provenance", {}) or {}
-    trained = provenance.get("config", {})
-    env_args = {"use_effort": trained.get("use_effort", True), "randomize": not args.no_randomize,
-                "effort_weight": trained.get("effort_weight", LowLevelRewardConfig().c2),
-                "drift_weight": trained.get("drift_weight", 0.0),
-                "max_episode_steps": trained.get("max_episode_steps", 50)}
+    # the env the checkpoint was trained on (its record), on held-out goals: not its training goal band
+    env_args = {**(recorded_env_arguments(model) if model is not None else {}), "randomize": not args.no_randomize}
+    for training_only in ("goal_sampling", "goal_openings"):
+        env_args.pop(training_only, None)
     config = {"checkpoint": label, "episodes": args.episodes, "env": env_args,
               "checkpoint_git_commit": provenance.get("git_commit", "unknown")}
     # a run's model.zip and best_model.zip: the run folder names the dataset
@@ -137,20 +136,29 @@ def run_high(args: argparse.Namespace) -> int:
     if args.baseline and args.checkpoint is not None:
         raise ConfigError("give a checkpoint or --baseline, not both")
     if args.checkpoint is None and not args.baseline:
-        raise ConfigError("there is no shipped high-level policy yet: give a SAC checkpoint trained on "
-                          "ToolPick-v0, or --baseline heuristic|scripted|random")
+        from hingelab.learning.high_level_checkpoint import SHIPPED_HIGH_LEVEL
+
+        if not SHIPPED_HIGH_LEVEL.exists():
+            raise ConfigError(f"there is no shipped high-level policy ({SHIPPED_HIGH_LEVEL}) yet: give a SAC "
+                              "checkpoint trained on ToolPick-v0 (hingelab train high), or --baseline "
+                              "heuristic|scripted|random")
+        args.checkpoint = SHIPPED_HIGH_LEVEL
     if args.episodes < 1:
         raise ConfigError("--episodes must be at least 1")
     if args.out.exists() and any(args.out.iterdir()):
         raise ConfigError(f"{args.out} is not empty; evaluate into a new folder")
     if args.baseline:
         policy, label = H.baseline_policy(args.baseline), args.baseline
+        # the heuristic bypasses the low level: privileged, as in hingelab generate heuristic
+        low_level = "privileged" if args.baseline == "heuristic" else (args.low_level or "policy")
     else:
-        from hingelab.learning.high_level_checkpoint import load_high_level_checkpoint
+        from hingelab.learning.high_level_checkpoint import check_context, load_high_level_checkpoint
 
-        policy, label = H.ModelPolicy(load_high_level_checkpoint(args.checkpoint)), str(args.checkpoint)
-    # the heuristic bypasses the low level: privileged, as in hingelab generate heuristic
-    low_level = "privileged" if args.baseline == "heuristic" else args.low_level
+        model = load_high_level_checkpoint(args.checkpoint)
+        recorded = getattr(model, "hingelab_provenance", None) or {}
+        low_level = args.low_level or recorded.get("low_level", "policy")
+        check_context(model, args.checkpoint, low_level)
+        policy, label = H.ModelPolicy(model), str(args.checkpoint)
     H.make_eval_env(args.object, args.size, low_level).close()  # bad object or low level: an error before files
     config = {"policy": label, "object": args.object, "size": args.size, "episodes": args.episodes,
               "low_level": low_level, "seeds": f"{H.SEED_BASE} + seed * {H.SEED_STRIDE} + episode"}

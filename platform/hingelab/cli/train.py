@@ -18,6 +18,8 @@ from hingelab.errors import ConfigError
 LEARNERS = {
     "encoder": "hingelab.cli.train:add_encoder_parser",
     "low": "hingelab.cli.train:add_low_parser",
+    "high": "hingelab.cli.train_high:add_high_parser",
+    "flat": "hingelab.cli.train_high:add_flat_parser",
 }
 
 
@@ -129,10 +131,22 @@ def run_curve_recalibration(args: argparse.Namespace) -> int:
 
 
 # ---------------------------------------------------------------------------- low
+def add_run_arguments(p, default_out: str) -> None:
+    """The flags every SAC learner's command has besides its config's."""
+    p.add_argument("--out", type=Path, default=None,
+                   help=f"run folder (default {default_out}); never under assets/ without --force")
+    p.add_argument("--force", action="store_true", help="allow a run folder that replaces files under assets/")
+    p.add_argument("--resume", action="store_true",
+                   help="continue the run in --out from its last checkpoint (its saved config is kept; "
+                        "--steps may raise the budget)")
+    p.add_argument("--name", default=None, help="curve label in reports (default: the run folder's name)")
+    p.add_argument("--no-progress", action="store_true", help="no progress bar")
+
+
 def add_low_parser(learners) -> None:
     from hingelab.learning.low_level_config import LowLevelTrainConfig
+    from hingelab.learning.run_config import add_config_arguments
 
-    d = LowLevelTrainConfig()
     p = learners.add_parser(
         "low",
         help="the low-level policy: SAC shaping the tweezer to latent goals (ToolShape-v0)",
@@ -140,101 +154,23 @@ def add_low_parser(learners) -> None:
                     "rollout is written as MCAP episodes into RUNDIR/dataset; evaluations on fixed held-out "
                     "goals go to RUNDIR/metrics.csv (hingelab report RUNDIR draws the curves); checkpoints "
                     "with the replay buffer go to RUNDIR/checkpoints (continue with --resume). All settings "
-                    "are saved in RUNDIR/config.json.",
+                    "are saved in RUNDIR/config.json; every one of them is a flag below.",
     )
-    p.add_argument("--steps", type=int, default=d.steps, help=f"environment steps in total (default {d.steps})")
-    p.add_argument("--seed", type=int, default=d.seed, help=f"run seed (default {d.seed})")
-    p.add_argument("--no-effort", action="store_true", help="drop the effort reward (the paper's ablation)")
-    p.add_argument("--effort-weight", type=float, default=d.effort_weight, metavar="C2",
-                   help=f"weight of the tool-motion part of the effort reward, per m of mean tool-point "
-                        f"displacement per step (default {d.effort_weight:g}; larger holds the tool stiller)")
-    p.add_argument("--drift-weight", type=float, default=d.drift_weight, metavar="C4",
-                   help="add a training-only penalty on the tool's true drift in the hand (privileged state): "
-                        "C4 per m beyond 5 mm, per step (default 0: off, the paper's reward); e.g. 60 makes "
-                        "1 cm of drift cost 0.3 per step")
-    p.add_argument("--her", action="store_true", help="HER relabelling (future strategy, 4 goals)")
-    p.add_argument("--goals", choices=("reachable", "reachable_open", "reachable_closed", "normal"),
-                   default=d.goal_sampling,
-                   help=f"training goals: latents of reachable openings, the same with half of them in the "
-                        f"open 40%% (reachable_open) or the closed 25%% (reachable_closed) of the range, or "
-                        f"N(0, I) as in the paper (default {d.goal_sampling})")
-    p.add_argument("--goal-openings", type=_opening_band, default=None, metavar="LOW:HIGH",
-                   help="reachable training goals from this band of openings only (rad, e.g. 0:0.10): an "
-                        "expert for the band, to combine with others by hingelab compose low")
-    p.add_argument("--no-randomize", action="store_true", help="turn domain randomization off")
-    p.add_argument("--envs", type=int, default=d.n_envs, help=f"parallel rollout processes (default {d.n_envs})")
-    p.add_argument("--in-process", action="store_true",
-                   help="step the --envs envs in this process, one after another (several runs side by side)")
-    p.add_argument("--algorithm", choices=("fast_sac", "sac"), default=d.algorithm,
-                   help=f"fast_sac: same SAC updates, faster; sac: plain stable-baselines3 (default {d.algorithm})")
-    p.add_argument("--batch-size", type=int, default=d.batch_size, help=f"SAC batch (default {d.batch_size})")
-    p.add_argument("--buffer-size", type=int, default=d.buffer_size, help=f"replay buffer (default {d.buffer_size})")
-    p.add_argument("--learning-starts", type=int, default=d.learning_starts,
-                   help=f"random steps before the first update (default {d.learning_starts})")
-    p.add_argument("--gradient-steps", type=int, default=d.gradient_steps,
-                   help=f"updates per vectorized env step (default {d.gradient_steps})")
-    p.add_argument("--eval-every", type=int, default=d.eval_every, help=f"env steps between evaluations "
-                   f"(default {d.eval_every})")
-    p.add_argument("--eval-goals", type=int, default=d.eval_goals_per_region,
-                   help=f"held-out goals per third of the opening range (default {d.eval_goals_per_region})")
-    p.add_argument("--checkpoint-every", type=int, default=d.checkpoint_every,
-                   help=f"env steps between resumable checkpoints (default {d.checkpoint_every})")
-    p.add_argument("--threads", type=int, default=d.torch_threads, help=f"torch threads (default {d.torch_threads})")
-    p.add_argument("--no-record", action="store_true", help="do not write the training rollouts (not advised)")
-    p.add_argument("--from", dest="from_datasets", type=Path, nargs="+", default=[], metavar="DATASET",
-                   help="datasets whose transitions fill the replay buffer before training")
-    p.add_argument("--bc-weight", type=float, default=d.demo_bc_weight, metavar="W",
-                   help="learn from the --from datasets as demonstrations: a Q-filtered behaviour-cloning term "
-                        "of this weight in the actor loss (Nair et al. 2018; 0: plain SAC, the default)")
-    p.add_argument("--bc-no-q-filter", action="store_true",
-                   help="apply the BC term on every demonstration, not only where the critic prefers the "
-                        "demonstrated action (keeps the actor near the demonstrator)")
-    p.add_argument("--bc-pretrain", type=int, default=d.bc_pretrain_updates, metavar="UPDATES",
-                   help="behaviour-cloning updates of the actor on the --from datasets before training (default 0)")
-    p.add_argument("--init-from", type=Path, default=None, metavar="CHECKPOINT",
-                   help="start from a trained low-level policy (a .zip, run folder or checkpoints/step_* folder): "
-                        "its actor, critics, optimizers and entropy coefficient; the replay buffer starts "
-                        "empty (or from --from). Fine-tuning, e.g. with other --goals")
-    p.add_argument("--offline", type=int, default=0, metavar="UPDATES",
-                   help="train from the --from datasets alone for this many updates (no env rollouts)")
-    p.add_argument("--out", type=Path, default=None,
-                   help="run folder (default runs/low_seed{SEED}[_no_effort]); never under assets/ without --force")
-    p.add_argument("--force", action="store_true", help="allow a run folder that replaces files under assets/")
-    p.add_argument("--resume", action="store_true",
-                   help="continue the run in --out from its last checkpoint (its saved config is kept; "
-                        "--steps may raise the budget)")
-    p.add_argument("--name", default=None, help="curve label in reports (default: the run folder's name)")
-    p.add_argument("--no-progress", action="store_true", help="no progress bar")
+    add_config_arguments(p, LowLevelTrainConfig)
+    add_run_arguments(p, "runs/low_seed{SEED}[_no_effort]")
     p.set_defaults(func=run_low)
-
-
-def _opening_band(text: str) -> tuple[float, float]:
-    """'0:0.10' -> (0.0, 0.1), for --goal-openings."""
-    try:
-        low, high = (float(v) for v in text.split(":"))
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"{text!r} is not LOW:HIGH in rad (e.g. 0:0.10)") from None
-    if not low < high:
-        raise argparse.ArgumentTypeError(f"{text!r}: LOW must be below HIGH")
-    return low, high
 
 
 def run_low(args: argparse.Namespace) -> int:
     from hingelab.learning.low_level_config import LowLevelTrainConfig
+    from hingelab.learning.run_config import config_from_args
     from hingelab.learning.train_low import train_low
     from hingelab.paths import REPO_ROOT, refuse_to_replace_shipped
 
-    config = LowLevelTrainConfig(
-        steps=args.steps, seed=args.seed, use_effort=not args.no_effort, effort_weight=args.effort_weight,
-        drift_weight=args.drift_weight, her=args.her, goal_sampling=args.goals, goal_openings=args.goal_openings,
-        randomize=not args.no_randomize, n_envs=args.envs,
-        subprocess_envs=not args.in_process, algorithm=args.algorithm, batch_size=args.batch_size,
-        buffer_size=args.buffer_size, learning_starts=args.learning_starts, gradient_steps=args.gradient_steps,
-        eval_every=args.eval_every, eval_goals_per_region=args.eval_goals, checkpoint_every=args.checkpoint_every,
-        torch_threads=args.threads, record=not args.no_record,
-        from_datasets=tuple(str(p) for p in args.from_datasets), offline_updates=args.offline,
-        demo_bc_weight=args.bc_weight, bc_pretrain_updates=args.bc_pretrain, demo_q_filter=not args.bc_no_q_filter,
-        init_from=str(args.init_from.resolve()) if args.init_from else "")
+    if args.init_from:  # the run folder records where it started from, wherever it is run
+        args.init_from = str(Path(args.init_from).resolve())
+    args.from_datasets = tuple(str(p) for p in args.from_datasets)
+    config = config_from_args(LowLevelTrainConfig, args)
     out = args.out or REPO_ROOT / "runs" / f"low_seed{args.seed}{'' if config.use_effort else '_no_effort'}"
     refuse_to_replace_shipped(out, args.force)
     s = train_low(config, out, resume=args.resume, progress=not args.no_progress, name=args.name)

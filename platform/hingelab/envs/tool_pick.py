@@ -95,6 +95,8 @@ class ToolPickEnv(SimRenderMixin, gym.Env):
         else:
             checkpoint = SHIPPED_LOW_LEVEL if low_level == "policy" else low_level
             self.low_level = PolicyLowLevel(checkpoint, encoder=self.perception.encoder)
+        if isinstance(reward, dict):  # as a run's config records it (JSON)
+            reward = HighLevelRewardConfig(**reward)
         self.reward_config = reward or HighLevelRewardConfig()
         # the one success verdict (is_success, the episode's success): the object within the radius of the target
         self.success_verdict = f"object_within_{100 * self.reward_config.success_radius:g}cm"

@@ -4,7 +4,11 @@ The pattern of ``hingelab.learning.low_level_checkpoint``: a missing file, a fil
 an SB3 SAC zip, or a SAC zip of another env (for example the low-level policy
 ``assets/checkpoints/low_level.zip``: ToolShape-v0's dict observation and 9-D action) is a
 one-line ``ConfigError``. ToolPick-v0's spaces: observation ``Box(14,)``, action ``Box(5,)``.
-There is no shipped high-level checkpoint yet (``hingelab eval high`` says so).
+
+A high-level policy learned over one low level and one encoder: ``train high`` records them
+(``training_context``: the low level's spec and sha256, the encoder's fingerprint), and
+``check_context`` refuses the policy beside another low level or another encoder's latents.
+The shipped one is ``assets/checkpoints/high_level.zip`` (``SHIPPED_HIGH_LEVEL``).
 """
 
 from __future__ import annotations
@@ -12,9 +16,49 @@ from __future__ import annotations
 from pathlib import Path
 
 from hingelab.errors import ConfigError
+from hingelab.paths import ASSETS_DIR
 
 OBSERVATION_SHAPE = (14,)
 ACTION_SHAPE = (5,)
+SHIPPED_HIGH_LEVEL = ASSETS_DIR / "checkpoints" / "high_level.zip"
+
+
+def low_level_sha256(spec: str) -> str:
+    """"privileged" or "none", or the sha256 of the low-level checkpoint file (a manifest's own bytes
+    name its experts' sha256s, so the manifest's hash covers them)."""
+    from hingelab.envs.low_level import resolve_low_level
+    from hingelab.learning.goal_experts import file_sha256
+
+    path = resolve_low_level(spec) if spec != "none" else "none"
+    return path if isinstance(path, str) else file_sha256(path)
+
+
+def training_context(low_level: str) -> dict:
+    """What a high-level checkpoint records about the parts it learned beside."""
+    from hingelab.perception.encoder import shipped_encoder_fingerprint
+
+    return {"low_level": str(low_level), "low_level_sha256": low_level_sha256(str(low_level)),
+            "encoder_fingerprint": shipped_encoder_fingerprint()}
+
+
+def check_context(model, path, low_level: str) -> None:
+    """Refuse ``model`` (loaded from ``path``) for use over ``low_level`` if it learned beside another
+    low level or encoder (checkpoints without the record are not checked)."""
+    provenance = getattr(model, "hingelab_provenance", None) or {}
+    trained_sha = provenance.get("low_level_sha256")
+    if trained_sha is not None:
+        here = low_level_sha256(str(low_level))
+        if here != trained_sha:
+            raise ConfigError(f"{path} learned over the low level {provenance.get('low_level')} (sha256 "
+                              f"{trained_sha[:12]}), not over {low_level} ({here[:12]}); evaluate it with "
+                              f"--low-level {provenance.get('low_level')} or train one over this low level")
+    trained_encoder = provenance.get("encoder_fingerprint")
+    if trained_encoder is not None:
+        from hingelab.perception.encoder import shipped_encoder
+
+        if not shipped_encoder().accepts(trained_encoder):
+            raise ConfigError(f"{path} learned from the latents of another tool encoder (fingerprint "
+                              f"{trained_encoder}); retrain it with `hingelab train high` on this encoder")
 
 
 def resolve_checkpoint(path) -> Path:
@@ -28,8 +72,9 @@ def resolve_checkpoint(path) -> Path:
     return path
 
 
-def load_high_level_checkpoint(path):
-    """A SAC zip trained on ToolPick-v0 (14-D observation, 5-D action), loaded on the CPU."""
+def load_high_level_checkpoint(path, low_level: str | None = None):
+    """A SAC zip trained on ToolPick-v0 (14-D observation, 5-D action), loaded on the CPU; with
+    ``low_level``, checked against the low level and encoder it learned beside."""
     from hingelab.learning.checkpoints import load_sac_zip
 
     path = resolve_checkpoint(path)
@@ -41,7 +86,10 @@ def load_high_level_checkpoint(path):
         raise ConfigError(f"{path} does not match ToolPick-v0 (observation {shapes}, action "
                           f"{tuple(model.action_space.shape or ())}; ToolPick-v0 has observation {OBSERVATION_SHAPE}, "
                           f"action {ACTION_SHAPE}); give a high-level checkpoint trained on hingelab/ToolPick-v0")
+    if low_level is not None:
+        check_context(model, path, low_level)
     return model
 
 
-__all__ = ["load_high_level_checkpoint", "resolve_checkpoint", "OBSERVATION_SHAPE", "ACTION_SHAPE"]
+__all__ = ["load_high_level_checkpoint", "resolve_checkpoint", "training_context", "check_context",
+           "low_level_sha256", "OBSERVATION_SHAPE", "ACTION_SHAPE", "SHIPPED_HIGH_LEVEL"]

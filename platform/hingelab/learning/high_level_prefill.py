@@ -54,6 +54,7 @@ the transitions given: relabel them for the run's ``HighLevelRewardConfig`` firs
 
 from __future__ import annotations
 
+import copy
 import time
 from dataclasses import dataclass
 from pathlib import Path
@@ -221,6 +222,24 @@ def high_level_transitions(datasets, reward_config: HighLevelRewardConfig | None
     return concat_transitions(parts)
 
 
+def look_ahead(transitions: Transitions, steps: int) -> Transitions:
+    """The latent half of each action replaced by the one ``steps - 1`` transitions later in the same
+    episode (the episode's last where it ends sooner): with ``actions="reached"``, the latent the
+    tool reached ``steps`` steps after the observation (1: unchanged, the paper's)."""
+    if steps < 1:
+        raise ConfigError(f"the look-ahead is a number of steps >= 1, not {steps}")
+    if steps == 1:
+        return transitions
+    actions = np.array(transitions.actions, copy=True)
+    for episode in np.unique(transitions.episode_index):
+        rows = np.flatnonzero(transitions.episode_index == episode)
+        later = rows[np.minimum(np.arange(len(rows)) + steps - 1, len(rows) - 1)]
+        actions[rows, :2] = transitions.actions[later, :2]
+    out = copy.copy(transitions)
+    out.actions = actions
+    return out
+
+
 def fill_high_level_buffer(buffer, transitions: Transitions, method: str = "add") -> int:
     """Write ``transitions`` into an SB3 ``ReplayBuffer`` of ToolPick-v0's spaces; the number added.
 
@@ -266,19 +285,25 @@ class DemoShareReplayBuffer(ReplayBuffer):
     def __init__(self, buffer_size, observation_space, action_space, device="auto", n_envs: int = 1,
                  optimize_memory_usage: bool = False, handle_timeout_termination: bool = True,
                  demos: Transitions | None = None, demo_share: float = 0.25):
+        """``demos=None``: no demo store yet, what a model loaded from a zip builds before its saved
+        buffer (with its demos) replaces it (``load_replay_buffer``); it samples its ring alone."""
         super().__init__(buffer_size, observation_space, action_space, device=device, n_envs=n_envs,
                          optimize_memory_usage=optimize_memory_usage,
                          handle_timeout_termination=handle_timeout_termination)
-        if demos is None or len(demos) == 0:
-            raise ConfigError("DemoShareReplayBuffer needs demos (high_level_transitions of heuristic datasets)")
+        if demos is not None and len(demos) == 0:
+            raise ConfigError("DemoShareReplayBuffer got no demos (high_level_transitions of heuristic datasets)")
         if not 0.0 <= demo_share <= 1.0:
             raise ConfigError(f"demo_share is a fraction of the batch in [0, 1], not {demo_share}")
         self.demo_share = float(demo_share)
-        self.demos = ReplayBuffer(len(demos), observation_space, action_space, device=device, n_envs=1,
-                                  handle_timeout_termination=handle_timeout_termination)
-        fill_high_level_buffer(self.demos, demos)
+        self.demos = None
+        if demos is not None:
+            self.demos = ReplayBuffer(len(demos), observation_space, action_space, device=device, n_envs=1,
+                                      handle_timeout_termination=handle_timeout_termination)
+            fill_high_level_buffer(self.demos, demos)
 
     def sample(self, batch_size: int, env=None) -> ReplayBufferSamples:
+        if self.demos is None:
+            return super().sample(batch_size, env=env)
         n_demo = batch_size if self.size() == 0 else int(round(self.demo_share * batch_size))
         if n_demo == 0:
             return super().sample(batch_size, env=env)
@@ -289,5 +314,5 @@ class DemoShareReplayBuffer(ReplayBuffer):
         return ReplayBufferSamples(*(None if a is None else torch.cat([a, b]) for a, b in zip(demo, own)))
 
 
-__all__ = ["high_level_transitions", "fill_high_level_buffer", "prefill_high_level", "relabel_rewards",
+__all__ = ["high_level_transitions", "look_ahead", "fill_high_level_buffer", "prefill_high_level", "relabel_rewards",
            "HighLevelPrefillStats", "DemoShareReplayBuffer"]

@@ -35,4 +35,31 @@ def load_sac_checkpoint(path: Path, encoder=None):
     return model
 
 
-__all__ = ["load_sac_checkpoint"]
+DEFAULT_ACTION_SCALE = 0.05  # ToolShape-v0's default: what checkpoints that record none were trained with
+
+
+def recorded_env_arguments(model) -> dict:
+    """The ToolShape-v0 arguments a low-level checkpoint was trained with: its record (``env_kwargs``,
+    written since the training core), or, for older checkpoints, rebuilt from its config (the reward's
+    weights and the episode length; the defaults where the config is silent)."""
+    from hingelab.envs.rewards import LowLevelRewardConfig
+
+    provenance = getattr(model, "hingelab_provenance", None) or {}
+    if isinstance(provenance.get("env_kwargs"), dict):
+        return dict(provenance["env_kwargs"])
+    trained = provenance.get("config", {})
+    return {"use_effort": trained.get("use_effort", True),
+            "effort_weight": trained.get("effort_weight", LowLevelRewardConfig().c2),
+            "drift_weight": trained.get("drift_weight", 0.0),
+            "max_episode_steps": trained.get("max_episode_steps", 50)}
+
+
+def recorded_action_scale(model) -> float:
+    """rad per step of a full action, as the checkpoint records it (older ones: ToolShape-v0's default)."""
+    provenance = getattr(model, "hingelab_provenance", None) or {}
+    if "action_scale" in provenance:
+        return float(provenance["action_scale"])
+    return float(recorded_env_arguments(model).get("action_scale", DEFAULT_ACTION_SCALE))
+
+
+__all__ = ["load_sac_checkpoint", "recorded_env_arguments", "recorded_action_scale", "DEFAULT_ACTION_SCALE"]

@@ -18,7 +18,8 @@ actor and twin critics, Dict observations) and what each change here buys is wri
 ``FastSAC`` saves with SB3's ``save`` and the file loads as plain ``SAC`` too.
 
 Measured against bare SB3 ``SAC`` by ``hingelab bench sac`` (``hingelab.bench.sac``), which writes
-``analysis/bench/sac.md``.
+``analysis/bench/sac.md``. Variants that change the algorithm (``hingelab.learning.demo_sac.DemoSAC``)
+subclass it and add their loss through ``_extra_actor_loss``.
 """
 
 from __future__ import annotations
@@ -177,7 +178,6 @@ class FastSAC(SAC):
         policy_kwargs["optimizer_kwargs"] = optimizer_kwargs
         kwargs["policy_kwargs"] = policy_kwargs
         self.speedups = ALL_SPEEDUPS if speedups is None else frozenset(speedups)
-        self.demo_bc = None  # a hingelab.learning.demo_bc.DemoBC adds its term to the actor loss
         unknown = self.speedups - ALL_SPEEDUPS
         if unknown:
             raise ValueError(f"unknown speedups {sorted(unknown)}; known: {sorted(ALL_SPEEDUPS)}")
@@ -192,7 +192,7 @@ class FastSAC(SAC):
             _relu_in_place_after_linear(self.policy)
 
     def _excluded_save_params(self) -> list[str]:
-        return [*super()._excluded_save_params(), "_fast_sampler", "demo_bc"]
+        return [*super()._excluded_save_params(), "_fast_sampler"]
 
     # --- pieces of one update -------------------------------------------------------------
 
@@ -237,6 +237,10 @@ class FastSAC(SAC):
             return critic(obs, actions)
         qvalue_input = th.cat([features, actions], dim=1)
         return tuple(q_net(qvalue_input) for q_net in critic.q_networks)
+
+    def _extra_actor_loss(self, batch_size: int) -> th.Tensor | None:
+        """A term a variant adds to the actor loss of each update (None: plain SAC)."""
+        return None
 
     # --- the update -------------------------------------------------------------------------
 
@@ -319,8 +323,9 @@ class FastSAC(SAC):
                 q_values_pi = th.cat(self._q_values(self.critic, replay_data.observations, features, actions_pi), dim=1)
                 min_qf_pi, _ = th.min(q_values_pi, dim=1, keepdim=True)
                 actor_loss = (ent_coef * log_prob - min_qf_pi).mean()
-                if self.demo_bc is not None:  # SAC from demonstrations (hingelab.learning.demo_bc)
-                    actor_loss = actor_loss + self.demo_bc.loss(self, batch_size)
+                extra = self._extra_actor_loss(batch_size)
+                if extra is not None:  # a variant's own term (hingelab.learning.demo_sac.DemoSAC)
+                    actor_loss = actor_loss + extra
                 keep(actor_losses, actor_loss)
                 self.actor.optimizer.zero_grad()
                 actor_loss.backward()

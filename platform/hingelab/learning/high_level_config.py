@@ -1,0 +1,113 @@
+"""Every hyperparameter of a high-level run (``hingelab train high``) and of the flat baseline
+(``hingelab train flat``), saved with the run.
+
+``HighLevelTrainConfig`` trains SAC on ToolPick-v0 with a frozen low level inside (the shipped
+low-level policy by default, ``--low-level privileged`` for the hinge servo, or a checkpoint),
+perception and domain randomization on. The privileged prior (the paper's privileged replay
+buffer): heuristic demos (``--from DATASET...``, or, without ``--from``, ``--prior-episodes``
+episodes that the run generates itself into ``RUNDIR/prior``) as transitions of ToolPick-v0's
+spaces (``high_level_prefill``), kept as ``--demo-share`` of every batch (0: the paper's plain
+pre-fill of the ring buffer) and, with ``--bc-weight``, in the actor's BC term. ``--no-prior``
+trains without them (the ablation's "no buffer" arm). ``FlatTrainConfig`` is the same recipe on
+ToolPickFlat-v0 (one policy on the 9 finger deltas and the hand velocity, no low level).
+"""
+
+from __future__ import annotations
+
+from dataclasses import asdict, dataclass
+
+from hingelab.envs.rewards import HighLevelRewardConfig
+from hingelab.errors import ConfigError
+from hingelab.learning.run_config import option
+from hingelab.learning.sac_config import SACTrainConfig
+
+HIGH_ENV_ID = "hingelab/ToolPick-v0"
+FLAT_ENV_ID = "hingelab/ToolPickFlat-v0"
+DEMO_ACTIONS = ("reached", "recorded")
+_REWARD = HighLevelRewardConfig()
+
+
+@dataclass(frozen=True)
+class HighLevelTrainConfig(SACTrainConfig):
+    steps: int = option(100_000, "environment steps (transitions) in total, over all envs")
+    max_episode_steps: int = option(200, "steps per episode before truncation (200 = 10 s, the paper's limit)")
+    learning_starts: int = option(1_000, "random steps before the first update")
+    buffer_size: int = option(300_000, "replay buffer size (transitions, the demos not counted)")
+    eval_every: int = option(10_000, "env steps between evaluations")
+    # the task
+    object: str = option("sphere", "object to pick: sphere, cube, cylinder, tetrahedron or mesh:PATH")
+    size: float = option(0.02, "object width in m (a mesh's largest extent)")
+    mass: float = option(0.01, "object mass in kg")
+    low_level: str = option("policy", "the frozen low level: policy (the shipped low-level policy), privileged "
+                                      "(the hinge servo) or a low-level checkpoint", metavar="CKPT|policy|privileged")
+    placement_half_width: float = option(0.05, "half width in m of the square the object is placed in")
+    c_h1: float = option(_REWARD.c_h1, "reward: success bonus")
+    c_h2: float = option(_REWARD.c_h2, "reward: 1/m of the tool-object closeness term")
+    c_h3: float = option(_REWARD.c_h3, "reward: weight of the object-target closeness term")
+    c_h4: float = option(_REWARD.c_h4, "reward: 1/m of the object-target closeness term")
+    c_h5: float = option(_REWARD.c_h5, "reward: penalty (a distance over 20 cm, a table collision)")
+    # the privileged prior
+    prior: bool = option(True, "train without the privileged prior (no heuristic demos: the ablation's "
+                               "'no buffer' arm)", flag="--no-prior", negate=True)
+    prior_episodes: int = option(100, "heuristic episodes the run generates into RUNDIR/prior when no --from "
+                                      "is given")
+    demo_share: float = option(0.5, "share of every batch drawn from the demos, kept apart from the ring buffer "
+                                    "(RLPD's 50/50); 0: the paper's plain pre-fill of the ring buffer")
+    demo_actions: str = option("reached", "demo action: reached (the latent the tool reached, the paper's) or "
+                                          "recorded (the recorded command)", choices=DEMO_ACTIONS)
+    demo_lookahead: int = option(1, "the reached latent this many steps after the step (1: the step's own, the "
+                                    "paper's)")
+    eval_episodes: int = option(10, "held-out episodes per evaluation")
+
+    kind = "high-level"
+    env_id = HIGH_ENV_ID
+    train_source = "high_level_training"
+    action_level = "high"
+
+    def __post_init__(self):
+        self.check({**self.sac_checks(), "size": self.size > 0, "mass": self.mass > 0,
+                    "prior_episodes": self.prior_episodes >= 1, "demo_share": 0 <= self.demo_share <= 1,
+                    "demo_actions": self.demo_actions in DEMO_ACTIONS, "demo_lookahead": self.demo_lookahead >= 1,
+                    "eval_episodes": self.eval_episodes >= 1, "placement_half_width": self.placement_half_width >= 0})
+        if not self.prior and (self.from_datasets or self.learns_from_demonstrations):
+            raise ConfigError("--no-prior trains without demonstrations: drop --from, --bc-weight and --bc-pretrain")
+        if self.learns_from_demonstrations and self.algorithm != "fast_sac":
+            raise ConfigError("--bc-weight and --bc-pretrain work with --algorithm fast_sac")
+
+    @property
+    def reward(self) -> HighLevelRewardConfig:
+        return HighLevelRewardConfig(c_h1=self.c_h1, c_h2=self.c_h2, c_h3=self.c_h3, c_h4=self.c_h4, c_h5=self.c_h5)
+
+    def env_arguments(self) -> dict:
+        """Keyword arguments of ``gymnasium.make(env_id, ...)`` (JSON: the reward as a dict)."""
+        return {"object": self.object, "size": self.size, "mass": self.mass, "low_level": self.low_level,
+                "randomize": self.randomize, "placement_half_width": self.placement_half_width,
+                "max_episode_steps": self.max_episode_steps, "reward": asdict(self.reward), **self.env_kwargs}
+
+    def recording_metadata(self) -> dict:
+        return {"object_size": str(self.size), "low_level": self.low_level}
+
+
+@dataclass(frozen=True)
+class FlatTrainConfig(HighLevelTrainConfig):
+    low_level: str = option("none", "no low level: the policy moves the fingers itself", cli=False)
+    prior: bool = option(False, "the heuristic's demos are not in the flat action space", cli=False)
+
+    kind = "flat"
+    env_id = FLAT_ENV_ID
+    train_source = "flat_training"
+    action_level = "flat"
+
+    def __post_init__(self):
+        if self.prior or self.from_datasets or self.learns_from_demonstrations:
+            raise ConfigError("the flat baseline learns without demonstrations (the heuristic's are 5-D latent "
+                              "goals and hand velocities, not finger moves): drop --from and --bc-*")
+        super().__post_init__()
+
+    def env_arguments(self) -> dict:
+        arguments = super().env_arguments()
+        del arguments["low_level"]
+        return arguments
+
+    def recording_metadata(self) -> dict:
+        return {"object_size": str(self.size)}

@@ -1,0 +1,163 @@
+"""hingelab train high / train flat on tiny sizes: run folder, privileged prior (kept demo share,
+plain pre-fill, BC term), exact resume, checkpoint records, and bad input."""
+
+from __future__ import annotations
+
+import json
+import shutil
+from dataclasses import replace
+
+import numpy as np
+import pandas as pd
+import pytest
+import torch
+
+from hingelab.episodes.dataset import Dataset
+from hingelab.errors import ConfigError
+from hingelab.learning import checkpoints as ckpt
+from hingelab.learning.high_level_config import FlatTrainConfig, HighLevelTrainConfig
+from hingelab.learning.train_high import train_high
+
+TINY = HighLevelTrainConfig(
+    steps=300, n_envs=1, max_episode_steps=50, learning_starts=50, batch_size=16, buffer_size=2000, net_arch=(32, 32),
+    eval_every=150, eval_episodes=1, checkpoint_every=100, keep_checkpoints=10, prior_episodes=3, demo_bc_weight=1.0,
+    bc_pretrain_updates=20, low_level="privileged", randomize=False)
+
+
+def _params(path) -> dict:
+    from stable_baselines3 import SAC
+
+    return SAC.load(path, device="cpu").policy.state_dict()
+
+
+@pytest.fixture(scope="module")
+def tiny_high(tmp_path_factory):
+    run = tmp_path_factory.mktemp("high") / "tiny"
+    return run, train_high(TINY, run, progress=False)
+
+
+def test_run_writes_prior_rollouts_metrics_and_records(tiny_high):
+    run, summary = tiny_high
+    doc = json.loads((run / "config.json").read_text())
+    assert doc["env_id"] == "hingelab/ToolPick-v0" and doc["config"]["demo_share"] == 0.5
+    assert summary["env_steps"] == 300 and summary["prior"]["episodes"] == 3
+    prior = Dataset(run / "prior")
+    assert len(prior) == 3 and (prior.index["source"] == "heuristic").all()
+    metrics = pd.read_csv(run / "metrics.csv")
+    assert list(metrics["env_steps"]) == [0, 150, 300]
+    assert {"success_rate", "first_attempt_success_rate", "mean_attempts", "failures_tool_drop",
+            "critic_loss"} <= set(metrics.columns)
+    assert metrics["critic_loss"].dropna().nunique() == 2  # the critic is being trained
+    rollouts = Dataset(run / "dataset")
+    assert len(rollouts) >= 300 // TINY.max_episode_steps
+    assert (rollouts.index["source"] == "high_level_training").all()
+    from hingelab.learning.checkpoints import load_sac_zip
+
+    record = load_sac_zip(run / "model.zip").hingelab_provenance
+    assert record["env_id"] == "hingelab/ToolPick-v0" and record["env_kwargs"]["low_level"] == "privileged"
+    assert record["env_kwargs"]["reward"]["c_h1"] == TINY.c_h1
+    assert record["action_scale"] == {"z_goal": 3.0, "hand_velocity_m_s": 0.08}
+    assert record["low_level_sha256"] == "privileged" and record["encoder_fingerprint"]
+    assert record["prior"]["transitions"] == summary["prior"]["transitions"] > 0
+
+
+def test_demo_share_keeps_the_demos_in_every_batch(tiny_high):
+    """The kept demo share: the demos sit in their own store, never overwritten, and half of a batch."""
+    from hingelab.learning.demo_sac import DemoSAC
+    from hingelab.learning.high_level_prefill import DemoShareReplayBuffer
+
+    run, summary = tiny_high
+    model = DemoSAC.load(ckpt.latest_checkpoint(run) / "model.zip", device="cpu")
+    model.load_replay_buffer(ckpt.latest_checkpoint(run) / "replay_buffer.pkl")
+    buffer = model.replay_buffer
+    assert isinstance(buffer, DemoShareReplayBuffer) and buffer.demo_share == 0.5
+    assert buffer.demos.size() == summary["prior"]["transitions"] and buffer.size() == 300
+    batch = buffer.sample(16)
+    demo_obs = buffer.demos.observations[:buffer.demos.size(), 0]
+    from_demos = [bool(np.isclose(demo_obs, o.numpy()).all(axis=1).any()) for o in batch.observations]
+    assert sum(from_demos[:8]) == 8  # the first half of a batch comes from the demos
+
+
+def test_resume_continues_exactly(tiny_high, tmp_path):
+    run, _ = tiny_high
+    copy = tmp_path / "copy"
+    shutil.copytree(run, copy)
+    for later in ckpt.checkpoint_dirs(copy)[1:]:  # keep the checkpoint of step 100 (or 200) only
+        shutil.rmtree(later)
+    for name in ("model.zip", "best_model.zip"):
+        (copy / name).unlink()
+    train_high(TINY, copy, resume=True, progress=False)
+    ours, theirs = _params(copy / "model.zip"), _params(run / "model.zip")
+    assert all(torch.equal(ours[k], theirs[k]) for k in theirs)
+    assert pd.read_csv(copy / "metrics.csv")["return"].tolist() == pd.read_csv(run / "metrics.csv")["return"].tolist()
+
+
+def test_plain_prefill_goes_through_the_ring_buffer(tmp_path):
+    from hingelab.learning.train_high import HighLevelRun
+
+    config = replace(TINY, demo_share=0.0, steps=0, demo_bc_weight=0.0, bc_pretrain_updates=0)
+    run = HighLevelRun(config, tmp_path / "plain", progress=False).setup()
+    try:
+        assert type(run.model.replay_buffer).__name__ == "ReplayBuffer"
+        assert run.model.replay_buffer.size() == run.demo_info["transitions"] > 0
+        assert type(run.model).__name__ == "FastSAC"
+    finally:
+        run.env.close()
+        run.close_evaluator()
+
+
+def test_flat_baseline_trains_on_its_own_env(tmp_path):
+    config = FlatTrainConfig(steps=120, n_envs=1, max_episode_steps=30, learning_starts=30, batch_size=16,
+                             buffer_size=1000, net_arch=(16,), eval_every=120, eval_episodes=1, checkpoint_every=60,
+                             randomize=False)
+    summary = train_high(config, tmp_path / "flat", progress=False)
+    assert summary["env_steps"] == 120 and summary["prior"] is None
+    rollouts = Dataset(tmp_path / "flat" / "dataset")
+    assert (rollouts.index["source"] == "flat_training").all()
+    from hingelab.learning.checkpoints import load_sac_zip
+
+    model = load_sac_zip(tmp_path / "flat" / "model.zip")
+    assert model.action_space.shape == (12,) and model.hingelab_provenance["env_id"] == "hingelab/ToolPickFlat-v0"
+    with pytest.raises(ConfigError, match="flat baseline learns without demonstrations"):
+        replace(config, from_datasets=("x",))
+
+
+def test_high_level_checkpoint_is_refused_beside_another_low_level(tiny_high):
+    from hingelab.learning.high_level_checkpoint import load_high_level_checkpoint
+
+    run, _ = tiny_high
+    assert load_high_level_checkpoint(run / "model.zip", low_level="privileged") is not None
+    with pytest.raises(ConfigError, match="learned over the low level privileged"):
+        load_high_level_checkpoint(run / "model.zip", low_level="policy")
+
+
+def test_bad_input_gets_one_line_errors(tmp_path):
+    with pytest.raises(ConfigError, match="--no-prior"):
+        replace(TINY, prior=False)  # BC needs demos
+    with pytest.raises(ConfigError, match="does not exist"):
+        train_high(replace(TINY, low_level=str(tmp_path / "nowhere.zip")), tmp_path / "a", progress=False)
+    assert not (tmp_path / "a").exists()  # nothing written for a bad input
+    with pytest.raises(ConfigError, match="does not exist"):
+        train_high(replace(TINY, from_datasets=(str(tmp_path / "none"),)), tmp_path / "b", progress=False)
+    with pytest.raises(ConfigError, match="unknown object"):
+        train_high(replace(TINY, object="pyramid", prior=False, demo_bc_weight=0, bc_pretrain_updates=0),
+                   tmp_path / "c", progress=False)
+    with pytest.raises(ConfigError, match="demo_share"):
+        replace(TINY, demo_share=1.5)
+
+
+def test_cli_flags_come_from_the_config(capsys):
+    from hingelab.cli.main import build_parser
+
+    parser = build_parser()
+    args = parser.parse_args(["train", "high", "--gamma", "0.95", "--net-arch", "64", "64", "--no-prior",
+                              "--c-h1", "50", "--demo-share", "0"])
+    from hingelab.learning.run_config import config_from_args
+
+    config = config_from_args(args.config_class, args)
+    assert config.gamma == 0.95 and config.net_arch == (64, 64) and not config.prior and config.c_h1 == 50
+    assert config.reward.c_h1 == 50
+    flat = parser.parse_args(["train", "flat", "--tau", "0.01"])
+    assert config_from_args(flat.config_class, flat).tau == 0.01
+    with pytest.raises(SystemExit):
+        parser.parse_args(["train", "flat", "--from", "x"])
