@@ -50,7 +50,7 @@ def test_report_files_and_learning_curves(dataset, tmp_path, capsys):
     for name in ("report.md", "report.html", "report.json", "episodes.csv", "attempts.csv", "learning_curves.csv"):
         assert (out / name).stat().st_size > 100, name
     pngs = sorted(p.name for p in out.glob("*.png"))
-    assert pngs == ["attempts.png", "learning_curves.png", "lengths.png", "returns.png",
+    assert pngs == ["attempts.png", "learning_curves.png", "learning_curves_by_seed.png", "lengths.png", "returns.png",
                     "success_by_object.png", "success_by_source.png"]
     for png in out.glob("*.png"):
         assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n" and png.stat().st_size > 5000
@@ -66,6 +66,11 @@ def test_report_files_and_learning_curves(dataset, tmp_path, capsys):
     assert a.loc[2000, "success_rate_std"] == pytest.approx(np.std([0.5, 0.6, 0.7], ddof=1))
     b = curves[curves.run == "sac_b"].set_index("env_steps")
     assert b.loc[3000, "seeds"] == 2 and b.loc[3000, "return_mean"] == pytest.approx(30.5)
+    # every seed's own curve under the mean (the ablation's plot)
+    by_seed = pd.read_csv(out / "learning_curves_by_seed.csv")
+    assert len(by_seed) == 4 * (3 + 2) and set(by_seed.groupby("run")["seed"].nunique()) == {3, 2}
+    assert by_seed.set_index(["run", "seed", "env_steps"]).loc[("sac_a", 1, 2000), "success_rate"] == \
+        pytest.approx(0.6)
 
 
 def test_learning_curves_need_the_documented_columns(tmp_path):

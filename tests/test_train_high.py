@@ -21,7 +21,8 @@ from hingelab.learning.train_high import train_high
 TINY = HighLevelTrainConfig(
     steps=300, n_envs=1, max_episode_steps=50, learning_starts=50, batch_size=16, buffer_size=2000, net_arch=(32, 32),
     eval_every=150, eval_episodes=1, checkpoint_every=100, keep_checkpoints=10, prior_episodes=3, demo_bc_weight=1.0,
-    bc_pretrain_updates=20, low_level="privileged", randomize=False)
+    bc_pretrain_updates=20, bc_pretrain_std=True, demo_offline_updates=20, bc_q_scaled=True, demo_q_filter=False,
+    low_level="privileged", randomize=False)
 
 
 def _params(path) -> dict:
@@ -41,13 +42,15 @@ def test_run_writes_prior_rollouts_metrics_and_records(tiny_high):
     doc = json.loads((run / "config.json").read_text())
     assert doc["env_id"] == "hingelab/ToolPick-v0" and doc["config"]["demo_share"] == 0.5
     assert summary["env_steps"] == 300 and summary["prior"]["episodes"] == 3
+    # 20 warm-up updates on the demos alone, then one per env step after learning_starts
+    assert summary["updates"] == 20 + 300 - TINY.learning_starts
     prior = Dataset(run / "prior")
     assert len(prior) == 3 and (prior.index["source"] == "heuristic").all()
     metrics = pd.read_csv(run / "metrics.csv")
     assert list(metrics["env_steps"]) == [0, 150, 300]
     assert {"success_rate", "first_attempt_success_rate", "mean_attempts", "failures_tool_drop",
             "critic_loss"} <= set(metrics.columns)
-    assert metrics["critic_loss"].dropna().nunique() == 2  # the critic is being trained
+    assert metrics["critic_loss"].dropna().nunique() == 3  # trained: by the warm-up, then online
     rollouts = Dataset(run / "dataset")
     assert len(rollouts) >= 300 // TINY.max_episode_steps
     assert (rollouts.index["source"] == "high_level_training").all()
@@ -59,6 +62,8 @@ def test_run_writes_prior_rollouts_metrics_and_records(tiny_high):
     assert record["action_scale"] == {"z_goal": 3.0, "hand_velocity_m_s": 0.08}
     assert record["low_level_sha256"] == "privileged" and record["encoder_fingerprint"]
     assert record["prior"]["transitions"] == summary["prior"]["transitions"] > 0
+    assert record["prior"]["demo_actions"] == ["recorded"]  # the scripted prior's commands
+    assert Dataset(run / "prior").card.config["policy"] == "scripted"
 
 
 def test_demo_share_keeps_the_demos_in_every_batch(tiny_high):
@@ -93,11 +98,15 @@ def test_resume_continues_exactly(tiny_high, tmp_path):
 
 
 def test_plain_prefill_goes_through_the_ring_buffer(tmp_path):
+    """--demo-share 0: the paper's plain pre-fill, here of the paper's heuristic demos (reached latents)."""
     from hingelab.learning.train_high import HighLevelRun
 
-    config = replace(TINY, demo_share=0.0, steps=0, demo_bc_weight=0.0, bc_pretrain_updates=0)
+    config = replace(TINY, demo_share=0.0, steps=0, demo_bc_weight=0.0, bc_pretrain_updates=0,
+                     prior_source="heuristic", prior_episodes=2)
     run = HighLevelRun(config, tmp_path / "plain", progress=False).setup()
     try:
+        assert run.demo_info["demo_actions"] == ["reached"]
+        assert Dataset(tmp_path / "plain" / "prior").card.config.get("policy") is None  # generate heuristic's
         assert type(run.model.replay_buffer).__name__ == "ReplayBuffer"
         assert run.model.replay_buffer.size() == run.demo_info["transitions"] > 0
         assert type(run.model).__name__ == "FastSAC"
@@ -133,15 +142,16 @@ def test_high_level_checkpoint_is_refused_beside_another_low_level(tiny_high):
 
 def test_bad_input_gets_one_line_errors(tmp_path):
     with pytest.raises(ConfigError, match="--no-prior"):
-        replace(TINY, prior=False)  # BC needs demos
+        replace(TINY, prior=False, from_datasets=("x",))
+    no_prior = replace(TINY, prior=False)  # no demos: nothing to clone or warm up on
+    assert (no_prior.demo_bc_weight, no_prior.bc_pretrain_updates, no_prior.demo_offline_updates) == (0, 0, 0)
     with pytest.raises(ConfigError, match="does not exist"):
         train_high(replace(TINY, low_level=str(tmp_path / "nowhere.zip")), tmp_path / "a", progress=False)
     assert not (tmp_path / "a").exists()  # nothing written for a bad input
     with pytest.raises(ConfigError, match="does not exist"):
         train_high(replace(TINY, from_datasets=(str(tmp_path / "none"),)), tmp_path / "b", progress=False)
     with pytest.raises(ConfigError, match="unknown object"):
-        train_high(replace(TINY, object="pyramid", prior=False, demo_bc_weight=0, bc_pretrain_updates=0),
-                   tmp_path / "c", progress=False)
+        train_high(replace(TINY, object="pyramid", prior=False), tmp_path / "c", progress=False)
     with pytest.raises(ConfigError, match="demo_share"):
         replace(TINY, demo_share=1.5)
 
@@ -161,3 +171,26 @@ def test_cli_flags_come_from_the_config(capsys):
     assert config_from_args(flat.config_class, flat).tau == 0.01
     with pytest.raises(SystemExit):
         parser.parse_args(["train", "flat", "--from", "x"])
+    # a negating flag and its opposite: the high level's default is no Q-filter
+    on = parser.parse_args(["train", "high", "--demo-q-filter"])
+    assert config_from_args(on.config_class, on).demo_q_filter is True
+    assert parser.parse_args(["train", "low", "--bc-no-q-filter"]).demo_q_filter is False
+    assert parser.parse_args(["train", "low"]).demo_q_filter is True  # the low level's default
+    assert parser.parse_args(["train", "low", "--no-effort"]).use_effort is False
+
+
+def test_pretraining_fits_the_spread_too(tiny_high):
+    """--bc-pretrain-std: the actor's spread shrinks toward the demonstrations' (it starts near 1)."""
+    from hingelab.learning.demo_sac import DemoSAC, Demonstrations
+    from hingelab.learning.high_level_prefill import high_level_transitions
+
+    run, _ = tiny_high
+    demos = Demonstrations.from_transitions(high_level_transitions([run / "prior"], actions="recorded"))
+    spreads = {}
+    for fit_std in (False, True):
+        model = DemoSAC.load(run / "model.zip", device="cpu")
+        model.set_demonstrations(demos)
+        model.pretrain_actor(1500, batch_size=32, fit_std=fit_std)
+        _, log_std, _ = model.actor.get_action_dist_params(demos.observations[:64])
+        spreads[fit_std] = float(log_std.mean())
+    assert spreads[True] < spreads[False] - 0.3, spreads

@@ -39,7 +39,8 @@ RUN_FILE = "run.json"
 REQUIRED_COLUMNS = ("env_steps", "seed", "success_rate", "return")
 CURVE_METRICS = ("success_rate", "return")
 # drawn too for the runs that record them (hingelab train low does); NaN for the others
-OPTIONAL_CURVE_METRICS = ("last_step_success_rate", "final_latent_distance", "tool_drift_mm_mean")
+OPTIONAL_CURVE_METRICS = ("last_step_success_rate", "final_latent_distance", "tool_drift_mm_mean",
+                          "first_attempt_success_rate")  # the last: hingelab train high and flat
 # hingelab train low's metrics.csv before schema 2 -> today's names (the settled verdict is success)
 OLD_TRAIN_LOW_COLUMNS = {
     "success_rate": "last_step_success_rate", "settled_success_rate": "success_rate",
@@ -110,6 +111,19 @@ def learning_curves(metrics: pd.DataFrame) -> pd.DataFrame:
     return table.reset_index()
 
 
+SEED_CURVE_METRICS = ("success_rate", "first_attempt_success_rate")
+
+
+def load_seed_curves(run_dirs) -> pd.DataFrame:
+    """Per run, seed and env_steps: the success rates of each seed (the curves under the mean)."""
+    run_dirs = list(run_dirs or [])
+    if not run_dirs:
+        return pd.DataFrame(columns=["run", "seed", "env_steps", "success_rate"])
+    metrics = pd.concat([load_run_metrics(d) for d in run_dirs], ignore_index=True)
+    columns = ["run", "seed", "env_steps"] + [m for m in SEED_CURVE_METRICS if m in metrics.columns]
+    return metrics[columns].sort_values(["run", "seed", "env_steps"]).reset_index(drop=True)
+
+
 def load_learning_curves(run_dirs) -> pd.DataFrame:
     """Curves of several run folders (empty frame for no runs)."""
     run_dirs = list(run_dirs or [])
@@ -119,4 +133,4 @@ def load_learning_curves(run_dirs) -> pd.DataFrame:
     return learning_curves(pd.concat([load_run_metrics(d) for d in run_dirs], ignore_index=True))
 
 
-__all__ = ["OPTIONAL_CURVE_METRICS", "OLD_TRAIN_LOW_COLUMNS", "old_metrics_renames", "upgrade_metrics", "load_run_metrics", "learning_curves", "load_learning_curves", "METRICS_FILE", "REQUIRED_COLUMNS"]
+__all__ = ["SEED_CURVE_METRICS", "load_seed_curves", "OPTIONAL_CURVE_METRICS", "OLD_TRAIN_LOW_COLUMNS", "old_metrics_renames", "upgrade_metrics", "load_run_metrics", "learning_curves", "load_learning_curves", "METRICS_FILE", "REQUIRED_COLUMNS"]

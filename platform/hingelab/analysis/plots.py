@@ -93,7 +93,8 @@ def histograms(episodes: pd.DataFrame, column: str, path: Path, xlabel: str) -> 
 CURVE_PANELS = {"success_rate": "success rate", "settled_success_rate": "settled success rate",
                 "last_step_success_rate": "last-step success rate (secondary)",
                 "return": "return", "final_latent_distance": "final latent distance",
-                "tool_drift_mm_mean": "tool drift (mm, mean of episode max)"}
+                "tool_drift_mm_mean": "tool drift (mm, mean of episode max)",
+                "first_attempt_success_rate": "first-attempt success rate"}
 
 
 def learning_curve_plot(curves: pd.DataFrame, path: Path) -> Path:
@@ -125,4 +126,26 @@ def learning_curve_plot(curves: pd.DataFrame, path: Path) -> Path:
     return _save(fig, path)
 
 
-__all__ = ["grouped_rate_bars", "attempt_bars", "histograms", "learning_curve_plot"]
+def seed_curve_plot(seeds: pd.DataFrame, path: Path) -> Path:
+    """Success rate against env steps: every seed's curve (thin) and their mean (thick), per run."""
+    metrics = [m for m in ("success_rate", "first_attempt_success_rate") if m in seeds.columns]
+    fig, axes = plt.subplots(1, len(metrics), figsize=(6 * len(metrics), 4), squeeze=False)
+    for j, (run, part) in enumerate(seeds.groupby("run", sort=True)):
+        color = PALETTE[j % len(PALETTE)]
+        for ax, metric in zip(axes[0], metrics):
+            for _, one in part.groupby("seed"):
+                ax.plot(one["env_steps"], one[metric], color=color, alpha=0.35, linewidth=1)
+            mean = part.groupby("env_steps")[metric].mean()
+            ax.plot(mean.index, mean.to_numpy(), color=color, linewidth=2.5,
+                    label=f"{run} (mean of {part['seed'].nunique()} seeds)")
+    for ax, metric in zip(axes[0], metrics):
+        ax.set_xlabel("environment steps")
+        ax.set_ylabel(CURVE_PANELS[metric])
+        ax.set_ylim(-0.02, 1.02)
+        ax.grid(alpha=0.3)
+    axes[0][0].legend(fontsize=8)
+    fig.suptitle("success against env steps: each seed (thin) and the mean (thick)")
+    return _save(fig, path)
+
+
+__all__ = ["grouped_rate_bars", "attempt_bars", "histograms", "learning_curve_plot", "seed_curve_plot"]

@@ -33,7 +33,7 @@ import pandas as pd
 from hingelab.analysis import plots
 from hingelab.analysis.documents import Section, write_documents
 from hingelab.analysis.episode_table import load_episode_table
-from hingelab.analysis.learning_curves import METRICS_FILE, load_learning_curves
+from hingelab.analysis.learning_curves import METRICS_FILE, load_learning_curves, load_seed_curves
 from hingelab.analysis.success_tables import (
     attempt_rates, failure_reasons, length_return_stats, overall_success, success_rates,
 )
@@ -58,7 +58,8 @@ class Report:
         return self.out / "report.md"
 
 
-def compute_tables(episodes: pd.DataFrame, curves: pd.DataFrame, attempts_k=(1, 2, 3)) -> dict[str, pd.DataFrame]:
+def compute_tables(episodes: pd.DataFrame, curves: pd.DataFrame, attempts_k=(1, 2, 3),
+                   seed_curves: pd.DataFrame | None = None) -> dict[str, pd.DataFrame]:
     """Every table of the report, by the name of its CSV file (without .csv)."""
     tables = {
         "overall": overall_success(episodes),
@@ -72,6 +73,8 @@ def compute_tables(episodes: pd.DataFrame, curves: pd.DataFrame, attempts_k=(1, 
     }
     if len(curves):
         tables["learning_curves"] = curves
+    if seed_curves is not None and len(seed_curves):
+        tables["learning_curves_by_seed"] = seed_curves
     return tables
 
 
@@ -115,6 +118,11 @@ def _sections(tables: dict[str, pd.DataFrame], plot_files: dict[str, str]) -> li
             "0.5 s; its metrics.csv written before schema v2 recorded the last step as success_rate and the "
             "settled verdict as settled_success_rate: read here as last_step_success_rate and success_rate).",
             None, "learning_curves.csv", [plot_files["learning_curves"]]))
+    if "learning_curves_by_seed" in tables:
+        sections.append(Section(
+            "Success of every seed", "Each seed's evaluations (thin) and their mean (thick), per run label: "
+            "the runs of one label (run.json) are its seeds.", None, "learning_curves_by_seed.csv",
+            [plot_files["learning_curves_by_seed"]]))
     return sections
 
 
@@ -135,6 +143,9 @@ def _plots(out: Path, episodes: pd.DataFrame, tables: dict[str, pd.DataFrame]) -
                                                              out / "success_by_size.png", "success rate by object size")
     if "learning_curves" in tables:
         written["learning_curves"] = plots.learning_curve_plot(tables["learning_curves"], out / "learning_curves.png")
+    if "learning_curves_by_seed" in tables:
+        written["learning_curves_by_seed"] = plots.seed_curve_plot(tables["learning_curves_by_seed"],
+                                                                   out / "learning_curves_by_seed.png")
     return {name: path.name for name, path in written.items()}
 
 
@@ -151,7 +162,7 @@ def build_report(datasets, out, runs=(), title: str | None = None, attempts_k=(1
     runs = [Path(r) for r in runs or ()]
     episodes = load_episode_table(datasets)
     curves = load_learning_curves(runs)
-    tables = compute_tables(episodes, curves, attempts_k)
+    tables = compute_tables(episodes, curves, attempts_k, seed_curves=load_seed_curves(runs))
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
     files = []

@@ -12,6 +12,10 @@ Three measurements, each ours against a bare stable-baselines3 baseline in the s
    defaults (2 env processes, 1 update per 2 steps).
 3. Replay pre-fill from MCAP: transitions per second from a dataset on disk into an SB3
    buffer: per-transition ``buffer.add`` (SB3's way) vs ``prefill_replay_buffer``.
+4. High-level env steps per second while training on ToolPick-v0 (the shipped low-level policy
+   inside, perception on): bare ``SAC.learn`` on one env with 1 update per step vs ``train_high``
+   (recording every rollout, no prior) with 1 env / 1 update per step and with its defaults
+   (2 env processes, 1 update per 2 steps).
 """
 
 from __future__ import annotations
@@ -100,7 +104,7 @@ def bench_updates(blocks: int, per_block: int, rows: list, ratios: dict, notes: 
                  "; ".join(f"{name} {', '.join(f'{r:.0f}' for r in rates[name])}" for name, _, _ in arms))
 
 
-def _bare_learn_rate(warmup: int, steps: int) -> float:
+def _bare_learn_rate(warmup: int, steps: int, env=None) -> float:
     import torch
     from stable_baselines3 import SAC
     from stable_baselines3.common.callbacks import BaseCallback
@@ -113,8 +117,9 @@ def _bare_learn_rate(warmup: int, steps: int) -> float:
                 self.start = time.perf_counter()
             return True
 
-    env = make_eval_env({})
-    model = SAC("MultiInputPolicy", env, learning_starts=warmup, batch_size=256, seed=SEED, device="cpu",
+    env = env if env is not None else make_eval_env({})
+    policy = "MultiInputPolicy" if hasattr(env.observation_space, "spaces") else "MlpPolicy"
+    model = SAC(policy, env, learning_starts=warmup, batch_size=256, seed=SEED, device="cpu",
                 policy_kwargs={"net_arch": [256, 256], "activation_fn": torch.nn.ReLU})
     clock = Clock()
     model.learn(warmup + steps, callback=clock)
@@ -155,6 +160,41 @@ def bench_learn(warmup: int, steps: int, rows: list, ratios: dict, notes: list, 
     return tmp / "defaults" / "dataset"
 
 
+def _our_high_learn_rate(config, warmup: int, steps: int, run_dir: Path) -> float:
+    from hingelab.learning.train_high import train_high
+
+    config = replace(config, steps=warmup + steps, learning_starts=warmup, eval_every=10**9, checkpoint_every=10**9,
+                     eval_episodes=1)
+    train_high(config, run_dir, progress=False)
+    import pandas as pd
+
+    rows = pd.read_csv(run_dir / "metrics.csv")
+    return float(rows["env_steps_per_s_learning"].iloc[-1])  # timed from the first update on
+
+
+def bench_learn_high(warmup: int, steps: int, rows: list, ratios: dict, notes: list, tmp: Path) -> None:
+    import gymnasium as gym
+
+    from hingelab.learning.high_level_config import HighLevelTrainConfig
+
+    base = HighLevelTrainConfig(seed=SEED, prior=False)
+    bare = _bare_learn_rate(warmup, steps, env=gym.make(base.env_id, **base.env_arguments()))
+    same = _our_high_learn_rate(replace(base, n_envs=1), warmup, steps, tmp / "high_one_env")
+    default = _our_high_learn_rate(base, warmup, steps, tmp / "high_defaults")
+    rows.append({"what": "high-level env steps/s while training, 1 env, 1 update/step",
+                 "baseline": "bare SB3 SAC.learn on ToolPick-v0", "baseline rate": bare,
+                 "ours": "hingelab train high --envs 1 --no-prior (recording)", "our rate": same,
+                 "ours / baseline": same / bare})
+    rows.append({"what": "high-level env steps/s while training, defaults", "baseline": "bare SB3 SAC.learn on "
+                 "ToolPick-v0", "baseline rate": bare, "ours": f"hingelab train high --no-prior (--envs "
+                 f"{base.n_envs}, 1 update per {base.n_envs} steps)", "our rate": default,
+                 "ours / baseline": default / bare})
+    ratios["high-level training env steps/s, same updates per step, ours / bare"] = same / bare
+    ratios["high-level training env steps/s, defaults, ours / bare"] = default / bare
+    notes.append(f"high-level training loops: ToolPick-v0 over the shipped low-level policy, {warmup} random warm-up "
+                 f"steps, then {steps} steps with updates, timed from the end of the warm-up")
+
+
 def bench_prefill(dataset: Path, repeats: int, rows: list, ratios: dict, notes: list) -> None:
     from stable_baselines3.common.buffers import DictReplayBuffer
 
@@ -191,6 +231,8 @@ def run(quick: bool = False) -> BenchTable:
     with tempfile.TemporaryDirectory() as tmp:
         dataset = bench_learn(100 if quick else 1000, 60 if quick else 1000, rows, ratios, notes, Path(tmp))
         bench_prefill(dataset, 2 if quick else 5, rows, ratios, notes)
-    return BenchTable(name="train", title="Low-level SAC training: update rate, env steps/s, replay pre-fill",
+        bench_learn_high(100 if quick else 500, 60 if quick else 1000, rows, ratios, notes, Path(tmp))
+    return BenchTable(name="train", title="SAC training: update rate, env steps/s (low and high level), replay "
+                                          "pre-fill",
                       columns=["what", "baseline", "baseline rate", "ours", "our rate", "ours / baseline"],
                       rows=rows, ratios=ratios, notes=notes, config={"quick": quick})

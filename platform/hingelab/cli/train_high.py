@@ -21,7 +21,7 @@ def _add(learners, name: str, config_class, help_text: str, description: str, de
 
 # the demonstrations' flags: the heuristic's demos are not in the flat action space
 FLAT_SKIPS = ("from_datasets", "demo_bc_weight", "bc_pretrain_updates", "demo_q_filter", "prior_episodes",
-              "demo_share", "demo_actions", "demo_lookahead")
+              "prior_source", "demo_share", "demo_actions", "demo_lookahead")
 
 
 def add_high_parser(learners) -> None:

@@ -13,7 +13,10 @@ synergy``, or the privileged heuristic's for ToolPick-v0) anchor the actor as in
 
     actor_loss = SAC actor loss + weight * mean_demo( [Q(s, a_demo) > Q(s, pi(s))] ||pi(s) - a_demo||^2 )
 
-where pi(s) is the actor's deterministic action (tanh of its mean). The Q-filter drops the
+where pi(s) is the actor's deterministic action (tanh of its mean). With ``q_scaled`` the term
+is multiplied by mean |Q(s, pi(s))| of the batch (detached), as TD3+BC (Fujimoto and Gu, 2021)
+normalizes its Q term: the BC term keeps its share of the actor loss as the returns grow
+(weight 0.4 is TD3+BC's alpha = 2.5). The Q-filter drops the
 term wherever the critic already prefers the policy's action, so SAC can improve on the
 demonstrator; ``bc_weight=0`` is plain (Fast)SAC. ``pretrain_actor`` fits pi to the
 demonstrations (behaviour cloning) before the first online step, so training starts from the
@@ -34,6 +37,7 @@ import torch as th
 from hingelab.learning.fast_sac import FastSAC
 
 ACTION_LIMIT = 0.97  # demo actions at the +-1 bound are fitted as this (tanh never reaches 1)
+STD_FIT_WEIGHT = 0.01  # the likelihood term of pretrain_actor(fit_std=True), against the squared error
 
 
 @dataclass
@@ -63,9 +67,11 @@ class Demonstrations:
 class DemoSAC(FastSAC):
     """FastSAC whose actor loss adds ``bc_weight`` x the (Q-filtered) BC term on ``demonstrations``."""
 
-    def __init__(self, *args: Any, bc_weight: float = 0.0, q_filter: bool = True, **kwargs: Any):
+    def __init__(self, *args: Any, bc_weight: float = 0.0, q_filter: bool = True, q_scaled: bool = False,
+                 **kwargs: Any):
         self.bc_weight = float(bc_weight)
         self.q_filter = bool(q_filter)
+        self.q_scaled = bool(q_scaled)
         self.demonstrations: Demonstrations | None = None
         super().__init__(*args, **kwargs)
 
@@ -84,6 +90,10 @@ class DemoSAC(FastSAC):
         obs, demo_actions = self.demonstrations.batch(batch_size)
         policy_actions = self._deterministic_actions(obs)
         squared = ((policy_actions - demo_actions) ** 2).sum(dim=1)
+        if self.q_scaled:  # TD3+BC: the term keeps its share of the loss whatever the scale of Q
+            with th.no_grad():
+                q_scale = th.min(th.cat(self.critic(obs, policy_actions), dim=1), dim=1).values.abs().mean()
+            squared = squared * q_scale
         if self.q_filter:
             with th.no_grad():
                 q_demo = th.min(th.cat(self.critic(obs, demo_actions), dim=1), dim=1).values
@@ -97,14 +107,25 @@ class DemoSAC(FastSAC):
             return None
         return self.bc_loss(batch_size)
 
-    def pretrain_actor(self, updates: int, batch_size: int = 256) -> list[float]:
+    def pretrain_actor(self, updates: int, batch_size: int = 256, fit_std: bool = False) -> list[float]:
         """Behaviour cloning of the actor's deterministic action on the demonstrations (no Q-filter:
-        the critic knows nothing yet); returns the loss every 100 updates."""
+        the critic knows nothing yet); returns the loss every 100 updates.
+
+        ``fit_std``: also fit the actor's standard deviation to the demonstrations (their likelihood
+        under the squashed Gaussian, the mean held fixed, weighted 0.01 against the squared error):
+        otherwise it stays at its initial ~1 (pre-tanh), and SAC's first rollouts after pre-training
+        scatter around the cloned action as widely as random ones."""
         losses = []
         self.policy.set_training_mode(True)
         for step in range(updates):
             obs, demo_actions = self.demonstrations.batch(batch_size)
-            loss = ((self._deterministic_actions(obs) - demo_actions) ** 2).sum(dim=1).mean()
+            if fit_std:
+                mean, log_std, _ = self.actor.get_action_dist_params(obs)
+                loss = ((th.tanh(mean) - demo_actions) ** 2).sum(dim=1).mean()
+                spread = self.actor.action_dist.proba_distribution(mean.detach(), log_std)
+                loss = loss - STD_FIT_WEIGHT * spread.log_prob(demo_actions).mean()
+            else:
+                loss = ((self._deterministic_actions(obs) - demo_actions) ** 2).sum(dim=1).mean()
             self.actor.optimizer.zero_grad()
             loss.backward()
             self.actor.optimizer.step()

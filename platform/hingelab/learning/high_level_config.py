@@ -23,7 +23,8 @@ from hingelab.learning.sac_config import SACTrainConfig
 
 HIGH_ENV_ID = "hingelab/ToolPick-v0"
 FLAT_ENV_ID = "hingelab/ToolPickFlat-v0"
-DEMO_ACTIONS = ("reached", "recorded")
+DEMO_ACTIONS = ("auto", "reached", "recorded")
+PRIOR_SOURCES = ("scripted", "heuristic")  # hingelab.learning.high_level_prior
 _REWARD = HighLevelRewardConfig()
 
 
@@ -31,7 +32,8 @@ _REWARD = HighLevelRewardConfig()
 class HighLevelTrainConfig(SACTrainConfig):
     steps: int = option(100_000, "environment steps (transitions) in total, over all envs")
     max_episode_steps: int = option(200, "steps per episode before truncation (200 = 10 s, the paper's limit)")
-    learning_starts: int = option(1_000, "random steps before the first update")
+    learning_starts: int = option(256, "random steps before the first update (one batch: the demos fill the "
+                                       "batches until then)")
     buffer_size: int = option(300_000, "replay buffer size (transitions, the demos not counted)")
     eval_every: int = option(10_000, "env steps between evaluations")
     # the task
@@ -49,14 +51,31 @@ class HighLevelTrainConfig(SACTrainConfig):
     # the privileged prior
     prior: bool = option(True, "train without the privileged prior (no heuristic demos: the ablation's "
                                "'no buffer' arm)", flag="--no-prior", negate=True)
-    prior_episodes: int = option(100, "heuristic episodes the run generates into RUNDIR/prior when no --from "
-                                      "is given")
+    prior_source: str = option("scripted", "the demos the run generates into RUNDIR/prior when no --from is "
+                                           "given: scripted (the heuristic's arm motion and hinge command as latent "
+                                           "goals over the run's low level) or heuristic (the heuristic commanding "
+                                           "the hinge directly, the paper's)", choices=PRIOR_SOURCES)
+    prior_episodes: int = option(100, "episodes of the generated prior")
     demo_share: float = option(0.5, "share of every batch drawn from the demos, kept apart from the ring buffer "
                                     "(RLPD's 50/50); 0: the paper's plain pre-fill of the ring buffer")
-    demo_actions: str = option("reached", "demo action: reached (the latent the tool reached, the paper's) or "
-                                          "recorded (the recorded command)", choices=DEMO_ACTIONS)
+    demo_actions: str = option("auto", "demo action: reached (the latent the tool reached, the paper's), "
+                                       "recorded (the recorded command), or auto (recorded for scripted demos, "
+                                       "reached for the heuristic's)", choices=DEMO_ACTIONS)
     demo_lookahead: int = option(1, "the reached latent this many steps after the step (1: the step's own, the "
                                     "paper's)")
+    demo_offline_updates: int = option(0, "SAC updates on the demos alone before the first env step: the critic "
+                                          "learns the demos' values before online data arrives (with --bc-weight "
+                                          "the actor stays near them)", flag="--demo-warmup", metavar="UPDATES")
+    # the demonstrations' recipe (defaults: what kept the cloned policy while SAC trained, issue 26's note)
+    demo_bc_weight: float = option(0.4, "weight of the behaviour-cloning term on the demos in the actor loss "
+                                        "(with --bc-q-scaled: TD3+BC's 1/alpha = 0.4)", flag="--bc-weight", metavar="W")
+    bc_pretrain_updates: int = option(20_000, "behaviour-cloning updates of the actor on the demos before training",
+                                      flag="--bc-pretrain", metavar="UPDATES")
+    bc_pretrain_std: bool = option(True, "the BC pre-training also fits the actor's spread to the demos")
+    bc_q_scaled: bool = option(True, "scale the BC term by the batch's mean |Q| (TD3+BC's normalization)")
+    demo_q_filter: bool = option(False, "apply the BC term on every demonstration (the default here), not only "
+                                        "where the critic prefers the demonstrated action", flag="--bc-no-q-filter",
+                                 negate=True)
     eval_episodes: int = option(10, "held-out episodes per evaluation")
 
     kind = "high-level"
@@ -67,10 +86,16 @@ class HighLevelTrainConfig(SACTrainConfig):
     def __post_init__(self):
         self.check({**self.sac_checks(), "size": self.size > 0, "mass": self.mass > 0,
                     "prior_episodes": self.prior_episodes >= 1, "demo_share": 0 <= self.demo_share <= 1,
-                    "demo_actions": self.demo_actions in DEMO_ACTIONS, "demo_lookahead": self.demo_lookahead >= 1,
+                    "demo_actions": self.demo_actions in DEMO_ACTIONS,
+                    "prior_source": self.prior_source in PRIOR_SOURCES, "demo_lookahead": self.demo_lookahead >= 1,
+                    "demo_offline_updates": self.demo_offline_updates >= 0,
                     "eval_episodes": self.eval_episodes >= 1, "placement_half_width": self.placement_half_width >= 0})
-        if not self.prior and (self.from_datasets or self.learns_from_demonstrations):
-            raise ConfigError("--no-prior trains without demonstrations: drop --from, --bc-weight and --bc-pretrain")
+        if not self.prior:
+            if self.from_datasets:
+                raise ConfigError("--no-prior trains without demonstrations: drop --from")
+            # no demos: nothing to clone or warm up on (the saved config says so)
+            for name in ("demo_bc_weight", "bc_pretrain_updates", "demo_offline_updates"):
+                object.__setattr__(self, name, type(getattr(self, name))(0))
         if self.learns_from_demonstrations and self.algorithm != "fast_sac":
             raise ConfigError("--bc-weight and --bc-pretrain work with --algorithm fast_sac")
 
@@ -99,9 +124,9 @@ class FlatTrainConfig(HighLevelTrainConfig):
     action_level = "flat"
 
     def __post_init__(self):
-        if self.prior or self.from_datasets or self.learns_from_demonstrations:
+        if self.prior or self.from_datasets:
             raise ConfigError("the flat baseline learns without demonstrations (the heuristic's are 5-D latent "
-                              "goals and hand velocities, not finger moves): drop --from and --bc-*")
+                              "goals and hand velocities, not finger moves): drop --from")
         super().__post_init__()
 
     def env_arguments(self) -> dict:

@@ -6,8 +6,8 @@ help and default, and ``config_from_args`` builds the config back from the parse
 So a hyperparameter added to a config is reachable from ``hingelab train ...`` at once,
 and ``--help`` lists them all. ``RunConfig`` adds the JSON round trip of ``RUNDIR/config.json``.
 
-Flag kinds follow the default's type: bool (``--x``/``--no-x``, or only the negating flag
-when ``negate=True``), int, float, str, tuple (``nargs="+"`` of ``item``), dict (a JSON
+Flag kinds follow the default's type: bool (``--x``/``--no-x``; a ``negate=True`` field has its
+own negating flag, e.g. ``--no-effort``, and ``--field-name`` for True), int, float, str, tuple (``nargs="+"`` of ``item``), dict (a JSON
 object), and ``None`` defaults with an explicit ``parse``.
 """
 
@@ -75,11 +75,14 @@ def add_config_arguments(parser: argparse.ArgumentParser, config_class, skip: tu
         help_text = meta.get("help", "")
         kwargs: dict[str, Any] = {"dest": f.name}
         if isinstance(default, bool):
-            if meta.get("negate"):
-                kwargs.update(action="store_false", default=default)
+            if meta.get("negate"):  # its flag sets False (--no-effort); --field-name sets True
+                group.add_argument(_flag(f), action="store_false", default=default,
+                                   help=f"{help_text}{' (the default)' if not default else ''}", **kwargs)
+                group.add_argument("--" + f.name.replace("_", "-"), action="store_true", default=default,
+                                   help=f"the opposite{' (the default)' if default else ''}", **kwargs)
             else:
-                kwargs.update(action=argparse.BooleanOptionalAction, default=default)
-            group.add_argument(_flag(f), help=help_text, **kwargs)
+                group.add_argument(_flag(f), action=argparse.BooleanOptionalAction, default=default,
+                                   help=help_text, **kwargs)
             continue
         kwargs["default"] = default
         if meta.get("metavar"):

@@ -54,6 +54,9 @@ class SACTrainConfig(RunConfig):
                                          "training", flag="--bc-pretrain", metavar="UPDATES")
     demo_q_filter: bool = option(True, "apply the BC term on every demonstration, not only where the critic "
                                        "prefers the demonstrated action", flag="--bc-no-q-filter", negate=True)
+    bc_pretrain_std: bool = option(False, "the BC pre-training also fits the actor's spread to the demonstrations "
+                                          "(else SAC's first rollouts scatter as widely as random ones)")
+    bc_q_scaled: bool = option(False, "scale the BC term by the batch's mean |Q| (TD3+BC's normalization)")
     env_kwargs: dict = option(None, "more arguments of the env, as a JSON object", default_factory=dict)
 
     env_id = ""  # class attributes of each learner's config

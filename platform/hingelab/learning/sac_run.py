@@ -49,7 +49,7 @@ def sac_arguments(config) -> dict:
               "ent_coef": config.ent_coef, "seed": config.seed, "device": "cpu", "verbose": 0,
               "policy_kwargs": {"net_arch": [int(n) for n in config.net_arch], "activation_fn": torch.nn.ReLU}}
     if config.algorithm == "fast_sac" and config.learns_from_demonstrations:
-        kwargs.update(bc_weight=config.demo_bc_weight, q_filter=config.demo_q_filter)
+        kwargs.update(bc_weight=config.demo_bc_weight, q_filter=config.demo_q_filter, q_scaled=config.bc_q_scaled)
     return kwargs
 
 

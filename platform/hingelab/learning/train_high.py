@@ -3,11 +3,11 @@ flat baseline ToolPickFlat-v0, on the training core (``hingelab.learning.sac_run
 
 The high level's pieces:
 
-* the privileged prior (``prepare_data``): heuristic demos, from ``--from`` or generated into
-  ``RUNDIR/prior`` (``--prior-episodes``, seed ``PRIOR_SEED_BASE + run seed``), turned into
-  transitions of ToolPick-v0's spaces with the run's reward (``high_level_transitions``; the
-  demo action is the reached latent, ``--demo-lookahead`` steps on, and the recorded hand
-  velocity). They go into a ``DemoShareReplayBuffer`` (``--demo-share`` of every batch) or, with
+* the privileged prior (``prepare_data``): privileged demos, from ``--from`` or generated into
+  ``RUNDIR/prior`` (``high_level_prior``: ``--prior-source scripted`` or ``heuristic``,
+  ``--prior-episodes``), turned into transitions of ToolPick-v0's spaces with the run's reward
+  (``high_level_transitions``; the demo action is the recorded command, or the reached latent
+  ``--demo-lookahead`` steps on, and the recorded hand velocity). They go into a ``DemoShareReplayBuffer`` (``--demo-share`` of every batch) or, with
   ``--demo-share 0``, through the buffer's own ``add`` into the ring buffer (the paper's plain
   pre-fill); with ``--bc-weight``/``--bc-pretrain`` also into ``DemoSAC``'s BC term. The choice
   is in the run's config.json.
@@ -31,7 +31,6 @@ from hingelab.learning.high_level_config import FlatTrainConfig, HighLevelTrainC
 from hingelab.learning.sac_run import SACRun, algorithm_class, sac_arguments
 
 PRIOR_DIR = "prior"
-PRIOR_SEED_BASE = 700_000  # the generated prior's `generate heuristic` seed: run seed + this
 EVAL_SEED = 77  # held-out evaluations during training: `hingelab eval high --seed 77`'s episodes
 
 
@@ -70,17 +69,19 @@ class HighLevelRun(SACRun):
             return [str(p) for p in self.config.from_datasets]
         root = self.run_dir / PRIOR_DIR
         if not (root / "dataset.json").exists() or not any((root / "episodes").glob("*.mcap")):
-            import shutil
+            from hingelab.learning.high_level_prior import generate_prior
 
-            from hingelab.heuristic.rollout import HeuristicRunConfig, generate_heuristic_dataset
-
-            shutil.rmtree(root, ignore_errors=True)  # a generation cut short is made again
-            generate_heuristic_dataset(root, HeuristicRunConfig(
-                episodes=self.config.prior_episodes, object=self.config.object, size=self.config.size,
-                mass=self.config.mass, seed=PRIOR_SEED_BASE + self.config.seed, randomize=self.config.randomize,
-                max_episode_steps=self.config.max_episode_steps), progress=self.progress,
-                name=f"{self.name}-prior")
+            generate_prior(root, self.config, name=f"{self.name}-prior", progress=self.progress)
         return [str(root)]
+
+    def demo_action_mode(self, root) -> str:
+        """--demo-actions, or for auto: the recorded command of scripted demos, the reached latent otherwise."""
+        if self.config.demo_actions != "auto":
+            return self.config.demo_actions
+        from hingelab.episodes.dataset import Dataset
+
+        policy = (Dataset(root).card.config or {}).get("policy")
+        return "recorded" if policy == "scripted" else "reached"
 
     def prepare_data(self) -> None:
         self.demos = None
@@ -88,11 +89,19 @@ class HighLevelRun(SACRun):
             return
         from hingelab.learning.high_level_prefill import high_level_transitions, look_ahead
 
+        from hingelab.episodes.transitions import concat_transitions
+
         started = time.perf_counter()
         datasets = self.prior_datasets()
-        transitions = high_level_transitions(datasets, self.config.reward, actions=self.config.demo_actions)
-        self.demos = look_ahead(transitions, self.config.demo_lookahead)
-        self.demo_info = {"datasets": datasets, "transitions": len(self.demos),
+        self.demo_modes = [self.demo_action_mode(root) for root in datasets]
+        parts, offset = [], 0
+        for root, mode in zip(datasets, self.demo_modes):
+            part = high_level_transitions([root], self.config.reward, actions=mode)
+            part.episode_index = part.episode_index + offset  # one numbering over the datasets (look_ahead)
+            offset = int(part.episode_index.max()) + 1
+            parts.append(part)
+        self.demos = look_ahead(concat_transitions(parts) if len(parts) > 1 else parts[0], self.config.demo_lookahead)
+        self.demo_info = {"datasets": datasets, "demo_actions": self.demo_modes, "transitions": len(self.demos),
                           "episodes": int(len(np.unique(self.demos.episode_index))),
                           "seconds": round(time.perf_counter() - started, 2)}
 
@@ -118,13 +127,26 @@ class HighLevelRun(SACRun):
             fill_high_level_buffer(self.model.replay_buffer, self.demos, method=method)
 
     def use_datasets(self, new_run: bool) -> None:
-        if self.demos is None or not self.config.learns_from_demonstrations:
+        if self.demos is None:
             return
-        from hingelab.learning.demo_sac import Demonstrations
+        if self.config.learns_from_demonstrations:
+            from hingelab.learning.demo_sac import Demonstrations
 
-        self.model.set_demonstrations(Demonstrations.from_transitions(self.demos))
-        if new_run and self.config.bc_pretrain_updates:
-            self.model.pretrain_actor(self.config.bc_pretrain_updates, self.config.batch_size)
+            self.model.set_demonstrations(Demonstrations.from_transitions(self.demos))
+            if new_run and self.config.bc_pretrain_updates:
+                self.model.pretrain_actor(self.config.bc_pretrain_updates, self.config.batch_size,
+                                          fit_std=self.config.bc_pretrain_std)
+        if new_run and self.config.demo_offline_updates:
+            self._warm_up_on_demos(self.config.demo_offline_updates)
+
+    def _warm_up_on_demos(self, updates: int) -> None:
+        """SAC updates from the demos alone (the ring buffer is still empty, or holds only them)."""
+        from stable_baselines3.common.logger import configure
+
+        self.model.set_logger(configure(folder=None, format_strings=[]))
+        # SB3's own set-up of learn(): resets the envs once, which learn() then does not do again
+        self.model._setup_learn(0, callback=None, reset_num_timesteps=False)
+        self.model.train(gradient_steps=updates, batch_size=self.config.batch_size)
 
     # ------------------------------------------------------------------ evaluation
     def make_evaluator(self) -> None:
@@ -159,7 +181,7 @@ class HighLevelRun(SACRun):
         from hingelab.learning.high_level_checkpoint import training_context
 
         prior = None if self.demos is None else {**self.demo_info, "demo_share": self.config.demo_share,
-                                                  "demo_actions": self.config.demo_actions,
+                                                  "demo_actions": self.demo_modes,
                                                   "demo_lookahead": self.config.demo_lookahead}
         return super().provenance({**training_context(self.config.low_level), "prior": prior, **(extra or {})})
 

@@ -120,7 +120,8 @@ class LowLevelRun(SACRun):
 
             self.model.set_demonstrations(Demonstrations.from_transitions(transitions))
             if new_run and self.config.bc_pretrain_updates:
-                self.model.pretrain_actor(self.config.bc_pretrain_updates, self.config.batch_size)
+                self.model.pretrain_actor(self.config.bc_pretrain_updates, self.config.batch_size,
+                                          fit_std=self.config.bc_pretrain_std)
         if new_run:
             # rewards recomputed with this run's reward (the datasets may be recorded with or without effort)
             self.prefill = fill_from_transitions(self.model.replay_buffer, transitions, episodes,
