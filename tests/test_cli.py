@@ -61,6 +61,16 @@ def test_demo_runs_and_measures_the_platform(tmp_path):
     assert hierarchy["successes"] == int(hierarchy_index["success"].sum())
     assert reported[Dataset(hierarchy["dataset"]).card.name]["successes"] == hierarchy["successes"]
     assert f"success {hierarchy['successes']}/2 (object within 1 cm of the target)" in result.stdout
+    # the shipped high-level policy (once shipped): printed = recorded = reported
+    learned = json.loads(out_file.read_text())["step_learned_hierarchy"]
+    from hingelab.learning.high_level_checkpoint import SHIPPED_HIGH_LEVEL
+
+    assert learned.get("skipped", False) == (not SHIPPED_HIGH_LEVEL.exists())
+    if not learned.get("skipped"):
+        learned_index = Dataset(learned["dataset"]).index
+        assert len(learned_index) == learned["episodes"] == 2
+        assert learned["successes"] == int(learned_index["success"].sum())
+        assert reported[Dataset(learned["dataset"]).card.name]["successes"] == learned["successes"]
 
 
 def test_bench_sim_writes_its_table(tmp_path):

@@ -89,8 +89,8 @@ def test_a_tiny_sac_checkpoint_evaluates(tmp_path, capsys):
 
 def test_one_line_errors(tmp_path, capsys):
     cases = {
-        "no shipped high-level policy": [],
         "does not match ToolPick-v0": [LOW_LEVEL_ZIP],
+        "learned over the low level policy": ["--low-level", LOW_LEVEL_ZIP],  # the shipped one, another low level
         "no high-level checkpoint": [str(tmp_path / "missing.zip")],
         "not both": [LOW_LEVEL_ZIP, "--baseline", "random"],
     }
@@ -101,9 +101,16 @@ def test_one_line_errors(tmp_path, capsys):
     assert not any((tmp_path / f"e{k}").exists() for k in range(len(cases)))
 
 
-def test_no_checkpoint_error_names_the_baselines(tmp_path, capsys):
-    assert _eval(tmp_path / "e") == 1
-    assert "--baseline" in capsys.readouterr().err
+def test_the_default_checkpoint_is_the_shipped_high_level_policy(tmp_path, capsys):
+    """No checkpoint: the shipped assets/checkpoints/high_level.zip over the low level it learned over."""
+    from hingelab.episodes.card import load_card
+
+    out = tmp_path / "shipped"
+    assert _eval(out) == 0
+    assert "high_level.zip (low level policy)" in capsys.readouterr().out.strip().splitlines()[-1]
+    config = load_card(out).config
+    assert config["policy"].endswith("high_level.zip") and config["low_level"] == "policy"
+    _check_dataset(out)
 
 
 def test_failure_reasons_from_the_env_reason_and_the_episode():

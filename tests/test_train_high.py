@@ -138,6 +138,16 @@ def test_high_level_checkpoint_is_refused_beside_another_low_level(tiny_high):
     assert load_high_level_checkpoint(run / "model.zip", low_level="privileged") is not None
     with pytest.raises(ConfigError, match="learned over the low level privileged"):
         load_high_level_checkpoint(run / "model.zip", low_level="policy")
+    # a policy learned over the shipped low level is refused over another trained one, not over the servo
+    from hingelab.envs.low_level import SHIPPED_LOW_LEVEL_SAC
+    from hingelab.learning.checkpoints import load_sac_zip
+    from hingelab.learning.high_level_checkpoint import check_context, training_context
+
+    model = load_sac_zip(run / "model.zip")
+    model.hingelab_provenance = {**model.hingelab_provenance, **training_context("policy")}
+    check_context(model, "x.zip", "privileged")
+    with pytest.raises(ConfigError, match="learned over the low level policy"):
+        check_context(model, "x.zip", str(SHIPPED_LOW_LEVEL_SAC))
 
 
 def test_bad_input_gets_one_line_errors(tmp_path):
@@ -152,6 +162,13 @@ def test_bad_input_gets_one_line_errors(tmp_path):
         train_high(replace(TINY, from_datasets=(str(tmp_path / "none"),)), tmp_path / "b", progress=False)
     with pytest.raises(ConfigError, match="unknown object"):
         train_high(replace(TINY, object="pyramid", prior=False), tmp_path / "c", progress=False)
+    import gymnasium as gym
+
+    env = gym.make("hingelab/ToolPick-v0", low_level="privileged")
+    env.reset(seed=0)
+    with pytest.raises(ConfigError, match="finite values"):  # NaN actions: a one-line error, not a NaN sim
+        env.step(np.full(5, np.nan, np.float32))
+    env.close()
     with pytest.raises(ConfigError, match="demo_share"):
         replace(TINY, demo_share=1.5)
 

@@ -124,6 +124,25 @@ def load_seed_curves(run_dirs) -> pd.DataFrame:
     return metrics[columns].sort_values(["run", "seed", "env_steps"]).reset_index(drop=True)
 
 
+REACH_LEVEL = 0.5  # the success rate whose first crossing the seed table reports (the paper's speed-up claim)
+
+
+def seed_summary(seeds: pd.DataFrame, level: float = REACH_LEVEL) -> pd.DataFrame:
+    """Per run and seed: the first env_steps at which success_rate reached ``level`` (NaN: never), the
+    last evaluation's env_steps and success (and first-attempt success where recorded)."""
+    rows = []
+    for (run, seed), part in seeds.groupby(["run", "seed"], sort=True):
+        part = part.sort_values("env_steps")
+        reached = part.loc[part["success_rate"] >= level, "env_steps"]
+        last = part.iloc[-1]
+        row = {"run": run, "seed": seed, f"env_steps_to_{level:g}": float(reached.iloc[0]) if len(reached) else
+               float("nan"), "last_env_steps": int(last["env_steps"]), "last_success_rate": float(last["success_rate"])}
+        if "first_attempt_success_rate" in part.columns:
+            row["last_first_attempt_success_rate"] = float(last["first_attempt_success_rate"])
+        rows.append(row)
+    return pd.DataFrame(rows)
+
+
 def load_learning_curves(run_dirs) -> pd.DataFrame:
     """Curves of several run folders (empty frame for no runs)."""
     run_dirs = list(run_dirs or [])
@@ -133,4 +152,4 @@ def load_learning_curves(run_dirs) -> pd.DataFrame:
     return learning_curves(pd.concat([load_run_metrics(d) for d in run_dirs], ignore_index=True))
 
 
-__all__ = ["SEED_CURVE_METRICS", "load_seed_curves", "OPTIONAL_CURVE_METRICS", "OLD_TRAIN_LOW_COLUMNS", "old_metrics_renames", "upgrade_metrics", "load_run_metrics", "learning_curves", "load_learning_curves", "METRICS_FILE", "REQUIRED_COLUMNS"]
+__all__ = ["REACH_LEVEL", "seed_summary", "SEED_CURVE_METRICS", "load_seed_curves", "OPTIONAL_CURVE_METRICS", "OLD_TRAIN_LOW_COLUMNS", "old_metrics_renames", "upgrade_metrics", "load_run_metrics", "learning_curves", "load_learning_curves", "METRICS_FILE", "REQUIRED_COLUMNS"]

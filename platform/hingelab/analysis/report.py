@@ -33,7 +33,8 @@ import pandas as pd
 from hingelab.analysis import plots
 from hingelab.analysis.documents import Section, write_documents
 from hingelab.analysis.episode_table import load_episode_table
-from hingelab.analysis.learning_curves import METRICS_FILE, load_learning_curves, load_seed_curves
+from hingelab.analysis.learning_curves import (METRICS_FILE, REACH_LEVEL, load_learning_curves, load_seed_curves,
+                                               seed_summary)
 from hingelab.analysis.success_tables import (
     attempt_rates, failure_reasons, length_return_stats, overall_success, success_rates,
 )
@@ -75,6 +76,7 @@ def compute_tables(episodes: pd.DataFrame, curves: pd.DataFrame, attempts_k=(1, 
         tables["learning_curves"] = curves
     if seed_curves is not None and len(seed_curves):
         tables["learning_curves_by_seed"] = seed_curves
+        tables["seeds"] = seed_summary(seed_curves)
     return tables
 
 
@@ -121,8 +123,9 @@ def _sections(tables: dict[str, pd.DataFrame], plot_files: dict[str, str]) -> li
     if "learning_curves_by_seed" in tables:
         sections.append(Section(
             "Success of every seed", "Each seed's evaluations (thin) and their mean (thick), per run label: "
-            "the runs of one label (run.json) are its seeds.", None, "learning_curves_by_seed.csv",
-            [plot_files["learning_curves_by_seed"]]))
+            "the runs of one label (run.json) are its seeds. The table: per run and seed, the first evaluation "
+            f"whose success rate reached {REACH_LEVEL:g} (empty: none did) and the last evaluation.",
+            tables["seeds"], "seeds.csv", [plot_files["learning_curves_by_seed"]]))
     return sections
 
 

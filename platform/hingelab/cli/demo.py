@@ -140,36 +140,61 @@ def step_low_level_policy(seed: int) -> dict:
 
 
 DEMO_HIERARCHY_DATASET = DATASETS_DIR / "demo_scripted_hierarchy"
+DEMO_LEARNED_DATASET = DATASETS_DIR / "demo_learned_hierarchy"
 HIERARCHY_EPISODES = 2
 
 
-def step_scripted_hierarchy(seed: int) -> dict:
-    """Issue 26, until a high-level policy is shipped: the hierarchy with a scripted high level (the
-    heuristic's arm motion, its hinge command as a latent goal) over the shipped low-level policy."""
-    from hingelab.envs.low_level import SHIPPED_LOW_LEVEL
+def _pick_sphere(policy, label: str, dataset, seed: int, name: str, description: str) -> dict:
+    """``HIERARCHY_EPISODES`` episodes of ``policy`` on ToolPick-v0 (2 cm sphere) over the shipped
+    low-level policy, recorded into ``dataset`` as `hingelab eval high` records them."""
     from hingelab.episodes import create_dataset
     from hingelab.learning import high_level_eval as H
 
-    shutil.rmtree(DEMO_HIERARCHY_DATASET, ignore_errors=True)
-    create_dataset(DEMO_HIERARCHY_DATASET, name="demo-scripted-hierarchy", source="high_level_evaluation",
-                   config={"policy": "scripted", "low_level": "policy", "object": "sphere", "size": 0.02,
-                           "episodes": HIERARCHY_EPISODES}, seed=seed,
-                   description="hingelab demo: hingelab eval high --baseline scripted over the shipped low level")
-    env = H.make_eval_env("sphere", 0.02, "policy", record_dir=DEMO_HIERARCHY_DATASET,
-                          extra_metadata={"policy": "scripted", "low_level": "policy"})
+    create_dataset(dataset, name=name, source="high_level_evaluation",
+                   config={"policy": label, "low_level": "policy", "object": "sphere", "size": 0.02,
+                           "episodes": HIERARCHY_EPISODES}, seed=seed, description=description)
+    env = H.make_eval_env("sphere", 0.02, "policy", record_dir=dataset,
+                          extra_metadata={"policy": Path(label).name, "low_level": "policy"})
     started = time.perf_counter()
     try:
-        episodes = H.evaluate(H.baseline_policy("scripted"), env, HIERARCHY_EPISODES, seed)
+        episodes = H.evaluate(policy, env, HIERARCHY_EPISODES, seed)
     finally:
         env.close()
     for row in episodes.itertuples():
         outcome = "picked and lifted to the target" if row.success else f"failed ({row.failure_reason})"
         print(f"  episode {row.episode}: {outcome} in {row.length} steps, {row.attempts} attempt(s)")
     successes = int(episodes["success"].sum())
-    print(f"  scripted high level over {SHIPPED_LOW_LEVEL.name}: success {successes}/{len(episodes)} (object within "
-          f"1 cm of the target) in {time.perf_counter() - started:.1f} s, recorded in {DEMO_HIERARCHY_DATASET}")
-    return {"dataset": str(DEMO_HIERARCHY_DATASET), "episodes": len(episodes), "successes": successes,
+    print(f"  {label} over the shipped low-level policy: success {successes}/{len(episodes)} (object within 1 cm of "
+          f"the target) in {time.perf_counter() - started:.1f} s, recorded in {dataset}")
+    return {"dataset": str(dataset), "episodes": len(episodes), "successes": successes,
             "first_attempt_successes": int(episodes["first_attempt_success"].sum())}
+
+
+def step_scripted_hierarchy(seed: int) -> dict:
+    """Issue 26's reference: the hierarchy with a scripted high level (the heuristic's arm motion, its
+    hinge command as a latent goal) over the shipped low-level policy."""
+    from hingelab.learning import high_level_eval as H
+
+    shutil.rmtree(DEMO_HIERARCHY_DATASET, ignore_errors=True)
+    return _pick_sphere(H.baseline_policy("scripted"), "scripted high level", DEMO_HIERARCHY_DATASET, seed,
+                        "demo-scripted-hierarchy",
+                        "hingelab demo: hingelab eval high --baseline scripted over the shipped low level")
+
+
+def step_learned_hierarchy(seed: int) -> dict:
+    """Issue 26: the shipped high-level policy (assets/checkpoints/high_level.zip) over the shipped
+    low-level policy picks the sphere, as `hingelab eval high` runs it."""
+    from hingelab.learning import high_level_eval as H
+    from hingelab.learning.high_level_checkpoint import SHIPPED_HIGH_LEVEL, load_high_level_checkpoint
+
+    shutil.rmtree(DEMO_LEARNED_DATASET, ignore_errors=True)
+    if not SHIPPED_HIGH_LEVEL.exists():
+        print(f"  no shipped high-level policy ({SHIPPED_HIGH_LEVEL}) yet: step skipped")
+        return {"skipped": True}
+    model = load_high_level_checkpoint(SHIPPED_HIGH_LEVEL, low_level="policy")
+    return _pick_sphere(H.ModelPolicy(model), SHIPPED_HIGH_LEVEL.name, DEMO_LEARNED_DATASET, seed,
+                        "demo-learned-hierarchy",
+                        "hingelab demo: the shipped high-level policy over the shipped low-level policy")
 
 
 def step_report_and_recording(seed: int) -> dict:
@@ -177,7 +202,10 @@ def step_report_and_recording(seed: int) -> dict:
     from hingelab.analysis import build_report
     from hingelab.viewers.view import view
 
-    report = build_report([DEMO_DATASET, DEMO_LOW_LEVEL_DATASET, DEMO_HIERARCHY_DATASET], DEMO_OUT)
+    datasets = [DEMO_DATASET, DEMO_LOW_LEVEL_DATASET, DEMO_HIERARCHY_DATASET]
+    if (DEMO_LEARNED_DATASET / "dataset.json").exists():
+        datasets.append(DEMO_LEARNED_DATASET)
+    report = build_report(datasets, DEMO_OUT)
     result, _ = view(DEMO_DATASET, save=DEMO_OUT / "demo_heuristic.rrd", progress=False)
     # one line per dataset: the two tasks count different verdicts (the report names each)
     by_dataset = report.tables["success_by_dataset"]
@@ -196,6 +224,8 @@ STEPS = [
     ("the shipped low-level policy on ToolShape-v0 (3 reachable latent goals)", step_low_level_policy),
     ("a scripted high level over the shipped low-level policy on ToolPick-v0 (the 2 cm sphere)",
      step_scripted_hierarchy),
+    ("the shipped high-level policy over the shipped low-level policy on ToolPick-v0 (the 2 cm sphere)",
+     step_learned_hierarchy),
     ("report and Rerun recording of the demo datasets", step_report_and_recording),
 ]
 

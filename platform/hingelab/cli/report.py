@@ -39,6 +39,10 @@ def add_parser(subparsers) -> None:
     p.add_argument("--bands", type=float, nargs="+", default=None, metavar="RAD",
                    help="edges of the goal-opening bands of --pool (default 0.10 0.18 0.22: < 0.10, 0.10-0.18, "
                         "0.18-0.22, >= 0.22 rad)")
+    p.add_argument("--picks", type=Path, nargs="+", default=[], metavar="DIR",
+                   help="the pick table instead: `hingelab eval high --out` folders (a policy on one shape and "
+                        "size each), first-attempt and overall success with Wilson 95%% intervals, pooled per "
+                        "policy; writes picks.md and picks.csv")
     p.add_argument("--out", type=Path, required=True, help="report folder, e.g. analysis/NAME")
     p.add_argument("--allow-dirty", action="store_true",
                    help="write under analysis/ even if platform/, assets/ or pyproject.toml have uncommitted "
@@ -96,11 +100,32 @@ def run_pool(args: argparse.Namespace) -> int:
     return 0
 
 
+def run_picks(args: argparse.Namespace) -> int:
+    from hingelab.analysis.pick_table import write_picks
+    from hingelab.errors import ConfigError
+    from hingelab.provenance import require_clean_for
+
+    if args.datasets or args.pool or args.runs:
+        raise ConfigError("give --picks DIR... alone (not with DATASETs, --runs or --pool)")
+    require_clean_for(args.out, args.allow_dirty, "hingelab report --picks")
+    command = "hingelab report --picks " + " ".join(map(str, args.picks)) + f" --out {args.out}"
+    table = write_picks(args.picks, args.out, command)
+    for row in table[table["object"] == "all"].itertuples():
+        print(f"{row.policy} over {row.low_level}: {row.episodes} episodes, first attempt "
+              f"{row.first_attempt_success_rate:.3f} [{row.first_attempt_ci_low:.3f}, {row.first_attempt_ci_high:.3f}], "
+              f"overall {row.success_rate:.3f} [{row.ci_low:.3f}, {row.ci_high:.3f}], lowest set "
+              f"{row.lowest_set_success_rate:.2f}")
+    print(f"Wrote {args.out}/picks.md and picks.csv.")
+    return 0
+
+
 def run(args: argparse.Namespace) -> int:
     from hingelab.analysis import build_report
     from hingelab.errors import ConfigError
     from hingelab.provenance import require_clean_for
 
+    if args.picks:
+        return run_picks(args)
     if args.pool:
         return run_pool(args)
     if args.pool_name or args.bands is not None:

@@ -1,0 +1,112 @@
+"""The pick table (paper Fig. 7, in simulation): ``hingelab report --picks DIR... --out OUT``.
+
+Each DIR is what ``hingelab eval high --out DIR`` writes: its ``episodes.csv`` (one row per
+episode: ``success`` within the 200 steps, ``first_attempt_success``, ``attempts``,
+``failure_reason``) and its dataset card (policy, low level, object, size, seed). One row per
+folder (a policy on one shape and size) with the first-attempt and overall success and their
+Wilson 95% intervals, the mean attempts and the failure reasons; then, per policy and low level,
+a pooled row over its folders and the lowest set. Writes ``picks.md`` and ``picks.csv``;
+``picks.md`` names the command and the code version.
+"""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+
+from hingelab.analysis.wilson import wilson_interval
+from hingelab.errors import ConfigError
+
+FAILURES = ("divergence", "tool_drop", "slip", "table_collision", "missed_grasp", "timeout")
+
+
+def policy_label(config: dict) -> str:
+    """A baseline's name, or a checkpoint's file name (with its run folder)."""
+    policy = str(config.get("policy", "?"))
+    if policy in ("heuristic", "scripted", "random"):
+        return policy
+    path = Path(policy)
+    return f"{path.parent.name}/{path.name}" if path.parent.name else path.name
+
+
+def read_folder(folder) -> tuple[dict, pd.DataFrame]:
+    """(the card's config, episodes.csv) of one ``eval high`` folder; a clear error if it is not one."""
+    folder = Path(folder)
+    card, episodes = folder / "dataset.json", folder / "episodes.csv"
+    if not card.is_file() or not episodes.is_file():
+        raise ConfigError(f"{folder} is not a `hingelab eval high --out` folder (it needs dataset.json and "
+                          "episodes.csv)")
+    config = json.loads(card.read_text()).get("config", {})
+    frame = pd.read_csv(episodes)
+    missing = {"success", "first_attempt_success", "attempts", "failure_reason"} - set(frame.columns)
+    if missing or "object" not in config or "size" not in config:
+        raise ConfigError(f"{episodes} lacks {sorted(missing) or 'the object and size in its card'}; is it from "
+                          "`hingelab eval high`?")
+    return config, frame
+
+
+def _rates(row: dict, successes: int, first: int, n: int) -> dict:
+    for prefix, k in (("first_attempt_", first), ("", successes)):
+        low, high = wilson_interval(np.array([k]), np.array([n]))
+        row |= {f"{prefix}successes": k, f"{prefix}success_rate": k / n if n else float("nan"),
+                f"{prefix}ci_low": float(low[0]), f"{prefix}ci_high": float(high[0])}
+    return row
+
+
+def pick_table(folders) -> pd.DataFrame:
+    """One row per folder, then per (policy, low level) a pooled row (``object`` = "all")."""
+    rows = []
+    for folder in folders:
+        config, frame = read_folder(folder)
+        n = len(frame)
+        row = {"policy": policy_label(config), "low_level": str(config.get("low_level", "?")),
+               "object": str(config["object"]), "size_cm": round(100 * float(config["size"]), 3), "episodes": n,
+               "seed": json.loads((Path(folder) / "dataset.json").read_text()).get("seed")}
+        row = _rates(row, int(frame["success"].sum()), int(frame["first_attempt_success"].sum()), n)
+        row["mean_attempts"] = float(frame["attempts"].mean()) if n else float("nan")
+        for reason in FAILURES:
+            row[f"failures_{reason}"] = int((frame["failure_reason"].fillna("") == reason).sum())
+        rows.append(row)
+    if not rows:
+        raise ConfigError("give at least one `hingelab eval high` folder to --picks")
+    table = pd.DataFrame(rows)
+    pooled = []
+    for (policy, low_level), part in table.groupby(["policy", "low_level"], sort=False):
+        row = {"policy": policy, "low_level": low_level, "object": "all", "size_cm": float("nan"),
+               "episodes": int(part["episodes"].sum()), "seed": None}
+        row = _rates(row, int(part["successes"].sum()), int(part["first_attempt_successes"].sum()), row["episodes"])
+        row["mean_attempts"] = float((part["mean_attempts"] * part["episodes"]).sum() / row["episodes"])
+        for reason in FAILURES:
+            row[f"failures_{reason}"] = int(part[f"failures_{reason}"].sum())
+        row["lowest_set_success_rate"] = float(part["success_rate"].min())
+        row["lowest_set_first_attempt_success_rate"] = float(part["first_attempt_success_rate"].min())
+        pooled.append(row)
+    return pd.concat([table, pd.DataFrame(pooled)], ignore_index=True)
+
+
+def write_picks(folders, out, command: str) -> pd.DataFrame:
+    from hingelab.analysis.documents import markdown_table
+    from hingelab.provenance import code_version
+
+    table = pick_table(folders)
+    out = Path(out)
+    out.mkdir(parents=True, exist_ok=True)
+    table.to_csv(out / "picks.csv", index=False)
+    shown = table[["policy", "low_level", "object", "size_cm", "episodes", "first_attempt_successes",
+                   "first_attempt_success_rate", "first_attempt_ci_low", "first_attempt_ci_high", "successes",
+                   "success_rate", "ci_low", "ci_high", "mean_attempts"]]
+    failures = table[["policy", "low_level", "object", "size_cm", *[f"failures_{r}" for r in FAILURES]]]
+    version = code_version()
+    (out / "picks.md").write_text(
+        "# Pick table\n\nPer policy (and the low level under it), shape and size: success at the first attempt "
+        "and within the 200 steps (object within 1 cm of the target), Wilson 95% intervals; `all` pools the "
+        "policy's sets.\n\n" + markdown_table(shown.round(3)) + "\n\n## Failure reasons\n\n"
+        + markdown_table(failures) + f"\n\nMade by: `{command}` (hingelab {version['hingelab_version']}, "
+        f"commit {version['git_commit']}).\n")
+    return table
+
+
+__all__ = ["pick_table", "write_picks", "read_folder", "policy_label"]

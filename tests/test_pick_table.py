@@ -1,0 +1,48 @@
+"""hingelab report --picks: the pick table over `eval high` folders, Wilson intervals, pooled rows."""
+
+from __future__ import annotations
+
+import pandas as pd
+import pytest
+
+from hingelab.analysis.pick_table import pick_table
+from hingelab.cli.main import main
+from hingelab.episodes import create_dataset
+from hingelab.errors import ConfigError
+
+
+def eval_folder(root, policy, obj, size, outcomes, low_level="policy"):
+    """An `eval high --out` folder: its card and episodes.csv (outcomes: (success, first, attempts, reason))."""
+    create_dataset(root, name=root.name, source="high_level_evaluation", seed=1000,
+                   config={"policy": policy, "object": obj, "size": size, "low_level": low_level})
+    pd.DataFrame([{"episode": i, "success": s, "first_attempt_success": f, "attempts": a, "failure_reason": r}
+                  for i, (s, f, a, r) in enumerate(outcomes)]).to_csv(root / "episodes.csv", index=False)
+    return root
+
+
+def test_rows_pooled_rows_and_intervals(tmp_path, capsys):
+    a = eval_folder(tmp_path / "a", "runs/x/model.zip", "sphere", 0.02,
+                    [(True, True, 1, "")] * 8 + [(True, False, 2, ""), (False, False, 1, "slip")])
+    b = eval_folder(tmp_path / "b", "runs/x/model.zip", "cube", 0.015,
+                    [(True, True, 1, "")] * 5 + [(False, False, 1, "missed_grasp")] * 5)
+    c = eval_folder(tmp_path / "c", "scripted", "cube", 0.015, [(True, True, 1, "")] * 4)
+    table = pick_table([a, b, c])
+    sphere = table[(table.policy == "x/model.zip") & (table.object == "sphere")].iloc[0]
+    assert (sphere.successes, sphere.first_attempt_successes, sphere.failures_slip) == (9, 8, 1)
+    assert sphere.ci_low == pytest.approx(0.5958, abs=1e-3) and sphere.ci_high == pytest.approx(0.9821, abs=1e-3)
+    pooled = table[(table.policy == "x/model.zip") & (table.object == "all")].iloc[0]
+    assert (pooled.episodes, pooled.successes, pooled.first_attempt_successes) == (20, 14, 13)
+    assert pooled.lowest_set_success_rate == 0.5 and pooled.failures_missed_grasp == 5
+    assert table[(table.policy == "scripted") & (table.object == "all")].iloc[0].success_rate == 1.0
+    assert main(["report", "--picks", str(a), str(b), str(c), "--out", str(tmp_path / "out"), "--allow-dirty"]) == 0
+    page = (tmp_path / "out" / "picks.md").read_text()
+    assert "| x/model.zip | policy | sphere | 2.000 | 10 | 8 | 0.800 |" in page and "hingelab report --picks" in page
+    assert len(pd.read_csv(tmp_path / "out" / "picks.csv")) == 5
+
+
+def test_a_folder_that_is_not_an_eval_high_one_is_refused(tmp_path, capsys):
+    (tmp_path / "empty").mkdir()
+    with pytest.raises(ConfigError, match="is not a `hingelab eval high --out` folder"):
+        pick_table([tmp_path / "empty"])
+    assert main(["report", "--picks", str(tmp_path / "empty"), "--out", str(tmp_path / "o"), "--allow-dirty"]) != 0
+    assert "hingelab: error:" in capsys.readouterr().err
