@@ -211,3 +211,15 @@ def test_pretraining_fits_the_spread_too(tiny_high):
         _, log_std, _ = model.actor.get_action_dist_params(demos.observations[:64])
         spreads[fit_std] = float(log_std.mean())
     assert spreads[True] < spreads[False] - 0.3, spreads
+
+
+def test_train_flat_runs_from_the_command_line(tmp_path, capsys):
+    from hingelab.cli.main import main
+
+    out = tmp_path / "flat"
+    assert main(["train", "flat", "--steps", "60", "--envs", "1", "--max-episode-steps", "30", "--learning-starts",
+                 "30", "--batch-size", "16", "--buffer-size", "500", "--net-arch", "16", "--eval-every", "60",
+                 "--eval-episodes", "1", "--checkpoint-every", "60", "--no-randomize", "--out", str(out),
+                 "--no-progress"]) == 0
+    assert "Trained the flat baseline to 60 env steps" in capsys.readouterr().out
+    assert json.loads((out / "config.json").read_text())["env_id"] == "hingelab/ToolPickFlat-v0"

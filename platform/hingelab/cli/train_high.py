@@ -57,7 +57,8 @@ def run_high(args: argparse.Namespace) -> int:
     from hingelab.learning.train_high import train_high
     from hingelab.paths import REPO_ROOT, refuse_to_replace_shipped
 
-    args.from_datasets = tuple(str(Path(p).resolve()) for p in args.from_datasets)
+    if hasattr(args, "from_datasets"):  # train flat has no --from
+        args.from_datasets = tuple(str(Path(p).resolve()) for p in args.from_datasets)
     if getattr(args, "low_level", "none") not in ("policy", "privileged", "none"):
         args.low_level = str(Path(args.low_level).resolve())
     config = config_from_args(args.config_class, args)
