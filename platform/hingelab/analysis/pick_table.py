@@ -20,7 +20,24 @@ import pandas as pd
 from hingelab.analysis.wilson import wilson_interval
 from hingelab.errors import ConfigError
 
-FAILURES = ("divergence", "tool_drop", "slip", "table_collision", "missed_grasp", "timeout")
+# the failure reasons of ToolPick-v0 episodes (hingelab.learning.high_level_eval.FailureReasonWrapper)
+FAILURE_REASONS = ("divergence", "tool_drop", "slip", "table_collision", "missed_grasp", "timeout")
+
+
+def pick_rates(episodes: pd.DataFrame) -> dict:
+    """Episodes of ToolPick-v0 (``success``, ``first_attempt_success``, ``attempts``, ``failure_reason``):
+    success and first-attempt success with Wilson 95% intervals, mean attempts, each failure reason's count."""
+    n = len(episodes)
+    row: dict = {"episodes": n}
+    for verdict, prefix in (("success", ""), ("first_attempt_success", "first_attempt_")):
+        k = int(episodes[verdict].sum())
+        low, high = wilson_interval(np.array([k]), np.array([n]))
+        row |= {f"{prefix}successes": k, f"{prefix}success_rate": k / n if n else float("nan"),
+                f"{prefix}ci_low": float(low[0]), f"{prefix}ci_high": float(high[0])}
+    row["mean_attempts"] = float(episodes["attempts"].mean()) if n else float("nan")
+    for reason in FAILURE_REASONS:
+        row[f"failures_{reason}"] = int((episodes["failure_reason"].fillna("") == reason).sum())
+    return row
 
 
 def policy_label(config: dict) -> str:
@@ -48,43 +65,26 @@ def read_folder(folder) -> tuple[dict, pd.DataFrame]:
     return config, frame
 
 
-def _rates(row: dict, successes: int, first: int, n: int) -> dict:
-    for prefix, k in (("first_attempt_", first), ("", successes)):
-        low, high = wilson_interval(np.array([k]), np.array([n]))
-        row |= {f"{prefix}successes": k, f"{prefix}success_rate": k / n if n else float("nan"),
-                f"{prefix}ci_low": float(low[0]), f"{prefix}ci_high": float(high[0])}
-    return row
-
-
 def pick_table(folders) -> pd.DataFrame:
     """One row per folder, then per (policy, low level) a pooled row (``object`` = "all")."""
-    rows = []
+    rows, frames = [], []
     for folder in folders:
         config, frame = read_folder(folder)
-        n = len(frame)
-        row = {"policy": policy_label(config), "low_level": str(config.get("low_level", "?")),
-               "object": str(config["object"]), "size_cm": round(100 * float(config["size"]), 3), "episodes": n,
-               "seed": json.loads((Path(folder) / "dataset.json").read_text()).get("seed")}
-        row = _rates(row, int(frame["success"].sum()), int(frame["first_attempt_success"].sum()), n)
-        row["mean_attempts"] = float(frame["attempts"].mean()) if n else float("nan")
-        for reason in FAILURES:
-            row[f"failures_{reason}"] = int((frame["failure_reason"].fillna("") == reason).sum())
-        rows.append(row)
+        key = {"policy": policy_label(config), "low_level": str(config.get("low_level", "?"))}
+        seed = json.loads((Path(folder) / "dataset.json").read_text()).get("seed")
+        rows.append({**key, "object": str(config["object"]), "size_cm": round(100 * float(config["size"]), 3),
+                     "episodes": len(frame), "seed": seed, **pick_rates(frame)})
+        frames.append(frame.assign(**key, _set_rate=rows[-1]["success_rate"],
+                                   _set_first=rows[-1]["first_attempt_success_rate"]))
     if not rows:
         raise ConfigError("give at least one `hingelab eval high` folder to --picks")
-    table = pd.DataFrame(rows)
     pooled = []
-    for (policy, low_level), part in table.groupby(["policy", "low_level"], sort=False):
-        row = {"policy": policy, "low_level": low_level, "object": "all", "size_cm": float("nan"),
-               "episodes": int(part["episodes"].sum()), "seed": None}
-        row = _rates(row, int(part["successes"].sum()), int(part["first_attempt_successes"].sum()), row["episodes"])
-        row["mean_attempts"] = float((part["mean_attempts"] * part["episodes"]).sum() / row["episodes"])
-        for reason in FAILURES:
-            row[f"failures_{reason}"] = int(part[f"failures_{reason}"].sum())
-        row["lowest_set_success_rate"] = float(part["success_rate"].min())
-        row["lowest_set_first_attempt_success_rate"] = float(part["first_attempt_success_rate"].min())
-        pooled.append(row)
-    return pd.concat([table, pd.DataFrame(pooled)], ignore_index=True)
+    for (policy, low_level), part in pd.concat(frames).groupby(["policy", "low_level"], sort=False):
+        pooled.append({"policy": policy, "low_level": low_level, "object": "all", "size_cm": float("nan"),
+                       "episodes": len(part), "seed": None, **pick_rates(part),
+                       "lowest_set_success_rate": float(part["_set_rate"].min()),
+                       "lowest_set_first_attempt_success_rate": float(part["_set_first"].min())})
+    return pd.concat([pd.DataFrame(rows), pd.DataFrame(pooled)], ignore_index=True)
 
 
 def write_picks(folders, out, command: str) -> pd.DataFrame:
@@ -98,7 +98,7 @@ def write_picks(folders, out, command: str) -> pd.DataFrame:
     shown = table[["policy", "low_level", "object", "size_cm", "episodes", "first_attempt_successes",
                    "first_attempt_success_rate", "first_attempt_ci_low", "first_attempt_ci_high", "successes",
                    "success_rate", "ci_low", "ci_high", "mean_attempts"]]
-    failures = table[["policy", "low_level", "object", "size_cm", *[f"failures_{r}" for r in FAILURES]]]
+    failures = table[["policy", "low_level", "object", "size_cm", *[f"failures_{r}" for r in FAILURE_REASONS]]]
     version = code_version()
     (out / "picks.md").write_text(
         "# Pick table\n\nPer policy (and the low level under it), shape and size: success at the first attempt "
@@ -109,4 +109,4 @@ def write_picks(folders, out, command: str) -> pd.DataFrame:
     return table
 
 
-__all__ = ["pick_table", "write_picks", "read_folder", "policy_label"]
+__all__ = ["FAILURE_REASONS", "pick_rates", "pick_table", "write_picks", "read_folder", "policy_label"]

@@ -128,25 +128,26 @@ def _bare_learn_rate(warmup: int, steps: int, env=None) -> float:
     return rate
 
 
-def _our_learn_rate(config, warmup: int, steps: int, run_dir: Path) -> float:
-    from hingelab.learning.train_low import train_low
-
-    config = replace(config, steps=warmup + steps, learning_starts=warmup, eval_every=10**9,
-                     checkpoint_every=10**9, eval_goals_per_region=1)
-    train_low(config, run_dir, progress=False)
+def _our_learn_rate(train, config, warmup: int, steps: int, run_dir: Path, **quiet) -> float:
+    """Env steps/s of ``train(config, run_dir)`` (train_low or train_high) from its first update on;
+    ``quiet``: the config's smallest evaluation (its evaluations run outside the timed steps)."""
     import pandas as pd
 
+    config = replace(config, steps=warmup + steps, learning_starts=warmup, eval_every=10**9,
+                     checkpoint_every=10**9, **quiet)
+    train(config, run_dir, progress=False)
     rows = pd.read_csv(run_dir / "metrics.csv")
     return float(rows["env_steps_per_s_learning"].iloc[-1])  # timed from the first update on
 
 
 def bench_learn(warmup: int, steps: int, rows: list, ratios: dict, notes: list, tmp: Path) -> Path:
     from hingelab.learning.low_level_config import LowLevelTrainConfig
+    from hingelab.learning.train_low import train_low
 
     base = LowLevelTrainConfig(seed=SEED)
     bare = _bare_learn_rate(warmup, steps)
-    same = _our_learn_rate(replace(base, n_envs=1), warmup, steps, tmp / "one_env")
-    default = _our_learn_rate(base, warmup, steps, tmp / "defaults")
+    same = _our_learn_rate(train_low, replace(base, n_envs=1), warmup, steps, tmp / "one_env", eval_goals_per_region=1)
+    default = _our_learn_rate(train_low, base, warmup, steps, tmp / "defaults", eval_goals_per_region=1)
     rows.append({"what": "env steps/s while training, 1 env, 1 update/step", "baseline": "bare SB3 SAC.learn",
                  "baseline rate": bare, "ours": "hingelab train low --envs 1 (recording)", "our rate": same,
                  "ours / baseline": same / bare})
@@ -160,27 +161,16 @@ def bench_learn(warmup: int, steps: int, rows: list, ratios: dict, notes: list, 
     return tmp / "defaults" / "dataset"
 
 
-def _our_high_learn_rate(config, warmup: int, steps: int, run_dir: Path) -> float:
-    from hingelab.learning.train_high import train_high
-
-    config = replace(config, steps=warmup + steps, learning_starts=warmup, eval_every=10**9, checkpoint_every=10**9,
-                     eval_episodes=1)
-    train_high(config, run_dir, progress=False)
-    import pandas as pd
-
-    rows = pd.read_csv(run_dir / "metrics.csv")
-    return float(rows["env_steps_per_s_learning"].iloc[-1])  # timed from the first update on
-
-
 def bench_learn_high(warmup: int, steps: int, rows: list, ratios: dict, notes: list, tmp: Path) -> None:
     import gymnasium as gym
 
     from hingelab.learning.high_level_config import HighLevelTrainConfig
+    from hingelab.learning.train_high import train_high
 
     base = HighLevelTrainConfig(seed=SEED, prior=False)
     bare = _bare_learn_rate(warmup, steps, env=gym.make(base.env_id, **base.env_arguments()))
-    same = _our_high_learn_rate(replace(base, n_envs=1), warmup, steps, tmp / "high_one_env")
-    default = _our_high_learn_rate(base, warmup, steps, tmp / "high_defaults")
+    same = _our_learn_rate(train_high, replace(base, n_envs=1), warmup, steps, tmp / "high_one_env", eval_episodes=1)
+    default = _our_learn_rate(train_high, base, warmup, steps, tmp / "high_defaults", eval_episodes=1)
     rows.append({"what": "high-level env steps/s while training, 1 env, 1 update/step",
                  "baseline": "bare SB3 SAC.learn on ToolPick-v0", "baseline rate": bare,
                  "ours": "hingelab train high --envs 1 --no-prior (recording)", "our rate": same,

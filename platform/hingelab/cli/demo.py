@@ -107,7 +107,7 @@ def step_low_level_policy(seed: int) -> dict:
     """Issue 7: the shipped low-level policy shapes the tweezer to latent goals (ToolShape-v0)."""
     from hingelab.envs.low_level import SHIPPED_LOW_LEVEL, PolicyLowLevel
     from hingelab.episodes import create_dataset
-    from hingelab.learning.low_level_checkpoint import recorded_env_arguments
+    from hingelab.learning.low_level_checkpoint import evaluation_env_arguments
     from hingelab.learning.low_level_eval import evaluate_sampled_goals, make_eval_env, region_table
 
     shutil.rmtree(DEMO_LOW_LEVEL_DATASET, ignore_errors=True)
@@ -115,10 +115,7 @@ def step_low_level_policy(seed: int) -> dict:
     create_dataset(DEMO_LOW_LEVEL_DATASET, name="demo-low-level", source="low_level_evaluation",
                    config={"checkpoint": str(SHIPPED_LOW_LEVEL), "episodes": 3}, seed=seed,
                    description="hingelab demo: the shipped low-level policy toward 3 reachable goals")
-    env_args = recorded_env_arguments(policy)
-    for training_only in ("goal_sampling", "goal_openings"):  # held-out goals, not a training band
-        env_args.pop(training_only, None)
-    env = make_eval_env(env_args, record_dir=DEMO_LOW_LEVEL_DATASET)
+    env = make_eval_env(evaluation_env_arguments(policy), record_dir=DEMO_LOW_LEVEL_DATASET)
     threshold = env.unwrapped.success_threshold
     started = time.perf_counter()
     episodes = evaluate_sampled_goals(policy, env, 3, seed)

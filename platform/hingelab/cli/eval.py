@@ -72,7 +72,7 @@ def run_low(args: argparse.Namespace) -> int:
     from hingelab.episodes import create_dataset
     from hingelab.errors import ConfigError
     from hingelab.envs.tool_shape import SETTLE_STEPS
-    from hingelab.learning.low_level_checkpoint import recorded_env_arguments
+    from hingelab.learning.low_level_checkpoint import evaluation_env_arguments
     from hingelab.learning.low_level_eval import evaluate_sampled_goals, make_eval_env, reference_policy, region_table
 
     if args.baseline and args.checkpoint is not None:
@@ -87,9 +87,7 @@ def run_low(args: argparse.Namespace) -> int:
     label = args.baseline or str(args.checkpoint)
     provenance = getattr(model, "hingelab_provenance", {}) or {}
     # the env the checkpoint was trained on (its record), on held-out goals: not its training goal band
-    env_args = {**(recorded_env_arguments(model) if model is not None else {}), "randomize": not args.no_randomize}
-    for training_only in ("goal_sampling", "goal_openings"):
-        env_args.pop(training_only, None)
+    env_args = {**(evaluation_env_arguments(model) if model is not None else {}), "randomize": not args.no_randomize}
     config = {"checkpoint": label, "episodes": args.episodes, "env": env_args,
               "checkpoint_git_commit": provenance.get("git_commit", "unknown")}
     # a run's model.zip and best_model.zip: the run folder names the dataset

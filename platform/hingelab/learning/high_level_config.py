@@ -18,13 +18,13 @@ from dataclasses import asdict, dataclass
 
 from hingelab.envs.rewards import HighLevelRewardConfig
 from hingelab.errors import ConfigError
+from hingelab.learning.high_level_prior import PRIOR_SOURCES
 from hingelab.learning.run_config import option
 from hingelab.learning.sac_config import SACTrainConfig
 
 HIGH_ENV_ID = "hingelab/ToolPick-v0"
 FLAT_ENV_ID = "hingelab/ToolPickFlat-v0"
 DEMO_ACTIONS = ("auto", "reached", "recorded")
-PRIOR_SOURCES = ("scripted", "heuristic")  # hingelab.learning.high_level_prior
 _REWARD = HighLevelRewardConfig()
 
 

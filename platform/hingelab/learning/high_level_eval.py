@@ -34,13 +34,12 @@ import gymnasium as gym
 import numpy as np
 import pandas as pd
 
-from hingelab.analysis.wilson import wilson_interval
+from hingelab.analysis.pick_table import FAILURE_REASONS, pick_rates
 
 SEED_BASE = 900_000_000
 SEED_STRIDE = 100_003
 BASELINES = ("heuristic", "scripted", "random")
 MISSED_GRASP_DISTANCE_M = 0.02
-FAILURE_REASONS = ("divergence", "tool_drop", "slip", "table_collision", "missed_grasp", "timeout")
 
 
 def episode_seed(seed: int, index: int) -> int:
@@ -201,18 +200,8 @@ def evaluate(policy, env, episodes: int, seed: int, progress: bool = False, labe
 
 def success_table(episodes: pd.DataFrame, object: str, size: float) -> pd.DataFrame:
     """One row per shape and size: success (the env's verdict) and first-attempt success with Wilson 95%
-    intervals, mean attempts, and the count of each failure reason."""
-    n = len(episodes)
-    row = {"object": object, "size_cm": round(100 * size, 3), "episodes": n}
-    for verdict, prefix in (("success", ""), ("first_attempt_success", "first_attempt_")):
-        k = int(episodes[verdict].sum())
-        low, high = wilson_interval(np.array([k]), np.array([n]))
-        row |= {f"{prefix}successes": k, f"{prefix}success_rate": k / n if n else float("nan"),
-                f"{prefix}ci_low": float(low[0]), f"{prefix}ci_high": float(high[0])}
-    row["mean_attempts"] = float(episodes["attempts"].mean()) if n else float("nan")
-    for reason in FAILURE_REASONS:
-        row[f"failures_{reason}"] = int((episodes["failure_reason"] == reason).sum())
-    return pd.DataFrame([row])
+    intervals, mean attempts, and the count of each failure reason (``pick_rates``)."""
+    return pd.DataFrame([{"object": object, "size_cm": round(100 * size, 3), **pick_rates(episodes)}])
 
 
 __all__ = ["BASELINES", "FAILURE_REASONS", "SEED_BASE", "SEED_STRIDE", "FailureReasonWrapper", "HeuristicPolicy",

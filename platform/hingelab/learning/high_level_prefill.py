@@ -55,8 +55,6 @@ the transitions given: relabel them for the run's ``HighLevelRewardConfig`` firs
 from __future__ import annotations
 
 import copy
-import time
-from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -79,15 +77,6 @@ TERMS = ("sparse", "tool_object", "object_target", "penalty")
 NEEDED_INFOS = ("object_target_distance", "is_success", "table_collision")
 TOPICS = [S.TOPIC_STEP, S.TOPIC_REWARD, S.TOPIC_LATENT, S.TOPIC_PRIVILEGED]
 ACTION_MODES = ("reached", "recorded")
-
-
-@dataclass
-class HighLevelPrefillStats:
-    datasets: int
-    episodes: int
-    transitions: int  # added to the buffer
-    read_s: float
-    insert_s: float
 
 
 def relabel_rewards(tool_object_m: np.ndarray, object_target_m: np.ndarray, table_collision: np.ndarray,
@@ -267,18 +256,6 @@ def fill_high_level_buffer(buffer, transitions: Transitions, method: str = "add"
     return fill_replay_buffer(buffer, transitions)
 
 
-def prefill_high_level(buffer, datasets, reward_config: HighLevelRewardConfig | None = None,
-                       method: str = "add", progress: bool = False, **kwargs) -> HighLevelPrefillStats:
-    """``high_level_transitions`` then ``fill_high_level_buffer``, timed for a training report."""
-    datasets = [datasets] if isinstance(datasets, (str, Path)) else list(datasets)
-    t0 = time.perf_counter()
-    transitions = high_level_transitions(datasets, reward_config, progress=progress, **kwargs)
-    t1 = time.perf_counter()
-    added = fill_high_level_buffer(buffer, transitions, method=method)
-    return HighLevelPrefillStats(len(datasets), int(len(np.unique(transitions.episode_index))), added,
-                                 t1 - t0, time.perf_counter() - t1)
-
-
 class DemoShareReplayBuffer(ReplayBuffer):
     """SAC's ring buffer plus a kept store of demos, ``demo_share`` of every batch (module docstring)."""
 
@@ -314,5 +291,5 @@ class DemoShareReplayBuffer(ReplayBuffer):
         return ReplayBufferSamples(*(None if a is None else torch.cat([a, b]) for a, b in zip(demo, own)))
 
 
-__all__ = ["high_level_transitions", "look_ahead", "fill_high_level_buffer", "prefill_high_level", "relabel_rewards",
-           "HighLevelPrefillStats", "DemoShareReplayBuffer"]
+__all__ = ["high_level_transitions", "look_ahead", "fill_high_level_buffer", "relabel_rewards",
+           "DemoShareReplayBuffer"]

@@ -54,6 +54,15 @@ def recorded_env_arguments(model) -> dict:
             "max_episode_steps": trained.get("max_episode_steps", 50)}
 
 
+TRAINING_ONLY_ARGUMENTS = ("goal_sampling", "goal_openings")  # a run's training goals, not an evaluation's
+
+
+def evaluation_env_arguments(model) -> dict:
+    """``recorded_env_arguments`` without the training goals: held-out goals come from the whole
+    reachable range, whatever band the policy was trained on."""
+    return {k: v for k, v in recorded_env_arguments(model).items() if k not in TRAINING_ONLY_ARGUMENTS}
+
+
 def recorded_action_scale(model) -> float:
     """rad per step of a full action, as the checkpoint records it (older ones: ToolShape-v0's default)."""
     provenance = getattr(model, "hingelab_provenance", None) or {}
@@ -62,4 +71,4 @@ def recorded_action_scale(model) -> float:
     return float(recorded_env_arguments(model).get("action_scale", DEFAULT_ACTION_SCALE))
 
 
-__all__ = ["load_sac_checkpoint", "recorded_env_arguments", "recorded_action_scale", "DEFAULT_ACTION_SCALE"]
+__all__ = ["load_sac_checkpoint", "recorded_env_arguments", "evaluation_env_arguments", "recorded_action_scale", "DEFAULT_ACTION_SCALE"]

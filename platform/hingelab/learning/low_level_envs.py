@@ -7,9 +7,6 @@ import numpy as np
 
 from hingelab.learning.training_envs import EVAL_SEED_BASE
 
-TRAIN_SOURCE = "low_level_training"
-
-
 # ---------------------------------------------------------------------------- evaluation goals
 REGIONS = ("closed", "middle", "open")  # thirds of the reachable opening range
 

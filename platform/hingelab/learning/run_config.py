@@ -6,9 +6,9 @@ help and default, and ``config_from_args`` builds the config back from the parse
 So a hyperparameter added to a config is reachable from ``hingelab train ...`` at once,
 and ``--help`` lists them all. ``RunConfig`` adds the JSON round trip of ``RUNDIR/config.json``.
 
-Flag kinds follow the default's type: bool (``--x``/``--no-x``; a ``negate=True`` field has its
-own negating flag, e.g. ``--no-effort``, and ``--field-name`` for True), int, float, str, tuple (``nargs="+"`` of ``item``), dict (a JSON
-object), and ``None`` defaults with an explicit ``parse``.
+Flag kinds follow the default's type: bool (``--x``/``--no-x``; a ``negate=True`` field has its own
+negating flag, e.g. ``--no-effort``, and ``--field-name`` for True), int, float, str, tuple
+(``nargs="+"`` of ``item``), dict (a JSON object), and ``None`` defaults with an explicit ``parse``.
 """
 
 from __future__ import annotations
@@ -100,11 +100,11 @@ def add_config_arguments(parser: argparse.ArgumentParser, config_class, skip: tu
 
 def config_from_args(config_class, args: argparse.Namespace, **overrides):
     """The config of the parsed flags (fields without a flag keep their defaults unless overridden)."""
+    defaults = config_class()
     values = {f.name: getattr(args, f.name) for f in fields(config_class) if hasattr(args, f.name)}
-    for f in fields(config_class):
-        if isinstance(getattr(config_class(), f.name), tuple) and f.name in values:
-            value = values[f.name]
-            values[f.name] = tuple(value) if isinstance(value, (list, tuple)) else value
+    for name, value in values.items():
+        if isinstance(getattr(defaults, name), tuple) and isinstance(value, list):
+            values[name] = tuple(value)
     values.update(overrides)
     return config_class(**values)
 

@@ -95,10 +95,8 @@ class SACRun:
                 **(extra or {})}
 
     def build_model(self, env):
-        return algorithm_class(self.config)(self.policy_class(), env, **sac_arguments(self.config))
-
-    def policy_class(self) -> str:
-        return "MlpPolicy"
+        """A new model of ``algorithm_class`` with ``sac_arguments`` (and the learner's policy and buffer)."""
+        raise NotImplementedError
 
     def prepare_new_run(self) -> None:
         """Checks before a new run's folder is written (a bad input leaves no folder behind)."""
@@ -134,7 +132,6 @@ class SACRun:
         else:
             self.model = self.build_model(self.env)
             self.start_new_model()
-        self.checkpoint_from = latest
         setattr(self.model, PROVENANCE_ATTRIBUTE, self.provenance())
         if state is not None:
             self.clock = RunClock(state["elapsed_s"])

@@ -7,10 +7,11 @@ The high level's pieces:
   ``RUNDIR/prior`` (``high_level_prior``: ``--prior-source scripted`` or ``heuristic``,
   ``--prior-episodes``), turned into transitions of ToolPick-v0's spaces with the run's reward
   (``high_level_transitions``; the demo action is the recorded command, or the reached latent
-  ``--demo-lookahead`` steps on, and the recorded hand velocity). They go into a ``DemoShareReplayBuffer`` (``--demo-share`` of every batch) or, with
-  ``--demo-share 0``, through the buffer's own ``add`` into the ring buffer (the paper's plain
-  pre-fill); with ``--bc-weight``/``--bc-pretrain`` also into ``DemoSAC``'s BC term. The choice
-  is in the run's config.json.
+  ``--demo-lookahead`` steps on, and the recorded hand velocity). They go into a
+  ``DemoShareReplayBuffer`` (``--demo-share`` of every batch) or, with ``--demo-share 0``, through
+  the buffer's own ``add`` into the ring buffer (the paper's plain pre-fill); with
+  ``--bc-weight``/``--bc-pretrain`` also into ``DemoSAC``'s BC term. The choice is in the run's
+  config.json.
 * evaluations: ``--eval-episodes`` held-out episodes (seeds ``episode_seed(EVAL_SEED, i)`` of
   ``hingelab eval high``, never a training or pick-table seed), deterministic actions;
   ``metrics.csv`` rows carry ``success_rate`` (within the 200 steps), ``first_attempt_success_rate``,
@@ -35,17 +36,14 @@ EVAL_SEED = 77  # held-out evaluations during training: `hingelab eval high --se
 
 
 def summarize_pick(episodes) -> dict:
-    """One metrics row of a ToolPick evaluation table (``high_level_eval.evaluate``)."""
-    from hingelab.learning.high_level_eval import FAILURE_REASONS
+    """One metrics row of a ToolPick evaluation table (``high_level_eval.evaluate``): the pick table's
+    rates (``pick_rates``, without the interval columns), the return, the length, the final distance."""
+    from hingelab.analysis.pick_table import pick_rates
 
-    row = {"success_rate": float(episodes["success"].mean()),
-           "first_attempt_success_rate": float(episodes["first_attempt_success"].mean()),
-           "mean_attempts": float(episodes["attempts"].mean()), "return": float(episodes["return"].mean()),
-           "mean_length": float(episodes["length"].mean()),
-           "final_object_target_distance_m": float(episodes["object_target_distance_m"].median())}
-    for reason in FAILURE_REASONS:
-        row[f"failures_{reason}"] = int((episodes["failure_reason"] == reason).sum())
-    return row
+    rates = {k: v for k, v in pick_rates(episodes).items()
+             if k in ("success_rate", "first_attempt_success_rate", "mean_attempts") or k.startswith("failures_")}
+    return {**rates, "return": float(episodes["return"].mean()), "mean_length": float(episodes["length"].mean()),
+            "final_object_target_distance_m": float(episodes["object_target_distance_m"].median())}
 
 
 class HighLevelRun(SACRun):
@@ -180,10 +178,12 @@ class HighLevelRun(SACRun):
     def provenance(self, extra: dict | None = None) -> dict:
         from hingelab.learning.high_level_checkpoint import training_context
 
+        if not hasattr(self, "_context"):  # hashes the low level's file: once per run, not per best model
+            self._context = training_context(self.config.low_level)
         prior = None if self.demos is None else {**self.demo_info, "demo_share": self.config.demo_share,
                                                   "demo_actions": self.demo_modes,
                                                   "demo_lookahead": self.config.demo_lookahead}
-        return super().provenance({**training_context(self.config.low_level), "prior": prior, **(extra or {})})
+        return super().provenance({**self._context, "prior": prior, **(extra or {})})
 
     def summary_extra(self) -> dict:
         return {"prior": None if self.demos is None else self.demo_info, "eval_episodes": self.config.eval_episodes}
@@ -197,7 +197,8 @@ class FlatRun(HighLevelRun):
         from hingelab.envs.tool_pick import MAX_SPEED
         from hingelab.envs.tool_pick_flat import FINGER_SCALE
 
-        return {**SACRun.env_record(self), "action_scale": {"fingers_rad": FINGER_SCALE, "hand_velocity_m_s": MAX_SPEED}}
+        return {**SACRun.env_record(self),
+                "action_scale": {"fingers_rad": FINGER_SCALE, "hand_velocity_m_s": MAX_SPEED}}
 
 
 def train_high(config: HighLevelTrainConfig, run_dir, resume: bool = False, progress: bool = True,
