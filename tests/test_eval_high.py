@@ -48,7 +48,7 @@ def _check_dataset(out) -> pd.DataFrame:
     return episodes
 
 
-@pytest.mark.parametrize("baseline", ["heuristic", "scripted", "random"])
+@pytest.mark.parametrize("baseline", ["heuristic", "scripted", "scripted-feedback", "random"])
 def test_baselines_write_a_dataset_and_a_table_that_counts_it(baseline, tmp_path, capsys):
     out = tmp_path / baseline
     assert _eval(out, "--baseline", baseline, "--seed", "3") == 0

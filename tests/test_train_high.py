@@ -223,3 +223,17 @@ def test_train_flat_runs_from_the_command_line(tmp_path, capsys):
                  "--no-progress"]) == 0
     assert "Trained the flat baseline to 60 env steps" in capsys.readouterr().out
     assert json.loads((out / "config.json").read_text())["env_id"] == "hingelab/ToolPickFlat-v0"
+
+
+def test_prior_over_all_pick_sets(tmp_path):
+    """--prior-objects all: one prior dataset per shape and size, all of them in the demos."""
+    config = replace(TINY, steps=60, eval_every=60, checkpoint_every=60, prior_objects="all", prior_episodes=12,
+                     prior_source="scripted-feedback", max_episode_steps=20, bc_pretrain_updates=5,
+                     demo_offline_updates=0)
+    summary = train_high(config, tmp_path / "all", progress=False)
+    folders = sorted(p.name for p in (tmp_path / "all" / "prior").iterdir())
+    assert len(folders) == 12 and "tetrahedron_2.5cm" in folders
+    assert summary["prior"]["episodes"] == 12 and summary["prior"]["demo_actions"] == ["recorded"] * 12
+    cards = [Dataset(tmp_path / "all" / "prior" / f).card for f in folders]
+    assert {c.config["policy"] for c in cards} == {"scripted-feedback"}
+    assert sorted((c.config["object"], c.config["size"]) for c in cards)[0] == ("cube", 0.015)

@@ -15,7 +15,8 @@ the arm through the Jacobian pseudoinverse.
 
 ## Observation Space
 ``Box(14,)``: tool t_bar (3, m) and Euler theta_bar (3, rad, xyz) from registration,
-smoothed; z_bar (2); object position (3, m, with 2 mm Gaussian noise) and target position
+smoothed; z_bar (2); object position (3, m: the object's centre, as a camera reports it, not its
+body origin, which for a tetrahedron is on its base; with 2 mm Gaussian noise) and target position
 (3, m); all in the hand frame, through the episode's observation delay.
 
 ## Rewards
@@ -43,12 +44,14 @@ path), ``randomize`` (True: object friction 1-5, finger friction, gains
 (0.05 m), ``max_episode_steps`` (200), ``encoder_path``, ``terminate_on_drop`` (True).
 
 ## Version History
-v0: first version.
+v0: first version. (2026-12-05: the observed object position is the centre, not the body origin;
+the same observation for the sphere, cube, cylinder and meshes.)
 """
 
 from __future__ import annotations
 
 import gymnasium as gym
+import mujoco
 import numpy as np
 from gymnasium import spaces
 
@@ -211,9 +214,19 @@ class ToolPickEnv(SimRenderMixin, gym.Env):
         return d.xmat[self._hand_body].reshape(3, 3).T @ (p_world - d.xpos[self._hand_body])
 
     def _fresh_observation(self) -> np.ndarray:
-        noisy_object = self.state.object_pos_world + self.np_random.normal(0.0, OBJECT_NOISE_M, 3)
+        noisy_object = self.observed_object_centre() + self.np_random.normal(0.0, OBJECT_NOISE_M, 3)
         return np.concatenate([self._tool_pose, self.sample.z_smoothed[0], self._to_hand(noisy_object),
                                self._to_hand(self.target)])
+
+    def observed_object_centre(self) -> np.ndarray:
+        """The object's centre (world, m) as a camera would report it: the middle of its resting height,
+        not its body origin (a tetrahedron's origin is on its base face, at the platform)."""
+        lift = self.object.height / 2 - self.object.rest_height
+        if lift == 0.0:  # sphere, cube, cylinder, meshes: the origin is the centre
+            return self.state.object_pos_world
+        rotation = np.empty(9)
+        mujoco.mju_quat2Mat(rotation, self.state.object_quat_world)
+        return self.state.object_pos_world + rotation.reshape(3, 3)[:, 2] * lift
 
     def _observation(self) -> np.ndarray:
         delay = self.sim.episode.observation_delay_s if self.sim.episode else 0.0

@@ -18,7 +18,7 @@ from dataclasses import asdict, dataclass
 
 from hingelab.envs.rewards import HighLevelRewardConfig
 from hingelab.errors import ConfigError
-from hingelab.learning.high_level_prior import PRIOR_SOURCES
+from hingelab.learning.high_level_prior import PICK_SETS, PRIOR_OBJECTS, PRIOR_SOURCES
 from hingelab.learning.run_config import option
 from hingelab.learning.sac_config import SACTrainConfig
 
@@ -54,8 +54,13 @@ class HighLevelTrainConfig(SACTrainConfig):
     prior_source: str = option("scripted", "the demos the run generates into RUNDIR/prior when no --from is "
                                            "given: scripted (the heuristic's arm motion and hinge command as latent "
                                            "goals over the run's low level) or heuristic (the heuristic commanding "
-                                           "the hinge directly, the paper's)", choices=PRIOR_SOURCES)
-    prior_episodes: int = option(100, "episodes of the generated prior")
+                                           "the hinge directly, the paper's) or scripted-feedback (scripted "
+                                           "without the object's size: the hinge closed by feedback on the perceived "
+                                           "opening)", choices=PRIOR_SOURCES)
+    prior_episodes: int = option(100, "episodes of the generated prior (over all its objects)")
+    prior_objects: str = option("run", "the objects of the generated prior: run (the run's --object and --size) or "
+                                       "all (the pick table's 4 shapes x 3 sizes, the episodes shared evenly)",
+                                choices=PRIOR_OBJECTS)
     demo_share: float = option(0.5, "share of every batch drawn from the demos, kept apart from the ring buffer "
                                     "(RLPD's 50/50); 0: the paper's plain pre-fill of the ring buffer")
     demo_actions: str = option("auto", "demo action: reached (the latent the tool reached, the paper's), "
@@ -85,7 +90,8 @@ class HighLevelTrainConfig(SACTrainConfig):
 
     def __post_init__(self):
         self.check({**self.sac_checks(), "size": self.size > 0, "mass": self.mass > 0,
-                    "prior_episodes": self.prior_episodes >= 1, "demo_share": 0 <= self.demo_share <= 1,
+                    "prior_episodes": self.prior_episodes >= (len(PICK_SETS) if self.prior_objects == "all" else 1),
+                    "prior_objects": self.prior_objects in PRIOR_OBJECTS, "demo_share": 0 <= self.demo_share <= 1,
                     "demo_actions": self.demo_actions in DEMO_ACTIONS,
                     "prior_source": self.prior_source in PRIOR_SOURCES, "demo_lookahead": self.demo_lookahead >= 1,
                     "demo_offline_updates": self.demo_offline_updates >= 0,

@@ -23,7 +23,8 @@ Baselines: ``heuristic`` (the privileged heuristic, ``hingelab.heuristic``: hing
 directly through ``command_privileged``); ``scripted`` (the heuristic's arm motion, its hinge
 command turned into a latent goal, ``calibration.z_for_opening(opening) / Z_SCALE`` clipped to
 [-1, 1], and its world velocity into the hand frame / MAX_SPEED, acting through the env's normal
-5-D action over the low level); ``random`` (uniform actions in [-1, 1]).
+5-D action over the low level); ``scripted-feedback`` (the same without the object's size:
+``hingelab.heuristic.feedback``); ``random`` (uniform actions in [-1, 1]).
 """
 
 from __future__ import annotations
@@ -38,7 +39,7 @@ from hingelab.analysis.pick_table import FAILURE_REASONS, pick_rates
 
 SEED_BASE = 900_000_000
 SEED_STRIDE = 100_003
-BASELINES = ("heuristic", "scripted", "random")
+BASELINES = ("heuristic", "scripted", "scripted-feedback", "random")
 MISSED_GRASP_DISTANCE_M = 0.02
 
 
@@ -158,8 +159,26 @@ class ScriptedPolicy(HeuristicPolicy):
         return np.clip(np.concatenate([z_goal / Z_SCALE, velocity_hand / MAX_SPEED]), -1, 1).astype(np.float32)
 
 
+class FeedbackScriptedPolicy(ScriptedPolicy):
+    """``ScriptedPolicy`` of the size-free heuristic (``hingelab.heuristic.feedback``): one opening width,
+    the observed centre as the grip height, the hinge closed by feedback on the perceived opening."""
+
+    def reset(self, env, seed: int) -> None:
+        from hingelab.heuristic.feedback import FeedbackHeuristic
+        from hingelab.sim.finger_synergy import FingerSynergy
+
+        pick = env.unwrapped
+
+        def perceived_opening() -> float:
+            return float(pick.perception.calibration.opening_rad(pick.sample.z_smoothed[0]))
+
+        self.heuristic = FeedbackHeuristic(pick.sim, FingerSynergy.load(), pick.object, perceived_opening)
+        self.heuristic.reset(pick.state, pick.target)
+
+
 def baseline_policy(name: str):
-    policies = {"heuristic": HeuristicPolicy, "scripted": ScriptedPolicy, "random": RandomPolicy}
+    policies = {"heuristic": HeuristicPolicy, "scripted": ScriptedPolicy, "scripted-feedback": FeedbackScriptedPolicy,
+                "random": RandomPolicy}
     if name not in policies:
         raise ValueError(f"unknown baseline {name!r}; choose one of {BASELINES}")
     return policies[name]()
@@ -204,6 +223,7 @@ def success_table(episodes: pd.DataFrame, object: str, size: float) -> pd.DataFr
     return pd.DataFrame([{"object": object, "size_cm": round(100 * size, 3), **pick_rates(episodes)}])
 
 
-__all__ = ["BASELINES", "FAILURE_REASONS", "SEED_BASE", "SEED_STRIDE", "FailureReasonWrapper", "HeuristicPolicy",
+__all__ = ["BASELINES", "FAILURE_REASONS", "SEED_BASE", "SEED_STRIDE", "FailureReasonWrapper", "FeedbackScriptedPolicy",
+           "HeuristicPolicy",
            "ModelPolicy", "RandomPolicy", "ScriptedPolicy", "baseline_policy", "episode_seed", "evaluate",
            "make_eval_env", "run_episode", "success_table"]

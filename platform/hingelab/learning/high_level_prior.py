@@ -7,6 +7,9 @@ Two sources of privileged demonstrations, both recorded as ToolPick-v0 high-leve
   action over the run's low level: its arm motion as the hand velocity, its hinge command
   turned into a latent goal through the encoder's calibration (``eval high --baseline
   scripted``). The demo action is the recorded command (``demo_actions="recorded"``).
+* ``scripted-feedback``: as ``scripted``, without the object's size (``hingelab.heuristic.feedback``:
+  one opening width, the hinge closed by feedback on the perceived opening), so that its actions
+  follow from what the high level observes on every shape and size (``--prior-objects all``).
 * ``heuristic``: ``hingelab generate heuristic``: the heuristic commands the hinge directly
   (privileged low level); the demo action is the latent the tool reached (the paper's,
   ``demo_actions="reached"``).
@@ -18,24 +21,50 @@ object's width, which the privileged hinge servo holds with a built-in squeeze
 with the reached latent 5 steps on (8 missed grasps), and 0 of 10 with the step's own; the same
 cloning of 100 scripted episodes (their commands) picked 9 of 10 (``issues`` note of issue 26).
 
-Seeds: episode i of a prior for run seed S is ``high_level_eval.episode_seed(PRIOR_SEED_BASE + S, i)``
-(scripted) or ``generate heuristic``'s ``(PRIOR_SEED_BASE + S) * 100_003 + i`` (heuristic).
+Seeds: episode i of the k-th dataset (``prior_parts``) of a prior for run seed S is
+``high_level_eval.episode_seed(K, i)`` (scripted, scripted-feedback) or ``generate heuristic``'s
+``K * 100_003 + i`` (heuristic), K = PRIOR_SEED_BASE + S + 1000 k.
 """
 
 from __future__ import annotations
 
 import shutil
+from dataclasses import replace
 from pathlib import Path
 
 PRIOR_SEED_BASE = 700_000
-PRIOR_SOURCES = ("scripted", "heuristic")
+PRIOR_SOURCES = ("scripted", "scripted-feedback", "heuristic")
+PRIOR_OBJECTS = ("run", "all")
+# the pick table's shape-size sets (--prior-objects all)
+PICK_SETS = tuple((shape, size) for shape in ("sphere", "cube", "cylinder", "tetrahedron")
+                  for size in (0.015, 0.02, 0.025))
 
 
-def generate_prior(root: Path, config, name: str, progress: bool = True) -> Path:
-    """Write ``config.prior_episodes`` privileged episodes of ``config.prior_source`` into ``root``."""
+def prior_parts(config) -> list[tuple[str, object, float, int]]:
+    """(sub-folder, object, size, episodes) of each dataset of the run's prior: one folder, ``""``, for
+    ``--prior-objects run``; one per pick-table set for ``all``, the episodes shared evenly."""
+    if config.prior_objects == "run":
+        return [("", config.object, config.size, config.prior_episodes)]
+    share, extra = divmod(config.prior_episodes, len(PICK_SETS))
+    return [(f"{shape}_{100 * size:g}cm", shape, size, share + (i < extra))
+            for i, (shape, size) in enumerate(PICK_SETS)]
+
+
+def generate_prior(root: Path, config, name: str, progress: bool = True) -> list[Path]:
+    """Write ``config.prior_episodes`` privileged episodes of ``config.prior_source`` under ``root``;
+    the datasets written (``prior_parts``)."""
     root = Path(root)
     shutil.rmtree(root, ignore_errors=True)  # a generation cut short is made again
-    seed = PRIOR_SEED_BASE + config.seed
+    roots = []
+    for index, (folder, object, size, episodes) in enumerate(prior_parts(config)):
+        # the sets' seeds are apart (their episodes would otherwise share placements and noise)
+        seed = PRIOR_SEED_BASE + config.seed + 1000 * index
+        part = replace(config, object=object, size=size, prior_episodes=episodes, prior_objects="run")
+        roots.append(_generate(root / folder, part, seed, name, progress))
+    return roots
+
+
+def _generate(root: Path, config, seed: int, name: str, progress: bool) -> Path:
     if config.prior_source == "heuristic":
         from hingelab.heuristic.rollout import HeuristicRunConfig, generate_heuristic_dataset
 
@@ -47,23 +76,25 @@ def generate_prior(root: Path, config, name: str, progress: bool = True) -> Path
 
     from hingelab.episodes import create_dataset
     from hingelab.envs.recording import RecordingWrapper
-    from hingelab.learning.high_level_eval import FailureReasonWrapper, ScriptedPolicy, evaluate
+    from hingelab.learning.high_level_eval import FailureReasonWrapper, baseline_policy, evaluate
     from hingelab.sim.mesh_objects import object_label
 
     arguments = config.env_arguments()
+    policy = config.prior_source  # scripted or scripted-feedback: eval high's baselines
     create_dataset(root, name=name, source="heuristic", seed=seed,
-                   config={"policy": "scripted", "episodes": config.prior_episodes, **arguments},
-                   description="the privileged heuristic's arm motion and hinge command as high-level actions over "
+                   config={"policy": policy, "episodes": config.prior_episodes, **arguments},
+                   description=f"the privileged heuristic ({policy}) as high-level actions over "
                                f"the low level {config.low_level} (hingelab train high's prior)")
     env = FailureReasonWrapper(gym.make(config.env_id, **arguments))
     env = RecordingWrapper(env, root, source="heuristic", object_name=object_label(config.object), action_level="high",
-                           extra_metadata={"object_size": config.size, "policy": "scripted",
+                           extra_metadata={"object_size": config.size, "policy": policy,
                                            "low_level": config.low_level})
     try:
-        evaluate(ScriptedPolicy(), env, config.prior_episodes, seed, progress=progress, label="prior (scripted)")
+        evaluate(baseline_policy(policy), env, config.prior_episodes, seed, progress=progress,
+                 label=f"prior ({policy}, {object_label(config.object)} {100 * config.size:g} cm)")
     finally:
         env.close()
     return root
 
 
-__all__ = ["generate_prior", "PRIOR_SEED_BASE", "PRIOR_SOURCES"]
+__all__ = ["PICK_SETS", "PRIOR_OBJECTS", "PRIOR_SEED_BASE", "PRIOR_SOURCES", "generate_prior", "prior_parts"]

@@ -65,12 +65,13 @@ class HighLevelRun(SACRun):
         """The demos' datasets: --from, or the prior the run generates (once; a resumed run reuses it)."""
         if self.config.from_datasets:
             return [str(p) for p in self.config.from_datasets]
-        root = self.run_dir / PRIOR_DIR
-        if not (root / "dataset.json").exists() or not any((root / "episodes").glob("*.mcap")):
-            from hingelab.learning.high_level_prior import generate_prior
+        from hingelab.learning.high_level_prior import generate_prior, prior_parts
 
-            generate_prior(root, self.config, name=f"{self.name}-prior", progress=self.progress)
-        return [str(root)]
+        root = self.run_dir / PRIOR_DIR
+        roots = [root / folder for folder, *_ in prior_parts(self.config)]
+        if not all((r / "dataset.json").exists() and any((r / "episodes").glob("*.mcap")) for r in roots):
+            roots = generate_prior(root, self.config, name=f"{self.name}-prior", progress=self.progress)
+        return [str(r) for r in roots]
 
     def demo_action_mode(self, root) -> str:
         """--demo-actions, or for auto: the recorded command of scripted demos, the reached latent otherwise."""
@@ -79,7 +80,7 @@ class HighLevelRun(SACRun):
         from hingelab.episodes.dataset import Dataset
 
         policy = (Dataset(root).card.config or {}).get("policy")
-        return "recorded" if policy == "scripted" else "reached"
+        return "recorded" if policy in ("scripted", "scripted-feedback") else "reached"
 
     def prepare_data(self) -> None:
         self.demos = None
