@@ -78,6 +78,10 @@ def pick_table(folders) -> pd.DataFrame:
                                    _set_first=rows[-1]["first_attempt_success_rate"]))
     if not rows:
         raise ConfigError("give at least one `hingelab eval high` folder to --picks")
+    # each policy's sets together, in the order its first folder came (the folders' names sort otherwise:
+    # learned_cube, learned_privileged_cube, learned_sphere)
+    order = {key: i for i, key in reversed(list(enumerate((r["policy"], r["low_level"]) for r in rows)))}
+    rows.sort(key=lambda r: (order[(r["policy"], r["low_level"])], r["object"], r["size_cm"]))
     pooled = []
     for (policy, low_level), part in pd.concat(frames).groupby(["policy", "low_level"], sort=False):
         pooled.append({"policy": policy, "low_level": low_level, "object": "all", "size_cm": float("nan"),
