@@ -148,7 +148,7 @@ def run_high(args: argparse.Namespace) -> int:
     if args.out.exists() and any(args.out.iterdir()):
         raise ConfigError(f"{args.out} is not empty; evaluate into a new folder")
     if args.baseline:
-        policy, label = H.baseline_policy(args.baseline), args.baseline
+        policy, label, observe_extent = H.baseline_policy(args.baseline), args.baseline, False
         # the heuristic bypasses the low level: privileged, as in hingelab generate heuristic
         low_level = "privileged" if args.baseline == "heuristic" else (args.low_level or "policy")
     else:
@@ -159,13 +159,16 @@ def run_high(args: argparse.Namespace) -> int:
         low_level = args.low_level or recorded.get("low_level", "policy")
         check_context(model, args.checkpoint, low_level)
         policy, label = H.ModelPolicy(model), str(args.checkpoint)
-    H.make_eval_env(args.object, args.size, low_level).close()  # bad object or low level: an error before files
+        observe_extent = bool((recorded.get("env_kwargs") or {}).get("observe_extent", False))
+    # bad object or low level: an error before files
+    H.make_eval_env(args.object, args.size, low_level, observe_extent=observe_extent).close()
     config = {"policy": label, "object": args.object, "size": args.size, "episodes": args.episodes,
-              "low_level": low_level, "seeds": f"{H.SEED_BASE} + seed * {H.SEED_STRIDE} + episode"}
+              "low_level": low_level, "observe_extent": observe_extent,
+              "seeds": f"{H.SEED_BASE} + seed * {H.SEED_STRIDE} + episode"}
     name = f"eval-high-{args.baseline or Path(args.checkpoint).stem}"
     create_dataset(args.out, name=name, source="high_level_evaluation", config=config, seed=args.seed,
                    description=f"hingelab eval high: {label} on ToolPick-v0, {args.object} {args.size * 100:g} cm")
-    env = H.make_eval_env(args.object, args.size, low_level, record_dir=args.out,
+    env = H.make_eval_env(args.object, args.size, low_level, record_dir=args.out, observe_extent=observe_extent,
                           extra_metadata={"policy": label, "low_level": low_level})
     try:
         episodes = H.evaluate(policy, env, args.episodes, args.seed, progress=not args.no_progress,

@@ -17,7 +17,10 @@ the arm through the Jacobian pseudoinverse.
 ``Box(14,)``: tool t_bar (3, m) and Euler theta_bar (3, rad, xyz) from registration,
 smoothed; z_bar (2); object position (3, m: the object's centre, as a camera reports it, not its
 body origin, which for a tetrahedron is on its base; with 2 mm Gaussian noise) and target position
-(3, m); all in the hand frame, through the episode's observation delay.
+(3, m); all in the hand frame, through the episode's observation delay. With ``observe_extent``,
+``Box(17,)``: then the object's extent (3, m: its bounding box along the world axes, as a camera's
+detection gives it, with 2 mm Gaussian noise), which the scripted high level's opening, grip height
+and hinge angle depend on.
 
 ## Rewards
 ``c_h1 [success] + exp(-c_h2 ||tool - object||) + c_h3 exp(-c_h4 ||object - target||) - c_h5
@@ -41,7 +44,7 @@ PLY file scaled so its largest extent is ``size``: ``hingelab.sim.mesh_objects``
 "policy": the shipped low-level policy ``assets/checkpoints/low_level_experts.json``; or a checkpoint
 path), ``randomize`` (True: object friction 1-5, finger friction, gains
 60-150% of hand and arm servos, observation delays up to 150 ms), ``placement_half_width``
-(0.05 m), ``max_episode_steps`` (200), ``encoder_path``, ``terminate_on_drop`` (True).
+(0.05 m), ``max_episode_steps`` (200), ``encoder_path``, ``terminate_on_drop`` (True), ``observe_extent`` (False).
 
 ## Version History
 v0: first version. (2026-12-05: the observed object position is the centre, not the body origin;
@@ -64,6 +67,7 @@ from hingelab.errors import ConfigError
 from hingelab.sim import scripted
 from hingelab.sim.core import SimCore
 from hingelab.sim.delay import DelayLine
+from hingelab.sim.names import OBJECT_BODY
 from hingelab.sim.objects import ObjectSpec
 from hingelab.sim.randomization import RandomizationConfig
 
@@ -74,6 +78,11 @@ OBJECT_NOISE_M = 0.002
 ALPHA = 0.9  # smoothing of t and theta (the paper smooths the high-level tool state too)
 
 
+def observation_dim(observe_extent: bool = False) -> int:
+    """ToolPick-v0's observation size: 14, and 3 more with the object's extent (``observe_extent``)."""
+    return 17 if observe_extent else 14
+
+
 class ToolPickEnv(SimRenderMixin, gym.Env):
     metadata = {"render_modes": ["rgb_array"], "render_fps": 20}
     env_name = "ToolPick-v0"  # in the error messages
@@ -82,7 +91,7 @@ class ToolPickEnv(SimRenderMixin, gym.Env):
                  low_level: str = "privileged", randomize: bool = True, placement_half_width: float = 0.05,
                  max_episode_steps: int = 200, encoder_path: str | None = None,
                  reward: HighLevelRewardConfig | None = None, render_mode: str | None = None,
-                 terminate_on_drop: bool = True):
+                 terminate_on_drop: bool = True, observe_extent: bool = False):
         from hingelab.perception.encoder import load_encoder
 
         self.object = ObjectSpec(object, size, mass)
@@ -108,7 +117,8 @@ class ToolPickEnv(SimRenderMixin, gym.Env):
         self.terminate_on_drop = terminate_on_drop
         self.render_mode = render_mode
         self.action_space = spaces.Box(-1.0, 1.0, (5,), np.float32)
-        self.observation_space = spaces.Box(-np.inf, np.inf, (14,), np.float64)
+        self.observe_extent = bool(observe_extent)
+        self.observation_space = spaces.Box(-np.inf, np.inf, (observation_dim(self.observe_extent),), np.float64)
         self.delay = DelayLine(self.sim.control_dt, 0.150)
         self._hand_body = self.sim.reader.hand_body  # hand_base's body id (by-name access costs ~1 us a call)
         self._privileged_command = None
@@ -215,8 +225,22 @@ class ToolPickEnv(SimRenderMixin, gym.Env):
 
     def _fresh_observation(self) -> np.ndarray:
         noisy_object = self.observed_object_centre() + self.np_random.normal(0.0, OBJECT_NOISE_M, 3)
-        return np.concatenate([self._tool_pose, self.sample.z_smoothed[0], self._to_hand(noisy_object),
-                               self._to_hand(self.target)])
+        parts = [self._tool_pose, self.sample.z_smoothed[0], self._to_hand(noisy_object), self._to_hand(self.target)]
+        if self.observe_extent:
+            parts.append(self.observed_object_extent() + self.np_random.normal(0.0, OBJECT_NOISE_M, 3))
+        return np.concatenate(parts)
+
+    def observed_object_extent(self) -> np.ndarray:
+        """The object's bounding box along the world axes (x, y, z; m), as a camera's detection gives it."""
+        model, data = self.sim.model, self.sim.data
+        body = model.body(OBJECT_BODY).id
+        signs = np.array([[sx, sy, sz] for sx in (-1, 1) for sy in (-1, 1) for sz in (-1, 1)], float)
+        corners = []
+        for g in np.flatnonzero(model.geom_bodyid == body):  # a mesh's convex parts, or the one geom
+            local = model.geom_aabb[g, :3] + signs * model.geom_aabb[g, 3:]
+            corners.append(data.geom_xpos[g] + local @ data.geom_xmat[g].reshape(3, 3).T)
+        corners = np.concatenate(corners)
+        return corners.max(axis=0) - corners.min(axis=0)
 
     def observed_object_centre(self) -> np.ndarray:
         """The object's centre (world, m) as a camera would report it: the middle of its resting height,

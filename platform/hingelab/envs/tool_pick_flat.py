@@ -87,7 +87,8 @@ class ToolPickFlatEnv(ToolPickEnv):
         super().__init__(low_level="privileged", **kwargs)
         self.low_level = NoLowLevel()
         self.action_space = spaces.Box(-1.0, 1.0, (N_FINGERS + 3,), np.float32)
-        self.observation_space = spaces.Box(-np.inf, np.inf, (14 + 2 * N_FINGERS,), np.float64)
+        self.observation_space = spaces.Box(-np.inf, np.inf, (self.observation_space.shape[0] + 2 * N_FINGERS,),
+                                            np.float64)
 
     def command_privileged(self, arm_velocity_world, hinge_target, hand_targets) -> None:
         raise ConfigError("ToolPickFlat-v0 takes no privileged commands (the heuristic runs on ToolPick-v0)")

@@ -20,7 +20,6 @@ from pathlib import Path
 from hingelab.errors import ConfigError
 from hingelab.paths import ASSETS_DIR
 
-OBSERVATION_SHAPE = (14,)
 ACTION_SHAPE = (5,)
 SHIPPED_HIGH_LEVEL = ASSETS_DIR / "checkpoints" / "high_level.zip"
 
@@ -77,18 +76,23 @@ def resolve_checkpoint(path) -> Path:
 
 
 def load_high_level_checkpoint(path, low_level: str | None = None):
-    """A SAC zip trained on ToolPick-v0 (14-D observation, 5-D action), loaded on the CPU; with
-    ``low_level``, checked against the low level and encoder it learned beside."""
+    """A SAC zip trained on ToolPick-v0 (14-D observation, 17-D with ``observe_extent``; 5-D action),
+    loaded on the CPU; with ``low_level``, checked against the low level and encoder it learned beside."""
     from hingelab.learning.checkpoints import load_sac_zip
 
     path = resolve_checkpoint(path)
+    from hingelab.envs.tool_pick import observation_dim
+
     model = load_sac_zip(path)
     space = model.observation_space
-    if getattr(space, "spaces", None) is not None or tuple(space.shape or ()) != OBSERVATION_SHAPE or \
+    # the observation it was trained with: 14-D, or 17-D with the object's extent (its env_kwargs)
+    kwargs = (getattr(model, "hingelab_provenance", None) or {}).get("env_kwargs") or {}
+    expected = (observation_dim(bool(kwargs.get("observe_extent", False))),)
+    if getattr(space, "spaces", None) is not None or tuple(space.shape or ()) != expected or \
             tuple(model.action_space.shape or ()) != ACTION_SHAPE:
         shapes = {k: tuple(v.shape) for k, v in getattr(space, "spaces", {}).items()} or tuple(space.shape or ())
         raise ConfigError(f"{path} does not match ToolPick-v0 (observation {shapes}, action "
-                          f"{tuple(model.action_space.shape or ())}; ToolPick-v0 has observation {OBSERVATION_SHAPE}, "
+                          f"{tuple(model.action_space.shape or ())}; ToolPick-v0 has observation {expected}, "
                           f"action {ACTION_SHAPE}); give a high-level checkpoint trained on hingelab/ToolPick-v0")
     if low_level is not None:
         check_context(model, path, low_level)
@@ -96,4 +100,4 @@ def load_high_level_checkpoint(path, low_level: str | None = None):
 
 
 __all__ = ["load_high_level_checkpoint", "resolve_checkpoint", "training_context", "check_context",
-           "low_level_sha256", "OBSERVATION_SHAPE", "ACTION_SHAPE", "SHIPPED_HIGH_LEVEL"]
+           "low_level_sha256", "ACTION_SHAPE", "SHIPPED_HIGH_LEVEL"]

@@ -101,7 +101,7 @@ def _at(topic: dict, times: np.ndarray, path: Path, name: str) -> np.ndarray:
     return rows
 
 
-def _check_episode(episode, path: Path) -> None:
+def _check_episode(episode, path: Path, observation_dim: int) -> None:
     meta = episode.metadata
     task, level = meta.get(S.KEY_TASK), meta.get(S.KEY_ACTION_LEVEL)
     if task != TOOL_PICK_ID or level != "high":
@@ -111,9 +111,11 @@ def _check_episode(episode, path: Path) -> None:
     if "reward" not in step:
         raise DatasetError(f"{path} has no learner transitions (/step with reward); record it with RecordingWrapper")
     obs, act = step.get("observation"), step["action"]
-    if obs is None or obs.shape[1:] != (OBSERVATION_DIM,) or act.shape[1:] != (ACTION_DIM,):
+    if obs is None or obs.shape[1:] != (observation_dim,) or act.shape[1:] != (ACTION_DIM,):
         raise DatasetError(f"{path} has observations {None if obs is None else obs.shape[1:]} and actions "
-                           f"{act.shape[1:]}, not {TOOL_PICK_ID}'s ({OBSERVATION_DIM},) and ({ACTION_DIM},)")
+                           f"{act.shape[1:]}, not the run's {TOOL_PICK_ID} ({observation_dim},) and ({ACTION_DIM},)"
+                           + ("; record the demos with the same observe_extent as the run" if obs is not None
+                              and obs.shape[1:] in ((14,), (17,)) else ""))
     missing = [f"info.{k}" for k in NEEDED_INFOS if f"info.{k}" not in step]
     terms = episode.topics.get(S.TOPIC_REWARD, {})
     missing += [f"{S.TOPIC_REWARD}:{k}" for k in TERMS if k not in terms]
@@ -125,9 +127,9 @@ def _check_episode(episode, path: Path) -> None:
 
 
 def _episode(episode, index: int, config: HighLevelRewardConfig, recorded: HighLevelRewardConfig,
-             actions: str) -> Transitions:
+             actions: str, observation_dim: int) -> Transitions:
     path = episode.path
-    _check_episode(episode, path)
+    _check_episode(episode, path, observation_dim)
     tr = episode_transitions(episode, index)
     m = len(tr)
     step = episode.topics[S.TOPIC_STEP]
@@ -175,9 +177,10 @@ def _episode(episode, index: int, config: HighLevelRewardConfig, recorded: HighL
 
 def high_level_transitions(datasets, reward_config: HighLevelRewardConfig | None = None,
                            recorded_reward: HighLevelRewardConfig | None = None, actions: str = "reached",
-                           progress: bool = False) -> Transitions:
+                           progress: bool = False, observation_dim: int = OBSERVATION_DIM) -> Transitions:
     """The transitions of every episode of ``datasets`` (dataset folders) for ToolPick-v0's
-    14-D / 5-D spaces, rewards relabelled with ``reward_config`` (default: the env's default).
+    14-D (``observation_dim``: 17 with ``observe_extent``) / 5-D spaces, rewards relabelled with
+    ``reward_config`` (default: the env's default).
 
     ``recorded_reward``: the config the episodes were recorded with (default: the env's
     default, what ``hingelab generate heuristic`` records). ``actions``: "reached" (the
@@ -204,7 +207,7 @@ def high_level_transitions(datasets, reward_config: HighLevelRewardConfig | None
         if len(dataset) == 0:
             raise DatasetError(f"dataset {root} has no finished episodes to learn from")
         for episode in dataset.iter_episodes(topics=TOPICS, progress=progress):
-            parts.append(_episode(episode, index, config, recorded, actions))
+            parts.append(_episode(episode, index, config, recorded, actions, observation_dim))
             index += 1
     if not parts:
         raise ConfigError("no datasets given to pre-fill from")

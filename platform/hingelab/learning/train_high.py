@@ -86,6 +86,7 @@ class HighLevelRun(SACRun):
         self.demos = None
         if not self.config.prior:
             return
+        from hingelab.envs.tool_pick import observation_dim
         from hingelab.learning.high_level_prefill import high_level_transitions, look_ahead
 
         from hingelab.episodes.transitions import concat_transitions
@@ -95,7 +96,8 @@ class HighLevelRun(SACRun):
         self.demo_modes = [self.demo_action_mode(root) for root in datasets]
         parts, offset = [], 0
         for root, mode in zip(datasets, self.demo_modes):
-            part = high_level_transitions([root], self.config.reward, actions=mode)
+            part = high_level_transitions([root], self.config.reward, actions=mode, observation_dim=observation_dim(
+                bool(self.config.env_kwargs.get("observe_extent", False))))
             part.episode_index = part.episode_index + offset  # one numbering over the datasets (look_ahead)
             offset = int(part.episode_index.max()) + 1
             parts.append(part)
