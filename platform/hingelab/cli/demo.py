@@ -141,7 +141,8 @@ DEMO_LEARNED_DATASET = DATASETS_DIR / "demo_learned_hierarchy"
 HIERARCHY_EPISODES = 2
 
 
-def _pick_sphere(policy, label: str, dataset, seed: int, name: str, description: str) -> dict:
+def _pick_sphere(policy, label: str, dataset, seed: int, name: str, description: str,
+                 observe_extent: bool = False) -> dict:
     """``HIERARCHY_EPISODES`` episodes of ``policy`` on ToolPick-v0 (2 cm sphere) over the shipped
     low-level policy, recorded into ``dataset`` as `hingelab eval high` records them."""
     from hingelab.episodes import create_dataset
@@ -150,7 +151,7 @@ def _pick_sphere(policy, label: str, dataset, seed: int, name: str, description:
     create_dataset(dataset, name=name, source="high_level_evaluation",
                    config={"policy": label, "low_level": "policy", "object": "sphere", "size": 0.02,
                            "episodes": HIERARCHY_EPISODES}, seed=seed, description=description)
-    env = H.make_eval_env("sphere", 0.02, "policy", record_dir=dataset,
+    env = H.make_eval_env("sphere", 0.02, "policy", record_dir=dataset, observe_extent=observe_extent,
                           extra_metadata={"policy": Path(label).name, "low_level": "policy"})
     started = time.perf_counter()
     try:
@@ -182,7 +183,7 @@ def step_learned_hierarchy(seed: int) -> dict:
     """Issue 26: the shipped high-level policy (assets/checkpoints/high_level.zip) over the shipped
     low-level policy picks the sphere, as `hingelab eval high` runs it."""
     from hingelab.learning import high_level_eval as H
-    from hingelab.learning.high_level_checkpoint import SHIPPED_HIGH_LEVEL, load_high_level_checkpoint
+    from hingelab.learning.high_level_checkpoint import SHIPPED_HIGH_LEVEL, load_high_level_checkpoint, observes_extent
 
     shutil.rmtree(DEMO_LEARNED_DATASET, ignore_errors=True)
     if not SHIPPED_HIGH_LEVEL.exists():
@@ -191,7 +192,8 @@ def step_learned_hierarchy(seed: int) -> dict:
     model = load_high_level_checkpoint(SHIPPED_HIGH_LEVEL, low_level="policy")
     return _pick_sphere(H.ModelPolicy(model), SHIPPED_HIGH_LEVEL.name, DEMO_LEARNED_DATASET, seed,
                         "demo-learned-hierarchy",
-                        "hingelab demo: the shipped high-level policy over the shipped low-level policy")
+                        "hingelab demo: the shipped high-level policy over the shipped low-level policy",
+                        observe_extent=observes_extent(model))
 
 
 def step_report_and_recording(seed: int) -> dict:

@@ -152,14 +152,14 @@ def run_high(args: argparse.Namespace) -> int:
         # the heuristic bypasses the low level: privileged, as in hingelab generate heuristic
         low_level = "privileged" if args.baseline == "heuristic" else (args.low_level or "policy")
     else:
-        from hingelab.learning.high_level_checkpoint import check_context, load_high_level_checkpoint
+        from hingelab.learning.high_level_checkpoint import check_context, load_high_level_checkpoint, observes_extent
 
         model = load_high_level_checkpoint(args.checkpoint)
         recorded = getattr(model, "hingelab_provenance", None) or {}
         low_level = args.low_level or recorded.get("low_level", "policy")
         check_context(model, args.checkpoint, low_level)
         policy, label = H.ModelPolicy(model), str(args.checkpoint)
-        observe_extent = bool((recorded.get("env_kwargs") or {}).get("observe_extent", False))
+        observe_extent = observes_extent(model)
     # bad object or low level: an error before files
     H.make_eval_env(args.object, args.size, low_level, observe_extent=observe_extent).close()
     config = {"policy": label, "object": args.object, "size": args.size, "episodes": args.episodes,

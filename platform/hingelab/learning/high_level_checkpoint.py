@@ -75,6 +75,12 @@ def resolve_checkpoint(path) -> Path:
     return path
 
 
+def observes_extent(model) -> bool:
+    """The checkpoint was trained observing the object's extent (its ``env_kwargs``: 17-D observations)."""
+    kwargs = (getattr(model, "hingelab_provenance", None) or {}).get("env_kwargs") or {}
+    return bool(kwargs.get("observe_extent", False))
+
+
 def load_high_level_checkpoint(path, low_level: str | None = None):
     """A SAC zip trained on ToolPick-v0 (14-D observation, 17-D with ``observe_extent``; 5-D action),
     loaded on the CPU; with ``low_level``, checked against the low level and encoder it learned beside."""
@@ -85,9 +91,7 @@ def load_high_level_checkpoint(path, low_level: str | None = None):
 
     model = load_sac_zip(path)
     space = model.observation_space
-    # the observation it was trained with: 14-D, or 17-D with the object's extent (its env_kwargs)
-    kwargs = (getattr(model, "hingelab_provenance", None) or {}).get("env_kwargs") or {}
-    expected = (observation_dim(bool(kwargs.get("observe_extent", False))),)
+    expected = (observation_dim(observes_extent(model)),)
     if getattr(space, "spaces", None) is not None or tuple(space.shape or ()) != expected or \
             tuple(model.action_space.shape or ()) != ACTION_SHAPE:
         shapes = {k: tuple(v.shape) for k, v in getattr(space, "spaces", {}).items()} or tuple(space.shape or ())
@@ -100,4 +104,4 @@ def load_high_level_checkpoint(path, low_level: str | None = None):
 
 
 __all__ = ["load_high_level_checkpoint", "resolve_checkpoint", "training_context", "check_context",
-           "low_level_sha256", "ACTION_SHAPE", "SHIPPED_HIGH_LEVEL"]
+           "low_level_sha256", "observes_extent", "ACTION_SHAPE", "SHIPPED_HIGH_LEVEL"]
