@@ -54,7 +54,6 @@ the same observation for the sphere, cube, cylinder and meshes.)
 from __future__ import annotations
 
 import gymnasium as gym
-import mujoco
 import numpy as np
 from gymnasium import spaces
 
@@ -67,7 +66,6 @@ from hingelab.errors import ConfigError
 from hingelab.sim import scripted
 from hingelab.sim.core import SimCore
 from hingelab.sim.delay import DelayLine
-from hingelab.sim.names import OBJECT_BODY
 from hingelab.sim.objects import ObjectSpec
 from hingelab.sim.randomization import RandomizationConfig
 
@@ -119,6 +117,13 @@ class ToolPickEnv(SimRenderMixin, gym.Env):
         self.action_space = spaces.Box(-1.0, 1.0, (5,), np.float32)
         self.observe_extent = bool(observe_extent)
         self.observation_space = spaces.Box(-np.inf, np.inf, (observation_dim(self.observe_extent),), np.float64)
+        self._object_body = self.sim.reader.object_body
+        # the object's geoms and their bounding boxes' corners in the geom frames: fixed for the env's life
+        model = self.sim.model
+        self._object_geoms = np.flatnonzero(model.geom_bodyid == self._object_body)  # a mesh's convex parts
+        signs = np.array([[sx, sy, sz] for sx in (-1, 1) for sy in (-1, 1) for sz in (-1, 1)], float)
+        self._object_corners = model.geom_aabb[self._object_geoms, None, :3] + \
+            signs * model.geom_aabb[self._object_geoms, None, 3:]  # (geoms, 8, 3)
         self.delay = DelayLine(self.sim.control_dt, 0.150)
         self._hand_body = self.sim.reader.hand_body  # hand_base's body id (by-name access costs ~1 us a call)
         self._privileged_command = None
@@ -232,25 +237,20 @@ class ToolPickEnv(SimRenderMixin, gym.Env):
 
     def observed_object_extent(self) -> np.ndarray:
         """The object's bounding box along the world axes (x, y, z; m), as a camera's detection gives it."""
-        model, data = self.sim.model, self.sim.data
-        body = model.body(OBJECT_BODY).id
-        signs = np.array([[sx, sy, sz] for sx in (-1, 1) for sy in (-1, 1) for sz in (-1, 1)], float)
-        corners = []
-        for g in np.flatnonzero(model.geom_bodyid == body):  # a mesh's convex parts, or the one geom
-            local = model.geom_aabb[g, :3] + signs * model.geom_aabb[g, 3:]
-            corners.append(data.geom_xpos[g] + local @ data.geom_xmat[g].reshape(3, 3).T)
-        corners = np.concatenate(corners)
+        data = self.sim.data
+        rotations = data.geom_xmat[self._object_geoms].reshape(-1, 3, 3)
+        corners = data.geom_xpos[self._object_geoms, None] + np.einsum("gij,gkj->gki", rotations, self._object_corners)
+        corners = corners.reshape(-1, 3)
         return corners.max(axis=0) - corners.min(axis=0)
 
     def observed_object_centre(self) -> np.ndarray:
         """The object's centre (world, m) as a camera would report it: the middle of its resting height,
         not its body origin (a tetrahedron's origin is on its base face, at the platform)."""
-        lift = self.object.height / 2 - self.object.rest_height
+        lift = self.object.centre_height
         if lift == 0.0:  # sphere, cube, cylinder, meshes: the origin is the centre
             return self.state.object_pos_world
-        rotation = np.empty(9)
-        mujoco.mju_quat2Mat(rotation, self.state.object_quat_world)
-        return self.state.object_pos_world + rotation.reshape(3, 3)[:, 2] * lift
+        up = self.sim.data.xmat[self._object_body].reshape(3, 3)[:, 2]  # the body's z axis in the world
+        return self.state.object_pos_world + up * lift
 
     def _observation(self) -> np.ndarray:
         delay = self.sim.episode.observation_delay_s if self.sim.episode else 0.0

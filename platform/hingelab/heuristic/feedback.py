@@ -58,7 +58,7 @@ class FeedbackHeuristic(PrivilegedHeuristic):
         self.open_theta = min(float(np.arcsin(min(1.0, config.open_width / scripted.TOOL_TIP_X))),
                               synergy.theta_range[1])
         # the observed position is the object's centre (ToolPickEnv.observed_object_centre)
-        self.centre_height = obj.height / 2 - obj.rest_height
+        self.centre_height = obj.centre_height
 
     def _grip_target(self, state: PrivilegedState) -> np.ndarray:
         p = state.object_pos_world.copy()

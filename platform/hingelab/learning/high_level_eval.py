@@ -225,6 +225,5 @@ def success_table(episodes: pd.DataFrame, object: str, size: float) -> pd.DataFr
 
 
 __all__ = ["BASELINES", "FAILURE_REASONS", "SEED_BASE", "SEED_STRIDE", "FailureReasonWrapper", "FeedbackScriptedPolicy",
-           "HeuristicPolicy",
-           "ModelPolicy", "RandomPolicy", "ScriptedPolicy", "baseline_policy", "episode_seed", "evaluate",
-           "make_eval_env", "run_episode", "success_table"]
+           "HeuristicPolicy", "ModelPolicy", "RandomPolicy", "ScriptedPolicy", "baseline_policy", "episode_seed",
+           "evaluate", "make_eval_env", "run_episode", "success_table"]

@@ -64,14 +64,15 @@ from stable_baselines3.common.type_aliases import ReplayBufferSamples
 
 from hingelab.envs import TOOL_PICK_ID
 from hingelab.envs.rewards import HighLevelRewardConfig, high_level_terms
-from hingelab.envs.tool_pick import Z_SCALE
+from hingelab.envs.tool_pick import Z_SCALE, observation_dim
 from hingelab.episodes import schemas as S
 from hingelab.episodes.dataset import Dataset
 from hingelab.episodes.errors import DatasetError
 from hingelab.episodes.transitions import Transitions, concat_transitions, episode_transitions, fill_replay_buffer
 from hingelab.errors import ConfigError
 
-OBSERVATION_DIM = 14
+OBSERVATION_DIM = observation_dim()  # 14
+OBSERVATION_DIMS = (observation_dim(False), observation_dim(True))  # without and with observe_extent
 ACTION_DIM = 5
 TERMS = ("sparse", "tool_object", "object_target", "penalty")
 NEEDED_INFOS = ("object_target_distance", "is_success", "table_collision")
@@ -115,7 +116,7 @@ def _check_episode(episode, path: Path, observation_dim: int) -> None:
         raise DatasetError(f"{path} has observations {None if obs is None else obs.shape[1:]} and actions "
                            f"{act.shape[1:]}, not the run's {TOOL_PICK_ID} ({observation_dim},) and ({ACTION_DIM},)"
                            + ("; record the demos with the same observe_extent as the run" if obs is not None
-                              and obs.shape[1:] in ((14,), (17,)) else ""))
+                              and obs.shape[1] in OBSERVATION_DIMS else ""))
     missing = [f"info.{k}" for k in NEEDED_INFOS if f"info.{k}" not in step]
     terms = episode.topics.get(S.TOPIC_REWARD, {})
     missing += [f"{S.TOPIC_REWARD}:{k}" for k in TERMS if k not in terms]

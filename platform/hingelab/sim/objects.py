@@ -103,6 +103,12 @@ class ObjectSpec:
             return self.height / 2  # origin at the hull's bounding-box centre
         return self.size / 2
 
+    @property
+    def centre_height(self) -> float:
+        """Height of the resting object's bounding-box centre above its body origin, metres (0 but for
+        the tetrahedron, whose origin is on its base face)."""
+        return self.height / 2 - self.rest_height
+
     def mesh_vertices(self) -> np.ndarray:
         """A mesh object's hull vertices in the body frame, metres (n, 3)."""
         return load_unit_hull(self.shape).vertices * self.size
