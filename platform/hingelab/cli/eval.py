@@ -6,7 +6,7 @@ rate per goal region (thirds of the reachable opening range) with Wilson 95% int
 Success is the env's one verdict (ToolShape-v0: settled over the last 0.5 s), the episodes'
 recorded ``success``, so ``hingelab report`` of ``--out`` counts the same episodes.
 
-``high``: a high-level SAC checkpoint, or a baseline (heuristic, scripted, scripted-feedback, random), on ToolPick-v0
+``high``: a high-level SAC checkpoint, or a baseline (heuristic, scripted, scripted-observed, scripted-feedback, random), on ToolPick-v0
 (``hingelab.learning.high_level_eval``): success within 200 steps and at the first attempt,
 attempts and failure reasons per episode; a table with Wilson 95% intervals (table.csv, report.md).
 """
@@ -57,9 +57,12 @@ def add_parser(subparsers) -> None:
     high.add_argument("--episodes", type=int, default=20, help="evaluation episodes (default 20)")
     high.add_argument("--out", type=Path, required=True, help="dataset folder to write (must be new or empty)")
     high.add_argument("--seed", type=int, default=0, help="seed of the episodes (default 0)")
-    high.add_argument("--baseline", choices=("heuristic", "scripted", "scripted-feedback", "random"), default=None,
+    high.add_argument("--baseline", choices=("heuristic", "scripted", "scripted-observed", "scripted-feedback", "random"),
+                      default=None,
                       help="evaluate a baseline instead of a checkpoint: heuristic (privileged, commands the "
                            "hinge), scripted (the heuristic's motion as latent goals over the low level), "
+                           "scripted-observed (scripted, told the object's position by the policy's observation: "
+                           "its noise and delay), "
                            "scripted-feedback (the same without the object's size: one opening width, the hinge "
                            "closed by feedback on the perceived opening), random")  # high_level_eval.BASELINES
     high.add_argument("--low-level", default=None,

@@ -76,6 +76,9 @@ OBJECT_NOISE_M = 0.002
 ALPHA = 0.9  # smoothing of t and theta (the paper smooths the high-level tool state too)
 
 
+OBSERVED_OBJECT = slice(8, 11)  # the observed object centre (hand frame, m) in the observation (_fresh_observation)
+
+
 def observation_dim(observe_extent: bool = False) -> int:
     """ToolPick-v0's observation size: 14, and 3 more with the object's extent (``observe_extent``)."""
     return 17 if observe_extent else 14

@@ -23,7 +23,8 @@ Baselines: ``heuristic`` (the privileged heuristic, ``hingelab.heuristic``: hing
 directly through ``command_privileged``); ``scripted`` (the heuristic's arm motion, its hinge
 command turned into a latent goal, ``calibration.z_for_opening(opening) / Z_SCALE`` clipped to
 [-1, 1], and its world velocity into the hand frame / MAX_SPEED, acting through the env's normal
-5-D action over the low level); ``scripted-feedback`` (the same without the object's size:
+5-D action over the low level); ``scripted-observed`` (``scripted`` reading the object's position from
+the policy's observation, noise and delay included, instead of the simulator); ``scripted-feedback`` (the same without the object's size:
 ``hingelab.heuristic.feedback``); ``random`` (uniform actions in [-1, 1]).
 """
 
@@ -39,7 +40,7 @@ from hingelab.analysis.pick_table import FAILURE_REASONS, pick_rates
 
 SEED_BASE = 900_000_000
 SEED_STRIDE = 100_003
-BASELINES = ("heuristic", "scripted", "scripted-feedback", "random")
+BASELINES = ("heuristic", "scripted", "scripted-observed", "scripted-feedback", "random")
 MISSED_GRASP_DISTANCE_M = 0.02
 
 
@@ -149,15 +150,41 @@ class ScriptedPolicy(HeuristicPolicy):
     privileged = False
 
     def act(self, env, obs) -> np.ndarray:
+        return self._action(env, env.unwrapped.state)
+
+    def _action(self, env, state) -> np.ndarray:
         from hingelab.envs.tool_pick import MAX_SPEED, Z_SCALE
 
         pick = env.unwrapped
-        command = self.heuristic.act(pick.state)
+        command = self.heuristic.act(state)
         opening = command.hinge_target if command.hinge_target is not None else pick.state.hinge_angle
         z_goal = np.asarray(pick.perception.calibration.z_for_opening(opening), float)
         rot_hand = pick.sim.data.xmat[pick.sim.reader.hand_body].reshape(3, 3)
         velocity_hand = rot_hand.T @ np.asarray(command.arm_velocity, float)
         return np.clip(np.concatenate([z_goal / Z_SCALE, velocity_hand / MAX_SPEED]), -1, 1).astype(np.float32)
+
+
+class ObservedScriptedPolicy(ScriptedPolicy):
+    """``ScriptedPolicy`` told where the object is by the policy's own observation (its 2 mm noise and
+    the observation delay, the hand-frame centre mapped back through the hand's pose) instead of by
+    the simulator, every step: how far the scripted motion gets on what a Markov high level can know
+    of the object's position. (The reset's start position, used only to notice drops, stays true.)"""
+
+    def act(self, env, obs) -> np.ndarray:
+        return self._action(env, self.observed_state(env, obs))
+
+    @staticmethod
+    def observed_state(env, obs):
+        """The env's privileged state with the object's position replaced by the observation's."""
+        from dataclasses import replace
+
+        from hingelab.envs.tool_pick import OBSERVED_OBJECT
+
+        pick = env.unwrapped
+        data, hand = pick.sim.data, pick.sim.reader.hand_body
+        centre = data.xmat[hand].reshape(3, 3) @ np.asarray(obs[OBSERVED_OBJECT], float) + data.xpos[hand]
+        origin = centre - (pick.observed_object_centre() - pick.state.object_pos_world)  # centre -> body origin
+        return replace(pick.state, object_pos_world=origin)
 
 
 class FeedbackScriptedPolicy(ScriptedPolicy):
@@ -178,8 +205,8 @@ class FeedbackScriptedPolicy(ScriptedPolicy):
 
 
 def baseline_policy(name: str):
-    policies = {"heuristic": HeuristicPolicy, "scripted": ScriptedPolicy, "scripted-feedback": FeedbackScriptedPolicy,
-                "random": RandomPolicy}
+    policies = {"heuristic": HeuristicPolicy, "scripted": ScriptedPolicy, "scripted-observed": ObservedScriptedPolicy,
+                "scripted-feedback": FeedbackScriptedPolicy, "random": RandomPolicy}
     if name not in policies:
         raise ValueError(f"unknown baseline {name!r}; choose one of {BASELINES}")
     return policies[name]()
@@ -225,5 +252,5 @@ def success_table(episodes: pd.DataFrame, object: str, size: float) -> pd.DataFr
 
 
 __all__ = ["BASELINES", "FAILURE_REASONS", "SEED_BASE", "SEED_STRIDE", "FailureReasonWrapper", "FeedbackScriptedPolicy",
-           "HeuristicPolicy", "ModelPolicy", "RandomPolicy", "ScriptedPolicy", "baseline_policy", "episode_seed",
+           "HeuristicPolicy", "ModelPolicy", "ObservedScriptedPolicy", "RandomPolicy", "ScriptedPolicy", "baseline_policy", "episode_seed",
            "evaluate", "make_eval_env", "run_episode", "success_table"]
