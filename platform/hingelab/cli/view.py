@@ -3,8 +3,7 @@
 from __future__ import annotations
 
 import argparse
-import time
-import urllib.parse
+import sys
 from pathlib import Path
 
 
@@ -24,7 +23,13 @@ def add_parser(subparsers) -> None:
     p.add_argument("--save", type=Path, default=None, metavar="FILE.rrd",
                    help="write the recording to this .rrd file instead of opening a viewer")
     p.add_argument("--web", action="store_true",
-                   help="serve Rerun's web viewer (prints its address; Ctrl-C stops serving)")
+                   help="serve Rerun's web viewer (prints its address; Ctrl-C stops serving); only this "
+                        "machine can open it unless --bind says otherwise")
+    p.add_argument("--bind", default="127.0.0.1", metavar="ADDR",
+                   help="--web: the address to listen on (default 127.0.0.1, this machine only; 0.0.0.0 or a "
+                        "network interface's address lets every machine that reaches it read the data)")
+    p.add_argument("--port", type=int, default=9876, help="--web: the gRPC port (default 9876)")
+    p.add_argument("--web-viewer-port", type=int, default=9090, help="--web: the web viewer's port (default 9090)")
     p.add_argument("--cloud-every", type=int, default=10, metavar="K",
                    help="dataset view: keep every K-th tool cloud of each episode (1 = all; default 10)")
     p.add_argument("--max-episodes", type=int, default=None, metavar="N",
@@ -38,24 +43,38 @@ def run(args: argparse.Namespace) -> int:
 
     if args.cloud_every < 1:
         raise ConfigError(f"--cloud-every must be at least 1, not {args.cloud_every}")
+    from hingelab.viewers.web_server import bind_warning
+
     if args.save is not None and args.web:
         raise ConfigError("give either --save FILE.rrd or --web, not both")
+    if args.web:
+        warning = bind_warning(args.bind, args.port, args.web_viewer_port)
+        if warning:
+            print(warning, file=sys.stderr)
     result, rec = view(args.path, save=args.save, web=args.web, cloud_every=args.cloud_every,
-                       max_episodes=args.max_episodes)
+                       max_episodes=args.max_episodes, bind=args.bind, port=args.port,
+                       web_port=args.web_viewer_port)
     what = (f"{result.episodes} episode{'s' if result.episodes != 1 else ''} "
             f"({result.steps} steps) of {result.kind} {result.name!r}")
     if result.saved_to is not None:
         print(f"Logged {what} in {result.seconds:.2f} s and saved the recording to {result.saved_to}; "
               f"open it with `rerun {result.saved_to}` (the layout is inside; viewers/ keeps it as .rbl).")
-    elif result.url is not None:
-        address = "http://localhost:9090/?url=" + urllib.parse.quote(result.url, safe=":/")
-        print(f"Logged {what} in {result.seconds:.2f} s; Rerun's web viewer is serving it at {address} "
-              "(Ctrl-C stops).")
+    elif result.server is not None:
+        print(f"Logged {what} in {result.seconds:.2f} s; Rerun's web viewer is serving it at {result.url} "
+              "(Ctrl-C stops).", flush=True)
+        import signal
+
+        def stop_on_signal(signum, frame):
+            raise KeyboardInterrupt  # a kill or a closed terminal stops the server too, not only Ctrl-C
+
+        signal.signal(signal.SIGTERM, stop_on_signal)
+        signal.signal(signal.SIGHUP, stop_on_signal)
         try:
-            while True:
-                time.sleep(1.0)
+            result.server.wait()
         except KeyboardInterrupt:
-            rec.disconnect()
+            pass
+        finally:
+            result.server.stop()
     else:
         print(f"Logged {what} in {result.seconds:.2f} s to a spawned Rerun viewer.")
     return 0

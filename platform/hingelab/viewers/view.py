@@ -4,8 +4,9 @@ Where the recording goes:
 
 - ``save=FILE.rrd``: written to that file (with the blueprint inside, so ``rerun FILE.rrd``
   opens the layout); also the default on a machine without a display, as ``./<name>.rrd``;
-- ``web=True``: served to Rerun's web viewer (gRPC + a local web server; the CLI keeps
-  serving until Ctrl-C);
+- ``web=True``: saved to a private temporary .rrd and served to Rerun's web viewer by the
+  bundled ``rerun`` executable, on 127.0.0.1 unless ``bind`` says otherwise (``web_server``;
+  the CLI keeps serving until Ctrl-C);
 - otherwise (a display is present): a native viewer is spawned.
 """
 
@@ -26,6 +27,7 @@ from hingelab.viewers import entities as E
 from hingelab.viewers.blueprints import dataset_blueprint, episode_blueprint
 from hingelab.viewers.dataset_log import DatasetLogStats, log_dataset
 from hingelab.viewers.episode_log import log_episode
+from hingelab.viewers.web_server import GRPC_PORT, LOOPBACK, WEB_PORT, WebServer, serve_rrd, serving_workdir
 
 
 class ViewError(HingelabError):
@@ -44,6 +46,7 @@ class ViewResult:
     steps: int
     seconds: float
     stats: DatasetLogStats | None = field(default=None)
+    server: WebServer | None = field(default=None)  # web: the running server (``stop()`` ends it)
 
 
 def has_display() -> bool:
@@ -69,26 +72,24 @@ def _target(path: Path) -> tuple[str, Dataset | Path]:
     return "dataset", dataset
 
 
-def _open_recording(name: str, blueprint, save: Path | None, web: bool) -> tuple[rr.RecordingStream, str | None]:
+def _open_recording(name: str, blueprint, save: Path | None) -> rr.RecordingStream:
     rec = rr.RecordingStream(E.APPLICATION_ID, recording_id=E.RECORDING_ID_PREFIX + name)
-    url = None
     if save is not None:
         save.parent.mkdir(parents=True, exist_ok=True)
         rec.save(save, default_blueprint=blueprint)
-    elif web:
-        url = rec.serve_grpc(default_blueprint=blueprint)
-        rr.serve_web_viewer(connect_to=url, open_browser=False)
     else:
         rec.spawn(default_blueprint=blueprint)
-    return rec, url
+    return rec
 
 
 def view(path, save=None, web: bool = False, cloud_every: int = 10, max_episodes: int | None = None,
-         progress: bool = True) -> tuple[ViewResult, rr.RecordingStream]:
+         progress: bool = True, bind: str = LOOPBACK, port: int = GRPC_PORT,
+         web_port: int = WEB_PORT) -> tuple[ViewResult, rr.RecordingStream]:
     """Log ``path`` (episode file or dataset folder) to Rerun; see the module docstring.
 
-    Returns the result and the recording stream (still open when serving ``web``; the
-    caller keeps the process alive, then calls ``rec.disconnect()``).
+    Returns the result and the (finished) recording stream. With ``web`` the result's
+    ``server`` is serving it on ``bind``:``port`` (gRPC) and ``bind``:``web_port`` (the web
+    viewer, ``result.url``) until the caller calls ``result.server.stop()``.
     """
     started = time.perf_counter()
     path = Path(path)
@@ -99,18 +100,26 @@ def view(path, save=None, web: bool = False, cloud_every: int = 10, max_episodes
     save = Path(save) if save is not None else None
     if save is not None and save.suffix != ".rrd":
         raise ViewError(f"--save {save}: a Rerun recording file must end in .rrd")
+    if web and save is not None:
+        raise ViewError("give either save (an .rrd file) or web, not both")
+    workdir = serving_workdir() if web else None
+    if workdir is not None:
+        save = Path(workdir.name) / f"{name}.rrd"
     if kind == "episode":
         episode = read_episode(target)  # before opening the sink: a bad file leaves no .rrd behind
-        rec, url = _open_recording(name, episode_blueprint(), save, web)
+        rec = _open_recording(name, episode_blueprint(), save)
         log_episode(rec, episode)
-        result = ViewResult(kind, name, save, url, 1, episode.length, 0.0)
+        result = ViewResult(kind, name, save, None, 1, episode.length, 0.0)
     else:
-        rec, url = _open_recording(name, dataset_blueprint(), save, web)
+        rec = _open_recording(name, dataset_blueprint(), save)
         stats = log_dataset(rec, target, cloud_every=cloud_every, max_episodes=max_episodes, progress=progress)
-        result = ViewResult(kind, name, save, url, stats.episodes, stats.steps, 0.0, stats)
-    if not web:
-        rec.flush()
-        rec.disconnect()  # writes the .rrd footer
+        result = ViewResult(kind, name, save, None, stats.episodes, stats.steps, 0.0, stats)
+    rec.flush()
+    rec.disconnect()  # writes the .rrd footer
+    if workdir is not None:
+        result.saved_to = None  # a private temporary file, removed when the server stops
+        result.server = serve_rrd(save, address=bind, grpc_port=port, web_port=web_port, workdir=workdir)
+        result.url = result.server.url
     result.seconds = time.perf_counter() - started
     return result, rec
 
