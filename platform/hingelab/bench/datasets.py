@@ -74,11 +74,11 @@ def write_hingelab(root: Path, episodes, compression: str = "zstd", **options) -
     return paths
 
 
-def read_hingelab(paths, with_clouds: bool = True, generic: bool = False) -> list[dict]:
+def read_hingelab(paths, with_clouds: bool = True, generic: bool = False, validate: bool = True) -> list[dict]:
     topics = [S.TOPIC_STEP, S.TOPIC_POINTS] if with_clouds else [S.TOPIC_STEP]
     out = []
     for path in paths:
-        ep = read_episode(path, topics=topics, generic=generic)
+        ep = read_episode(path, topics=topics, generic=generic, validate=validate)
         step = ep.topics[S.TOPIC_STEP]
         arrays = {"state": step["observation"], "action": step["action"], "reward": step["reward"]}
         if with_clouds:
@@ -195,6 +195,10 @@ def read_parquet(paths, with_clouds: bool = True) -> list[dict]:
 
 
 # --- measuring --------------------------------------------------------------------------------
+def row_ratio(a: dict, b: dict, column: str) -> float:
+    return a[column] / b[column]
+
+
 def _best_time(fn, repeats: int) -> tuple[float, object]:
     best, result = float("inf"), None
     for _ in range(repeats):
@@ -221,6 +225,8 @@ def run(quick: bool = False) -> BenchTable:
         "h5py, group per episode": (write_h5py, read_h5py),
         "parquet, file per episode": (write_parquet, read_parquet),
         # the storage options, same reader (not the default, not baselines)
+        "(hingelab MCAP, trusted read: no CRC or digest checks)":
+            (write_hingelab, lambda paths, with_clouds=True: read_hingelab(paths, with_clouds, validate=False)),
         "(hingelab MCAP, default files read with 1 thread)": (write_hingelab, read_hingelab_one_thread),
         "(hingelab MCAP, clouds uncompressed, rest zstd)":
             (lambda r, e: write_hingelab(r, e, cloud_compression="none"), read_hingelab),
@@ -269,6 +275,9 @@ def run(quick: bool = False) -> BenchTable:
             ratios[f"{column}: {label} / best baseline ({best['format']})"] = row[column] / best[column]
         ratios[f"bytes/step: {label} / smallest baseline ({smallest['format']})"] = (
             row["bytes/step"] / smallest["bytes/step"])
+    trusted = next(r for r in variants if r["format"].startswith("(hingelab MCAP, trusted read"))
+    for column in ("read steps/s (clouds + transitions)", "read steps/s (transitions)"):
+        ratios[f"{column}: ours (validating) / trusted read (validate=False)"] = row_ratio(ours, trusted, column)
     rows = [ours, *baselines, hingelab_generic, *variants]
     return BenchTable(
         name="datasets",
@@ -285,8 +294,11 @@ def run(quick: bool = False) -> BenchTable:
             "message plus cloud-only chunks sliced without decoding (see datasets/README.md)",
             "h5py: uncompressed contiguous datasets, one group per episode in one file; "
             "parquet: pyarrow defaults (snappy) with dictionary encoding off",
+            "every hingelab read validates (the summary's and every chunk's CRC, the metadata records' "
+            "digests, the clouds' positions from the chunks' own records) unless read_episode(validate=False): "
+            "the trusted-read row is that opt-out on the default files",
             "the rows in parentheses are not baselines: hingelab's generic path (one protobuf decode per "
-            "message), the default files read with one thread, and the writer's other storage options "
+            "message), the trusted read, the default files read with one thread, and the writer's other storage options "
             "(EpisodeWriter(cloud_compression=..., compression=...), chosen per chunk); zstd on the "
             "cloud chunks is what keeps files at or under the baselines' size (noisy float32 clouds "
             "shrink ~10%, and the per-step messages plus the columns cost ~400 B/step that the "

@@ -44,6 +44,7 @@ OP_METADATA_INDEX = 0x0D
 _FOOTER_SIZE = 1 + 8 + 8 + 8 + 4
 _U64 = struct.Struct("<Q")
 _MESSAGE_HEAD = struct.Struct("<HIQQ")  # channel_id, sequence, log_time, publish_time
+MESSAGE_HEAD_SIZE = _MESSAGE_HEAD.size
 _CHUNK_HEAD = struct.Struct("<QQQII")  # start, end, uncompressed size, crc, compression length
 
 
@@ -78,6 +79,8 @@ class SchemaInfo:
 
 @dataclass
 class RawSummary:
+    file_size: int = 0
+    data_end: int = 0  # where the summary section starts: every chunk and index lies before it
     schemas: dict = field(default_factory=dict)  # id -> SchemaInfo
     channels: dict = field(default_factory=dict)  # id -> ChannelInfo
     chunks: list = field(default_factory=list)  # ChunkInfo in file order
@@ -118,11 +121,12 @@ class _Cursor:
         return out
 
 
-def read_summary(stream) -> RawSummary:
+def read_summary(stream, validate_crc: bool = True) -> RawSummary:
     """Schemas, channels, chunk indexes and metadata offsets of a finished MCAP file.
 
-    Raises ``ValueError`` if the file does not start with the MCAP magic and
-    ``CutOffError`` if it does not end with a footer and the magic (cut off).
+    Raises ``ValueError`` if the file does not start with the MCAP magic, if (``validate_crc``)
+    the summary section fails the footer's CRC, or if an index points outside the data
+    section; ``CutOffError`` if it does not end with a footer and the magic (cut off).
     """
     stream.seek(0)
     if stream.read(8) != MAGIC:
@@ -134,12 +138,18 @@ def read_summary(stream) -> RawSummary:
     tail = stream.read(_FOOTER_SIZE + 8)
     if tail[-8:] != MAGIC or tail[0] != OP_FOOTER:
         raise CutOffError("does not end with an MCAP footer")
-    (summary_start,) = _U64.unpack_from(tail, 9)
+    summary_start, summary_offset_start, summary_crc = struct.unpack_from("<QQI", tail, 9)
     if summary_start == 0:
         raise CutOffError("has no summary section")
+    if not 8 <= summary_start <= size - _FOOTER_SIZE - 8:
+        raise ValueError(f"its footer points the summary at offset {summary_start}, outside the file")
     stream.seek(summary_start)
     data = stream.read(size - _FOOTER_SIZE - 8 - summary_start)
-    summary = RawSummary()
+    if validate_crc and summary_crc:
+        footer_head = struct.pack("<BQQQ", OP_FOOTER, 8 + 8 + 4, summary_start, summary_offset_start)
+        if zlib.crc32(footer_head, zlib.crc32(data)) != summary_crc:
+            raise ValueError("its summary section fails the footer's CRC check")
+    summary = RawSummary(file_size=size, data_end=summary_start)
     pos = 0
     while pos < len(data):
         opcode = data[pos]
@@ -165,6 +175,14 @@ def read_summary(stream) -> RawSummary:
             summary.metadata_offsets.setdefault(body.string(), []).append((offset, length_))
         pos += 9 + length
     summary.chunks.sort(key=lambda c: c.chunk_start_offset)
+    for chunk in summary.chunks:  # a hostile length must not make a reader allocate gigabytes
+        if chunk.chunk_start_offset + chunk.chunk_length + chunk.message_index_length > summary.data_end:
+            raise ValueError(f"a chunk index points at {chunk.chunk_start_offset} + {chunk.chunk_length} bytes, "
+                             f"past the data section's end at {summary.data_end}")
+    for places in summary.metadata_offsets.values():
+        for offset, length in places:
+            if offset + length > summary.data_end:
+                raise ValueError(f"a metadata index points at {offset} + {length} bytes, past the data section")
     return summary
 
 
@@ -281,7 +299,7 @@ class _BufferPool:
 
 
 _BUFFERS = _BufferPool()
-_MESSAGE_INDEX_ENTRY = np.dtype([("log_time", "<u8"), ("offset", "<u8")])
+MESSAGE_INDEX_ENTRY = np.dtype([("log_time", "<u8"), ("offset", "<u8")])
 
 
 def _read_chunk(stream, chunk_index, index_of: int | None = None) -> tuple:
@@ -301,7 +319,7 @@ def _read_chunk(stream, chunk_index, index_of: int | None = None) -> tuple:
             if raw[pos] != OP_MESSAGE_INDEX:
                 raise ValueError(f"no message index at offset {index_offset}")
             (records_len,) = struct.unpack_from("<I", raw, pos + 9 + 2)
-            index = np.frombuffer(raw, _MESSAGE_INDEX_ENTRY, records_len // 16, pos + 9 + 2 + 4).copy()
+            index = np.frombuffer(raw, MESSAGE_INDEX_ENTRY, records_len // 16, pos + 9 + 2 + 4).copy()
         pos = 9
         _, _, uncompressed_size, crc, comp_len = _CHUNK_HEAD.unpack_from(raw, pos)
         pos += _CHUNK_HEAD.size
@@ -309,11 +327,34 @@ def _read_chunk(stream, chunk_index, index_of: int | None = None) -> tuple:
         pos += comp_len
         (records_len,) = _U64.unpack_from(raw, pos)
         pos += 8
+        _check_sizes(raw[pos:pos + records_len], records_len, compression, uncompressed_size,
+                     chunk_index.chunk_start_offset)
     except Exception:
         _BUFFERS.give(buffer)
         raise
     records = raw[pos:pos + records_len]
     return (records, compression, uncompressed_size, crc, chunk_index.chunk_start_offset), index, buffer
+
+
+MAX_CHUNK_BYTES = 256 << 20  # episode chunks hold a few MB; a larger claim is a corrupt length field
+
+
+def _check_sizes(records, records_len: int, compression: str, uncompressed_size: int, offset: int) -> None:
+    """The chunk's lengths agree with each other and with its data, before anything is allocated."""
+    if len(records) != records_len:
+        raise ValueError(f"chunk at offset {offset} claims {records_len} bytes of records, holds {len(records)}")
+    if uncompressed_size > MAX_CHUNK_BYTES:
+        raise ValueError(f"chunk at offset {offset} claims {uncompressed_size} uncompressed bytes")
+    if compression == "" and uncompressed_size != records_len:
+        raise ValueError(f"uncompressed chunk at offset {offset} claims {uncompressed_size} bytes, holds {records_len}")
+    if compression == "zstd":
+        try:
+            declared = zstandard.frame_content_size(records)
+        except zstandard.ZstdError as exc:
+            raise ValueError(f"chunk at offset {offset} is not a zstd frame ({exc})") from exc
+        if declared >= 0 and declared != uncompressed_size:
+            raise ValueError(f"chunk at offset {offset} claims {uncompressed_size} uncompressed bytes, "
+                             f"its zstd frame {declared}")
 
 
 def _decompress(records, compression: str, uncompressed_size: int, crc: int, offset: int,
@@ -332,7 +373,13 @@ def _decompress(records, compression: str, uncompressed_size: int, crc: int, off
     elif compression == "zstd":
         data = _zstd_decompressor().decompress(records, max_output_size=uncompressed_size)
     elif compression == "lz4":
+        info = lz4.frame.get_frame_info(records)
+        if info.get("content_size") not in (0, None, uncompressed_size):
+            raise ValueError(f"chunk at offset {offset} claims {uncompressed_size} uncompressed bytes, "
+                             f"its lz4 frame {info['content_size']}")
         data = lz4.frame.decompress(records)
+        if len(data) != uncompressed_size:
+            raise ValueError(f"chunk at offset {offset} decompresses to {len(data)} bytes, not {uncompressed_size}")
     elif compression == "":
         data = records  # a view of the bytes read: no copy
     else:

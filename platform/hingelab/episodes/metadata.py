@@ -43,6 +43,24 @@ def format_metadata(values: Mapping) -> dict[str, str]:
     return {str(k): format_value(v) for k, v in values.items() if v is not None}
 
 
+def metadata_digest(record: Mapping[str, str]) -> int:
+    """CRC32 of a metadata record's keys and values (as stored), independent of their order."""
+    import json
+    import zlib
+
+    return zlib.crc32(json.dumps(dict(record), sort_keys=True).encode())
+
+
+def digest_columns(records: Mapping[str, Mapping[str, str]]) -> dict:
+    """The ``/episode/columns`` entries protecting ``records`` (name -> stored record) by CRC."""
+    import numpy as np
+
+    from hingelab.episodes.schemas import DIGEST_COLUMNS
+
+    return {f"{DIGEST_COLUMNS}:{name}": np.array([metadata_digest(record)], dtype=np.uint32)
+            for name, record in records.items()}
+
+
 def parse_value(key: str, text: str):
     """Parse one stored value back into int / float / bool / list / str by its key."""
     if key in INT_KEYS:

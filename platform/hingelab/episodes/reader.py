@@ -14,6 +14,14 @@ Both give identical arrays (tested).
 
 Errors a user can act on (not an MCAP file, cut off, foreign schema, written by a
 newer schema version) raise ``DatasetError`` naming the file and the fix.
+
+Reading validates (``validate=True``, the default): the summary section against the footer's
+CRC, every chunk read against its CRC, every length field against the file before anything
+is allocated, the clouds' positions from the chunk's own records (the MessageIndex after a
+chunk is not under its CRC), and the metadata records against the CRC32s the writer stored in
+the columns (``schemas.DIGEST_COLUMNS``; files written before it have none). Any failure to
+read becomes one ``DatasetError`` naming the file and ``hingelab datasets verify`` /
+``recover``; ``validate=False`` skips the CRCs and the digests for trusted speed runs.
 """
 
 from __future__ import annotations
@@ -30,7 +38,7 @@ from mcap.reader import make_reader
 from hingelab.episodes import codec, mcap_raw
 from hingelab.episodes import schemas as S
 from hingelab.episodes.errors import DatasetError
-from hingelab.episodes.metadata import parse_metadata
+from hingelab.episodes.metadata import metadata_digest, parse_metadata
 
 # Schema versions this reader understands. A newer reader keeps the older ones here and
 # maps old topics/fields onto new names when a version renames them. Version 2 added metadata keys only
@@ -75,14 +83,16 @@ class Episode:
 class EpisodeFile:
     """An open episode file with its MCAP summary; the source of every read."""
 
-    def __init__(self, path):
+    def __init__(self, path, validate: bool = True):
         self.path = Path(path)
+        self.validate = validate
         if not self.path.is_file():
             raise DatasetError(f"{self.path}: no such episode file; check the path")
         self._stream = open(self.path, "rb")
         self._reader = None
+        self._raw_metadata = None
         try:
-            self.summary = mcap_raw.read_summary(self._stream)
+            self.summary = mcap_raw.read_summary(self._stream, validate_crc=validate)
         except mcap_raw.CutOffError as exc:
             self.close()
             raise DatasetError(
@@ -91,6 +101,8 @@ class EpisodeFile:
             ) from exc
         except (ValueError, struct.error, UnicodeDecodeError) as exc:
             self.close()
+            if "CRC" in str(exc):
+                raise corrupt_error(self.path, exc) from exc
             raise DatasetError(f"{self.path} is not a valid MCAP file ({exc}); "
                                "move it out of episodes/ or replace it") from exc
         self.channels = {c.topic: c for c in self.summary.channels.values()}
@@ -119,12 +131,14 @@ class EpisodeFile:
                 )
 
     def raw_metadata(self) -> dict[str, dict[str, str]]:
-        """{record name: {key: value}} of all metadata records (the last of each name)."""
-        out = {}
-        for name, places in self.summary.metadata_offsets.items():
-            for offset, length in places:
-                out[name] = mcap_raw.read_metadata_record(self._stream, offset, length)[1]
-        return out
+        """{record name: {key: value}} of all metadata records (the last of each name); read once."""
+        if self._raw_metadata is None:
+            out = {}
+            for name, places in self.summary.metadata_offsets.items():
+                for offset, length in places:
+                    out[name] = mcap_raw.read_metadata_record(self._stream, offset, length)[1]
+            self._raw_metadata = out
+        return {name: dict(record) for name, record in self._raw_metadata.items()}
 
     def metadata(self) -> dict:
         records = self.raw_metadata()
@@ -158,7 +172,7 @@ class EpisodeFile:
         chunk_indexes, _ = self.chunks_of(S.TOPIC_COLUMNS)
         channel_id = self.channels[S.TOPIC_COLUMNS].id
         for chunk_index in chunk_indexes:
-            records = mcap_raw.read_chunk_records(self._stream, chunk_index)
+            records = mcap_raw.read_chunk_records(self._stream, chunk_index, validate_crc=self.validate)
             for _, start, end in mcap_raw.message_spans(records, channel_id):
                 message = S.EpisodeColumns.FromString(bytes(records[start:end]))
                 return {c.name: np.frombuffer(c.data, dtype=c.dtype).reshape(tuple(c.shape))
@@ -184,15 +198,22 @@ class EpisodeFile:
         n_bytes = 12 * n_points
         prefix = codec.cloud_data_prefix(n_points)
         channel_id = self.channels[S.TOPIC_POINTS].id
-        with mcap_raw.ChunkBatch(self._stream, chunk_indexes, index_of=channel_id) as batch:
-            if any(index is None for index in batch.indexes):  # no message indexes: walk the records
-                return self._walk_clouds(batch, channel_id, n_points)
-            times = (np.concatenate([index["log_time"] for index in batch.indexes]).astype(np.int64)
-                     if batch.indexes else np.zeros(0, dtype=np.int64))
+        # validating: the positions come from the records (under the chunk's CRC), not the MessageIndex
+        index_of = None if self.validate else channel_id
+        with mcap_raw.ChunkBatch(self._stream, chunk_indexes, validate_crc=self.validate, index_of=index_of) as batch:
+            chunks = iter(batch)
+            indexes = batch.indexes
+            if self.validate:
+                chunks = list(chunks)  # the records stay valid until the batch closes
+                indexes = [_record_index(records, channel_id) for records in chunks]
+            if any(index is None for index in indexes):  # no message indexes: walk the records
+                return self._walk_clouds(chunks, channel_id, n_points)
+            times = (np.concatenate([index["log_time"] for index in indexes]).astype(np.int64)
+                     if indexes else np.zeros(0, dtype=np.int64))
             points = np.empty((len(times), n_points, 3), dtype="<f4")
             rows = points.reshape(len(times), -1).view(np.uint8)  # (T, 12 N) bytes
             row = 0
-            for records, index in zip(batch, batch.indexes):
+            for records, index in zip(chunks, indexes):
                 starts = index["offset"].astype(np.int64)
                 ends = mcap_raw.record_ends(records, starts)
                 data_starts = ends - n_bytes
@@ -215,9 +236,9 @@ class EpisodeFile:
             message = S.PointCloud.FromString(bytes(view[start:end]))
             out[i] = codec.decode_point_cloud(message).reshape(n_points, 3)
 
-    def _walk_clouds(self, batch, channel_id: int, n_points: int) -> tuple[np.ndarray, np.ndarray]:
+    def _walk_clouds(self, chunks, channel_id: int, n_points: int) -> tuple[np.ndarray, np.ndarray]:
         times, clouds = [], []
-        for records in batch:
+        for records in chunks:
             for log_time, start, end in mcap_raw.message_spans(records, channel_id):
                 message = S.PointCloud.FromString(bytes(records[start:end]))
                 clouds.append(codec.decode_point_cloud(message).astype("<f4").reshape(n_points, 3))
@@ -231,7 +252,7 @@ class EpisodeFile:
         """(topic, log_time_ns, decoded protobuf message) in log-time order (mcap's reader)."""
         if self._reader is None:
             self._stream.seek(0)
-            self._reader = make_reader(self._stream)
+            self._reader = make_reader(self._stream, validate_crcs=self.validate)
         for _, channel, message in self._reader.iter_messages(topics=topics):
             cls = S.TOPIC_TYPES[channel.topic]
             yield channel.topic, message.log_time, cls.FromString(message.data)
@@ -242,6 +263,27 @@ class EpisodeFile:
 
     def _dtypes(self) -> dict[str, dict]:
         return {t: self.channel_info(t, S.CHANNEL_DTYPES_KEY) for t in self.channels}
+
+    def check_digests(self, columns: dict[str, np.ndarray]) -> None:
+        """Compare the metadata records with the CRC32s stored in the columns (if the writer stored any)."""
+        records = self.raw_metadata()
+        prefix = S.DIGEST_COLUMNS + ":"
+        for name, stored in columns.items():
+            if not name.startswith(prefix):
+                continue
+            record = records.get(name[len(prefix):])
+            if record is None or metadata_digest(record) != int(np.asarray(stored).reshape(-1)[0]):
+                raise ValueError(f"its {name[len(prefix):]!r} metadata record fails its CRC check")
+
+
+def _record_index(records, channel_id: int) -> np.ndarray:
+    """(log_time, offset) of the channel's message records, walked from the chunk's own records."""
+    spans = mcap_raw.message_spans(records, channel_id)
+    index = np.empty(len(spans), dtype=mcap_raw.MESSAGE_INDEX_ENTRY)
+    if spans:
+        index["log_time"] = [t for t, _, _ in spans]
+        index["offset"] = [start - 9 - mcap_raw.MESSAGE_HEAD_SIZE for _, start, _ in spans]
+    return index
 
 
 def stack_messages(messages: Iterable[tuple[str, int, object]],
@@ -279,6 +321,8 @@ def columns_to_topics(columns: dict[str, np.ndarray]) -> tuple[dict, dict]:
     final: dict[str, np.ndarray] = {}
     for name, array in columns.items():
         topic, _, field_name = name.rpartition(":")
+        if topic == S.DIGEST_COLUMNS:  # the metadata records' CRCs, not data
+            continue
         if topic == S.TOPIC_STEP and field_name.startswith("final."):
             final[field_name[len("final."):]] = array[0]
         else:
@@ -286,16 +330,40 @@ def columns_to_topics(columns: dict[str, np.ndarray]) -> tuple[dict, dict]:
     return topics, final
 
 
-def read_episode(path, topics: Iterable[str] | None = None, generic: bool = False) -> Episode:
+def read_episode(path, topics: Iterable[str] | None = None, generic: bool = False,
+                 validate: bool = True) -> Episode:
     """Read an episode file into arrays (all topics, or only ``topics``).
 
     ``generic=True`` skips the fast path and decodes every message (used to test
-    that both give the same arrays, and for files from other writers).
+    that both give the same arrays, and for files from other writers). ``validate``: see the
+    module docstring; any failure to read raises ``DatasetError``.
     """
+    try:
+        return _read_episode(path, topics, generic, validate)
+    except DatasetError:
+        raise
+    except Exception as exc:  # noqa: BLE001 - whatever a corrupt file makes a decoder raise
+        raise corrupt_error(path, exc) from exc
+
+
+def corrupt_error(path, exc: BaseException) -> DatasetError:
+    """The one-line error of an episode file that cannot be read."""
+    path = Path(path)
+    dataset = path.parent.parent if path.parent.name == "episodes" else path.parent
+    return DatasetError(f"{path} is corrupt ({type(exc).__name__}: {exc}); list the bad files with "
+                        f"`hingelab datasets verify {dataset}`, salvage this one with "
+                        f"`hingelab datasets recover {path} --out NEWFILE`, or move it out of episodes/")
+
+
+def _read_episode(path, topics, generic: bool, validate: bool) -> Episode:
     wanted = None if topics is None else set(topics)
-    with EpisodeFile(path) as episode_file:
+    with EpisodeFile(path, validate=validate) as episode_file:
         metadata = episode_file.metadata()
-        columns = None if generic else episode_file.columns()
+        columns = episode_file.columns() if (validate or not generic) else None
+        if columns is not None and validate:
+            episode_file.check_digests(columns)
+        if generic:
+            columns = None
         if columns is None:
             arrays, final = stack_messages(
                 episode_file.iter_messages([t for t in episode_file.channels
@@ -316,7 +384,7 @@ def read_episode(path, topics: Iterable[str] | None = None, generic: bool = Fals
     return Episode(path=Path(path), metadata=metadata, topics=arrays, final=final)
 
 
-__all__ = ["Episode", "EpisodeFile", "read_episode", "stack_messages", "columns_to_topics",
+__all__ = ["Episode", "EpisodeFile", "corrupt_error", "read_episode", "stack_messages", "columns_to_topics",
            "SUPPORTED_SCHEMA_VERSIONS"]
 
 

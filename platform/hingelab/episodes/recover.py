@@ -28,7 +28,7 @@ from mcap.data_stream import ReadDataStream
 from hingelab.episodes import codec
 from hingelab.episodes import schemas as S
 from hingelab.episodes.errors import DatasetError
-from hingelab.episodes.metadata import format_metadata, parse_metadata
+from hingelab.episodes.metadata import digest_columns, format_metadata, parse_metadata
 from hingelab.episodes.reader import stack_messages
 from hingelab.episodes.writer import column_name
 
@@ -168,7 +168,8 @@ def recover_episode(path, out_path) -> dict:
     with open(temp, "wb") as stream:
         writer = Writer(stream, chunk_size=1 << 40, compression=CompressionType.ZSTD)
         writer.start(profile="", library="hingelab recover")
-        writer.add_metadata(S.METADATA_EPISODE_START, found.metadata.get(S.METADATA_EPISODE_START, {}))
+        start_record = found.metadata.get(S.METADATA_EPISODE_START, {})
+        writer.add_metadata(S.METADATA_EPISODE_START, start_record)
         schema_ids = {sid: writer.register_schema(s.name, s.encoding, s.data) for sid, s in found.schemas.items()}
         channel_ids = {}
         for cid, channel in found.channels.items():
@@ -186,8 +187,10 @@ def recover_episode(path, out_path) -> dict:
                                                       register_schema(writer, S.EpisodeColumns))
         else:
             columns_channel = next(channel_ids[c.id] for c in found.channels.values() if c.topic == S.TOPIC_COLUMNS)
+        record = format_metadata(facts)
+        columns = {**columns, **digest_columns({S.METADATA_EPISODE_START: start_record, S.METADATA_EPISODE: record})}
         writer.add_message(columns_channel, last_ns, codec.encode_columns(last_ns, steps, columns), last_ns)
-        writer.add_metadata(S.METADATA_EPISODE, format_metadata(facts))
+        writer.add_metadata(S.METADATA_EPISODE, record)
         writer.finish()
         stream.flush()
         os.fsync(stream.fileno())

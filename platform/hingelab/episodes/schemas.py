@@ -48,6 +48,9 @@ TOPIC_TARGET = "/target/position"  # foxglove.Point3InFrame, metres, hand_base
 TOPIC_PRIVILEGED = "/sim/privileged"  # hingelab.PrivilegedState: simulator ground truth
 TOPIC_STEP = "/step"  # hingelab.Step: the compact learner record
 TOPIC_COLUMNS = "/episode/columns"  # hingelab.EpisodeColumns: one message per episode
+# Columns of /episode/columns under this name hold the CRC32 of each metadata record (MCAP metadata
+# records carry no CRC; the columns' chunk does): "<this>:<record name>", uint32 (metadata_digest).
+DIGEST_COLUMNS = "/episode/metadata_crc32"
 
 # Per-step topics in the order the writer logs them within a step.
 STEP_TOPICS = (

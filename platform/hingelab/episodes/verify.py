@@ -2,7 +2,8 @@
 
 A file passes when: it opens as MCAP with a summary (not cut off), every channel
 uses the contract's protobuf schema for its topic, it has an ``episode`` record
-with the required keys, every chunk passes its CRC, every message decodes, and
+with the required keys, every chunk passes its CRC, the metadata records match the CRC32s
+stored beside the columns (``reader``), every message decodes, and
 the ``/step`` messages match ``length`` (one per step, the reset's record aside). ``.partial``
 files are unfinished writes (a writer still running, or killed): they are reported, and
 ``recover`` salvages them.
@@ -19,7 +20,7 @@ from tqdm import tqdm
 from hingelab.episodes import schemas as S
 from hingelab.episodes.card import EPISODES_DIR, load_card
 from hingelab.episodes.errors import DatasetError
-from hingelab.episodes.reader import EpisodeFile
+from hingelab.episodes.reader import EpisodeFile, read_episode
 from hingelab.episodes.writer import PARTIAL_SUFFIX
 
 
@@ -34,8 +35,16 @@ class Problem:
 
 
 def verify_episode(path: Path) -> Problem | None:
-    """None if the episode file is sound, else the first problem found."""
+    """None if the episode file is sound, else the first problem found. Never raises."""
     path = Path(path)
+    try:
+        return _verify_episode(path)
+    except Exception as exc:  # noqa: BLE001 - verify reports, it does not crash
+        return Problem(path, "corrupt", f"{type(exc).__name__}: {exc}; restore it, or salvage with "
+                                        f"hingelab datasets recover {path} --out NEWFILE")
+
+
+def _verify_episode(path: Path) -> Problem | None:
     try:
         with EpisodeFile(path) as episode_file:
             meta = episode_file.metadata()
@@ -44,13 +53,17 @@ def verify_episode(path: Path) -> Problem | None:
             if missing:
                 return Problem(path, "metadata", f"episode record lacks {', '.join(missing)}; "
                                                   "rewrite it with EpisodeWriter")
+        read_episode(path)  # validating: the chunks' CRCs, the metadata records' digests, the layout
     except DatasetError as exc:
         text = str(exc)
         kind = "cut-off" if "cut off" in text else "foreign" if "foreign schema" in text else (
-            "not-mcap" if "not a valid MCAP" in text else "metadata")
+            "not-mcap" if "not a valid MCAP" in text else "corrupt" if "is corrupt" in text else "metadata")
         if text.startswith(str(path)):
             text = text[len(str(path)):].lstrip(": ")
         return Problem(path, kind, text)
+    except Exception as exc:  # noqa: BLE001 - e.g. an undecodable metadata record
+        return Problem(path, "corrupt", f"{type(exc).__name__}: {exc}; restore it, or salvage with "
+                                        f"hingelab datasets recover {path} --out NEWFILE")
     indices = []  # of the /step messages without final
     try:
         with open(path, "rb") as stream:

@@ -53,7 +53,7 @@ from mcap_protobuf.schema import register_schema
 from hingelab.episodes import codec, mcap_raw
 from hingelab.episodes import schemas as S
 from hingelab.episodes.card import CARD_FILE, EPISODES_DIR, load_card
-from hingelab.episodes.metadata import format_metadata
+from hingelab.episodes.metadata import digest_columns, format_metadata
 from hingelab.provenance import code_version
 
 PARTIAL_SUFFIX = ".partial"
@@ -168,7 +168,8 @@ class EpisodeWriter:
         self._mcap = mcap_raw.ChunkWriter(self._file)
         self._mcap.start(profile="", library=f"hingelab {code_version()['hingelab_version']}")
         # Written at once, so a cut-off file still says what it was (recover uses it).
-        self._mcap.add_metadata(S.METADATA_EPISODE_START, format_metadata(self.facts))
+        self._start_record = format_metadata(self.facts)
+        self._mcap.add_metadata(S.METADATA_EPISODE_START, self._start_record)
         self._file.flush()
 
     def set_outcome(self, success: bool, failure_reason: str | None = None,
@@ -182,14 +183,15 @@ class EpisodeWriter:
         if self.closed:
             return self.path
         self._flush_block()
-        self._write_columns()
         facts = dict(self.facts)
         # length = the steps: an env recording's reset record (no transition) is not one
         steps = self.transitions if self.transitions else self.length
         facts.update({S.KEY_LENGTH: steps, S.KEY_RETURN: self._reward_sum, S.KEY_SUCCESS: False,
                       S.KEY_END_TIME: ((self._last_ns or self.time_offset_ns) / 1e9)})
         facts.update({k: v for k, v in self._outcome.items() if v is not None})
-        self._mcap.add_metadata(S.METADATA_EPISODE, format_metadata(facts))
+        records = {S.METADATA_EPISODE_START: self._start_record, S.METADATA_EPISODE: format_metadata(facts)}
+        self._write_columns(digest_columns(records))  # the records' CRCs, where the chunk's CRC covers them
+        self._mcap.add_metadata(S.METADATA_EPISODE, records[S.METADATA_EPISODE])
         self._mcap.finish()
         self._file.flush()
         os.fsync(self._file.fileno())
@@ -357,8 +359,9 @@ class EpisodeWriter:
         self._pending_bytes = [0, 0]
         self._steps_since_flush = 0
 
-    def _write_columns(self) -> None:
+    def _write_columns(self, extra: dict | None = None) -> None:
         columns = {column_name(topic, name): np.stack(values) for (topic, name), values in self._columns.items()}
+        columns.update(extra or {})
         for topic, times in self._log_times.items():
             if topic != S.TOPIC_TF:  # viewer copy of /tool/pose, not an array topic
                 columns[column_name(topic, "log_time_ns")] = np.asarray(times, dtype=np.int64)
