@@ -6,6 +6,7 @@ import argparse
 import sys
 from pathlib import Path
 
+from hingelab.cli.options import add_on_corrupt
 from hingelab.episodes.errors import DatasetError
 from hingelab.paths import DATASETS_DIR
 
@@ -31,9 +32,14 @@ def add_parser(subparsers) -> None:
     verify.add_argument("dir", type=Path, help="dataset folder")
     verify.set_defaults(func=run_verify)
 
-    recover = verbs.add_parser("recover", help="salvage the complete messages of a cut-off episode file")
-    recover.add_argument("file", type=Path, help="the cut-off file (usually episodes/<id>.mcap.partial)")
-    recover.add_argument("--out", type=Path, required=True, help="the new episode file to write")
+    recover = verbs.add_parser(
+        "recover", help="salvage the complete messages of a cut-off episode file, or of every .partial of a dataset",
+        description="FILE --out NEW: salvage one cut-off or corrupt episode file into NEW. DIR (a dataset folder): "
+                    "salvage every leftover .partial file of DIR/episodes into its final name (marked "
+                    "recovered=true) and remove the .partial; with --discard, remove them instead.")
+    recover.add_argument("file", type=Path, help="the cut-off file (usually episodes/<id>.mcap.partial), or a dataset folder")
+    recover.add_argument("--out", type=Path, default=None, help="the new episode file to write (one file only)")
+    recover.add_argument("--discard", action="store_true", help="a dataset folder: remove its .partial files")
     recover.set_defaults(func=run_recover)
 
     export = verbs.add_parser(
@@ -59,6 +65,7 @@ def add_parser(subparsers) -> None:
     export.add_argument("--dataset-id", default=None, metavar="NAMESPACE/NAME-vN",
                         help="minari only: the dataset id (default hingelab/<card name>-v0); "
                              "must not exist under --out")
+    add_on_corrupt(export)
     export.set_defaults(func=run_export)
 
 
@@ -111,8 +118,20 @@ def run_verify(args: argparse.Namespace) -> int:
 
 
 def run_recover(args: argparse.Namespace) -> int:
-    from hingelab.episodes.recover import recover_episode
+    from hingelab.episodes.recover import recover_episode, recover_folder
+    from hingelab.errors import ConfigError
 
+    if args.file.is_dir():
+        if args.out is not None:
+            raise ConfigError("--out names one recovered file; a dataset folder's .partial files are recovered "
+                              "under their own names (leave --out out)")
+        result = recover_folder(args.file, discard=args.discard)
+        failed = "".join(f"; kept {path.name}: {reason}" for path, reason in result["failed"])
+        print(f"{args.file}: recovered {len(result['recovered'])} and removed {len(result['discarded'])} .partial "
+              f"files{failed}.")
+        return 1 if result["failed"] else 0
+    if args.out is None or args.discard:
+        raise ConfigError("recover FILE needs --out NEWFILE (and --discard is for a dataset folder)")
     result = recover_episode(args.file, args.out)
     state = (f"cut off at byte {result['cut_at']}" if result["cut_off"] else "complete (nothing was lost)")
     print(f"Recovered {result['messages']} messages ({result['steps']} steps) from {args.file}, which was "

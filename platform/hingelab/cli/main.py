@@ -56,7 +56,10 @@ def main(argv: list[str] | None = None) -> int:
         parser.print_help()
         return 2
     try:
-        result = args.func(args)
+        from hingelab.episodes.dataset import corrupt_policy
+
+        with corrupt_policy(getattr(args, "on_corrupt", "stop")):
+            result = args.func(args)
     except HingelabError as exc:
         print(f"hingelab: error: {exc}", file=sys.stderr)
         return 1

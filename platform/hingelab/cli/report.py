@@ -8,6 +8,8 @@ import shlex
 import time
 from pathlib import Path
 
+from hingelab.cli.options import add_on_corrupt
+
 
 def add_parser(subparsers) -> None:
     p = subparsers.add_parser(
@@ -50,6 +52,7 @@ def add_parser(subparsers) -> None:
     p.add_argument("--title", default=None, help="report title (default: the dataset names, or the pools' names)")
     p.add_argument("--attempts", type=int, nargs="+", default=[1, 2, 3], metavar="K",
                    help="k of the within-k-attempts rates (default 1 2 3)")
+    add_on_corrupt(p)
     p.set_defaults(func=run)
 
 

@@ -6,6 +6,8 @@ import argparse
 import sys
 from pathlib import Path
 
+from hingelab.cli.options import add_on_corrupt
+
 
 def add_parser(subparsers) -> None:
     p = subparsers.add_parser(
@@ -34,6 +36,7 @@ def add_parser(subparsers) -> None:
                    help="dataset view: keep every K-th tool cloud of each episode (1 = all; default 10)")
     p.add_argument("--max-episodes", type=int, default=None, metavar="N",
                    help="dataset view: only the first N episodes (default: all)")
+    add_on_corrupt(p)
     p.set_defaults(func=run)
 
 

@@ -5,12 +5,20 @@ the episode files alone whenever the set of ``episodes/*.mcap`` files differs
 from its rows (writers never touch it, so concurrent writers need no lock), and
 it is replaced atomically. ``.partial`` files (being written, or cut off) are
 not episodes and are never indexed; ``hingelab datasets verify`` reports them.
+
+An episode file that cannot be read (corrupt, cut off, foreign) is handled by the dataset's
+``on_corrupt``: ``stop`` (the default) raises one ``DatasetError`` listing every such file
+of the folder; ``skip`` leaves them out of the index and the iteration and says on stderr how
+many it left out. Commands set it for a whole run with ``--on-corrupt`` (``corrupt_policy``).
 """
 
 from __future__ import annotations
 
 import io
+import sys
 from collections.abc import Iterator
+from contextlib import contextmanager
+from contextvars import ContextVar
 from pathlib import Path
 
 import pandas as pd
@@ -19,7 +27,7 @@ from tqdm import tqdm
 from hingelab.episodes import schemas as S
 from hingelab.episodes.card import CARD_FILE, EPISODES_DIR, INDEX_FILE, DatasetCard, atomic_write_bytes, load_card
 from hingelab.episodes.errors import DatasetError
-from hingelab.episodes.reader import Episode, EpisodeFile, read_episode
+from hingelab.episodes.reader import Episode, EpisodeFile, corrupt_error, read_episode
 from hingelab.episodes.writer import PARTIAL_SUFFIX
 
 # Index columns and their dtypes; facts an episode lacks are NA.
@@ -34,10 +42,31 @@ INDEX_COLUMNS = {
 }
 
 
+ON_CORRUPT_CHOICES = ("stop", "skip")
+_ON_CORRUPT: ContextVar[str] = ContextVar("on_corrupt", default="stop")
+
+
+@contextmanager
+def corrupt_policy(on_corrupt: str):
+    """Datasets opened inside take ``on_corrupt`` (``stop`` or ``skip``) unless told otherwise."""
+    if on_corrupt not in ON_CORRUPT_CHOICES:
+        raise DatasetError(f"on_corrupt must be one of {ON_CORRUPT_CHOICES}, not {on_corrupt!r}")
+    token = _ON_CORRUPT.set(on_corrupt)
+    try:
+        yield
+    finally:
+        _ON_CORRUPT.reset(token)
+
+
 def episode_row(path: Path) -> dict:
     """One index row from an episode file's ``episode`` metadata record (no message is read)."""
-    with EpisodeFile(path) as episode_file:
-        meta = episode_file.metadata()
+    try:
+        with EpisodeFile(path) as episode_file:
+            meta = episode_file.metadata()
+    except DatasetError:
+        raise
+    except Exception as exc:  # noqa: BLE001 - an undecodable record is a corrupt file
+        raise corrupt_error(path, exc) from exc
     stat = path.stat()
     row = {name: meta.get(name) for name in INDEX_COLUMNS}
     row.update(file=path.name, bytes=stat.st_size, mtime_ns=stat.st_mtime_ns,
@@ -56,11 +85,15 @@ class Dataset:
     ``Dataset(root)`` checks the card; ``Dataset(root).index`` reads or rebuilds the index.
     """
 
-    def __init__(self, root, _index: pd.DataFrame | None = None):
+    def __init__(self, root, _index: pd.DataFrame | None = None, on_corrupt: str | None = None):
         self.root = Path(root)
         self.card: DatasetCard = load_card(self.root)
         self.episodes_dir = self.root / EPISODES_DIR
         self._index = _index
+        self.on_corrupt = on_corrupt or _ON_CORRUPT.get()
+        if self.on_corrupt not in ON_CORRUPT_CHOICES:
+            raise DatasetError(f"on_corrupt must be one of {ON_CORRUPT_CHOICES}, not {self.on_corrupt!r}")
+        self.skipped: list[Path] = []  # files left out as corrupt (on_corrupt="skip")
 
     def __repr__(self) -> str:
         return f"Dataset({str(self.root)!r}, {len(self)} episodes, source={self.card.source!r})"
@@ -99,13 +132,21 @@ class Dataset:
                     cached = {row["file"]: row for row in old.to_dict("records")}
             except (OSError, ValueError):  # unreadable cache: rebuild from the files
                 cached = {}
-        rows, changed = [], len(cached) != len(files)
+        rows, changed, bad = [], len(cached) != len(files), []
         for path in tqdm(files, desc=f"index {self.root.name}", unit="episode", disable=not progress):
             stat = path.stat()
             row = cached.get(path.name)
             if row is None or row["bytes"] != stat.st_size or row["mtime_ns"] != stat.st_mtime_ns:
-                row, changed = episode_row(path), True
+                try:
+                    row, changed = episode_row(path), True
+                except DatasetError as exc:
+                    bad.append((path, exc))
+                    continue
             rows.append(row)
+        if bad and self.on_corrupt == "stop":  # name every bad file at once: those whose chunks fail too
+            readable = [self.episodes_dir / row["file"] for row in rows]
+            bad += _unreadable(readable, None)
+        self._handle_corrupt(bad, len(files))
         frame = _frame(rows)
         if changed or not index_path.exists():
             buffer = io.BytesIO()
@@ -129,7 +170,7 @@ class Dataset:
                 raise DatasetError(f"cannot filter {self.root} by {column!r}; index columns: "
                                    + ", ".join(frame.columns))
             mask &= (frame[column] == value).fillna(False)
-        return Dataset(self.root, _index=frame[mask].reset_index(drop=True))
+        return Dataset(self.root, _index=frame[mask].reset_index(drop=True), on_corrupt=self.on_corrupt)
 
     def paths(self) -> list[Path]:
         return [self.episodes_dir / name for name in self.index["file"]]
@@ -139,8 +180,46 @@ class Dataset:
         return read_episode(self.paths()[i], topics=topics)
 
     def iter_episodes(self, topics=None, progress: bool = False) -> Iterator[Episode]:
-        for path in tqdm(self.paths(), desc=f"read {self.root.name}", unit="episode", disable=not progress):
-            yield read_episode(path, topics=topics)
+        """Each episode, read and validated; a file that cannot be read is handled by ``on_corrupt``."""
+        paths, bad = self.paths(), []
+        for k, path in enumerate(tqdm(paths, desc=f"read {self.root.name}", unit="episode", disable=not progress)):
+            try:
+                episode = read_episode(path, topics=topics)
+            except DatasetError as exc:
+                if self.on_corrupt == "stop":  # name every bad file at once, not one per attempt
+                    self._handle_corrupt([(path, exc), *_unreadable(paths[k + 1:], topics)], len(paths))
+                bad.append((path, exc))
+                continue
+            yield episode
+        self._handle_corrupt(bad, len(paths))
+
+    def read_checked(self, path: Path, topics=None) -> Episode | None:
+        """``read_episode(path)`` of one of this dataset's files under ``on_corrupt``: None if skipped."""
+        try:
+            return read_episode(path, topics=topics)
+        except DatasetError as exc:
+            paths = self.paths()
+            if self.on_corrupt == "stop":
+                self._handle_corrupt([(path, exc), *_unreadable([p for p in paths if p != path], topics)], len(paths))
+            self._handle_corrupt([(path, exc)], len(paths))
+            return None
+
+    def _handle_corrupt(self, bad: list, total: int) -> None:
+        if not bad:
+            return
+        names = ", ".join(p.name for p, _ in bad[:5]) + (f" and {len(bad) - 5} more" if len(bad) > 5 else "")
+        if self.on_corrupt == "stop":
+            raise DatasetError(
+                f"{self.root}: {len(bad)} of {total} episode files cannot be read ({names}); the first: {bad[0][1]} "
+                f"-- list them with `hingelab datasets verify {self.root}`, then restore, salvage "
+                "(`hingelab datasets recover`) or move them out of episodes/, or pass --on-corrupt skip to leave "
+                "them out")
+        new = [p for p, _ in bad if p not in self.skipped]
+        self.skipped.extend(new)
+        if new:
+            print(f"hingelab: warning: {self.root}: left out {len(new)} of {total} episode files that cannot be "
+                  f"read (--on-corrupt skip): {names}; `hingelab datasets verify {self.root}` says why",
+                  file=sys.stderr)
 
     def __iter__(self) -> Iterator[Episode]:
         return self.iter_episodes()
@@ -157,13 +236,23 @@ class Dataset:
         }
 
 
-def open_dataset(root) -> Dataset:
+def _unreadable(paths: list[Path], topics) -> list:
+    bad = []
+    for path in paths:
+        try:
+            read_episode(path, topics=topics)
+        except DatasetError as exc:
+            bad.append((path, exc))
+    return bad
+
+
+def open_dataset(root, on_corrupt: str | None = None) -> Dataset:
     """Open a dataset folder; a folder without ``dataset.json`` is a DatasetError naming it."""
     root = Path(root)
     if not (root / CARD_FILE).exists() and root.is_dir() and not any(root.iterdir()):
         raise DatasetError(f"{root} is an empty folder, not a dataset; generate one into it first "
                            "(hingelab generate ...) or give the path of an existing dataset")
-    return Dataset(root)
+    return Dataset(root, on_corrupt=on_corrupt)
 
 
-__all__ = ["Dataset", "open_dataset", "episode_row", "INDEX_COLUMNS"]
+__all__ = ["Dataset", "ON_CORRUPT_CHOICES", "corrupt_policy", "open_dataset", "episode_row", "INDEX_COLUMNS"]

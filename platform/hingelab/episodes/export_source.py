@@ -287,7 +287,11 @@ def export_episodes(dataset, schema: ExportSchema, log: ExportLog, progress: boo
                     desc: str = "export") -> Iterator[ExportEpisode]:
     """Every episode of ``dataset`` aligned (skipped ones go to ``log``), one at a time."""
     for path in tqdm(dataset.paths(), desc=f"{desc} {dataset.root.name}", unit="episode", disable=not progress):
-        item = align_episode(read_episode(path), schema)
+        episode = dataset.read_checked(path)
+        if episode is None:  # --on-corrupt skip
+            log.skip(path, "cannot be read (corrupt; --on-corrupt skip)")
+            continue
+        item = align_episode(episode, schema)
         if isinstance(item, str):
             log.skip(path, item)
             continue

@@ -164,7 +164,8 @@ def recover_episode(path, out_path) -> dict:
     for name, value in final.items():
         columns[column_name(S.TOPIC_STEP, "final." + name)] = value[None]
 
-    temp = out_path.with_name(out_path.name + ".partial")
+    # hidden (readers and verify skip dot files), and never the .partial being salvaged
+    temp = out_path.with_name("." + out_path.name + ".recovering")
     with open(temp, "wb") as stream:
         writer = Writer(stream, chunk_size=1 << 40, compression=CompressionType.ZSTD)
         writer.start(profile="", library="hingelab recover")
@@ -205,4 +206,32 @@ def _json(text):
     return json.loads(text) if text else None
 
 
-__all__ = ["Salvage", "salvage", "recover_episode"]
+def recover_folder(root, discard: bool = False) -> dict:
+    """Every ``.partial`` file of a dataset folder salvaged into ``episodes/<id>.mcap`` (then removed), or
+    removed (``discard``). A partial that cannot be salvaged is kept and reported.
+
+    Returns {"recovered": [paths written], "discarded": [paths removed], "failed": [(path, reason)]}.
+    """
+    from hingelab.episodes.card import EPISODES_DIR, load_card
+    from hingelab.episodes.writer import PARTIAL_SUFFIX
+
+    root = Path(root)
+    load_card(root)
+    out = {"recovered": [], "discarded": [], "failed": []}
+    for partial in sorted((root / EPISODES_DIR).glob("*" + PARTIAL_SUFFIX)):
+        if discard:
+            partial.unlink()
+            out["discarded"].append(partial)
+            continue
+        target = partial.with_name(partial.name[:-len(PARTIAL_SUFFIX)])
+        try:
+            recover_episode(partial, target)
+        except DatasetError as exc:
+            out["failed"].append((partial, str(exc)))
+            continue
+        partial.unlink()  # only once its salvage is written under the final name
+        out["recovered"].append(target)
+    return out
+
+
+__all__ = ["Salvage", "salvage", "recover_episode", "recover_folder"]

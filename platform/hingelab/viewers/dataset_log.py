@@ -27,7 +27,6 @@ import pandas as pd
 import rerun as rr
 from tqdm import tqdm
 
-from hingelab.episodes import read_episode
 from hingelab.episodes.dataset import Dataset
 from hingelab.viewers import entities as E
 from hingelab.viewers.episode_series import (
@@ -140,7 +139,9 @@ def log_dataset(rec: rr.RecordingStream, dataset: Dataset, cloud_every: int = 10
     offset = clouds = 0
     for number, path in enumerate(tqdm(paths, desc=f"view {dataset.root.name}", unit="episode",
                                        disable=not progress)):
-        episode = read_episode(path)
+        episode = dataset.read_checked(path)
+        if episode is None:  # --on-corrupt skip
+            continue
         length = 0
         for series in episode_series(episode):
             if len(series) == 0:
