@@ -15,3 +15,7 @@ class AssetError(HingelabError):
 
 class ConfigError(HingelabError, ValueError):
     """A value given by the user is out of range or of the wrong kind."""
+
+
+class DiskFullError(HingelabError):
+    """The disk filled up during a run; what was finished is kept and the run can be resumed."""

@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import argparse
 import json
+from contextlib import contextmanager
 from pathlib import Path
 
 
@@ -41,6 +42,9 @@ def add_parser(subparsers) -> None:
                           "finger targets)")
     low.add_argument("--no-randomize", action="store_true", help="evaluate without domain randomization")
     low.add_argument("--no-progress", action="store_true", help="no progress bar")
+    low.add_argument("--resume", action="store_true",
+                      help="continue a stopped evaluation (a full disk, a kill) in --out: its finished episodes are "
+                           "kept, the rest run with their own seeds; the other settings must be the same")
     low.set_defaults(func=run_low)
     high = what.add_parser(
         "high", help="a high-level policy (or a baseline) on ToolPick-v0",
@@ -69,6 +73,9 @@ def add_parser(subparsers) -> None:
                       help="the frozen low level: policy (the shipped low-level policy), privileged, or a low-level "
                            "checkpoint (default: the one the checkpoint learned over; for baselines, policy)")
     high.add_argument("--no-progress", action="store_true", help="no progress bar")
+    high.add_argument("--resume", action="store_true",
+                      help="continue a stopped evaluation (a full disk, a kill) in --out: its finished episodes are "
+                           "kept, the rest run with their own seeds; the other settings must be the same")
     high.set_defaults(func=run_high)
 
 
@@ -78,6 +85,7 @@ def run_low(args: argparse.Namespace) -> int:
     from hingelab.errors import ConfigError
     from hingelab.envs.tool_shape import SETTLE_STEPS
     from hingelab.learning.low_level_checkpoint import evaluation_env_arguments
+    from hingelab.learning.eval_journal import prepare_resume
     from hingelab.learning.low_level_eval import evaluate_sampled_goals, make_eval_env, reference_policy, region_table
 
     if args.baseline and args.checkpoint is not None:
@@ -86,8 +94,6 @@ def run_low(args: argparse.Namespace) -> int:
         args.checkpoint = SHIPPED_LOW_LEVEL
     if args.episodes < 1:
         raise ConfigError("--episodes must be at least 1")
-    if args.out.exists() and any(args.out.iterdir()):
-        raise ConfigError(f"{args.out} is not empty; evaluate into a new folder")
     model = None if args.baseline else PolicyLowLevel(args.checkpoint).model
     label = args.baseline or str(args.checkpoint)
     provenance = getattr(model, "hingelab_provenance", {}) or {}
@@ -97,17 +103,22 @@ def run_low(args: argparse.Namespace) -> int:
               "checkpoint_git_commit": provenance.get("git_commit", "unknown")}
     # a run's model.zip and best_model.zip: the run folder names the dataset
     name = f"eval-{args.baseline}" if args.baseline else f"eval-{args.checkpoint.parent.name}-{args.checkpoint.stem}"
-    create_dataset(args.out, name=name, source="low_level_evaluation", config=config,
-                   seed=args.seed, description="hingelab eval low: a low-level policy toward reachable goals")
+    journal = prepare_resume(args.out, {**config, "seed": args.seed}, args.resume)
+    if not args.resume:
+        create_dataset(args.out, name=name, source="low_level_evaluation", config={**config, "seed": args.seed},
+                       seed=args.seed, description="hingelab eval low: a low-level policy toward reachable goals")
     env = make_eval_env(env_args, record_dir=args.out)
     unwrapped = env.unwrapped
     policy = reference_policy(args.baseline, env) if args.baseline else model
-    episodes = evaluate_sampled_goals(policy, env, args.episodes, args.seed, progress=not args.no_progress)
+    with stop_cleanly_on_a_full_disk(args, journal):
+        episodes = evaluate_sampled_goals(policy, env, args.episodes, args.seed, progress=not args.no_progress,
+                                          journal=journal)
     env.close()
     from hingelab.analysis.documents import markdown_table
 
     table = region_table(episodes)
     episodes.to_csv(args.out / "episodes.csv", index=False)
+    journal.finish()
     table.to_csv(args.out / "regions.csv", index=False)
     (args.out / "report.md").write_text(
         f"# Low-level evaluation of {label}\n\n{args.episodes} episodes, seed {args.seed}, "
@@ -130,8 +141,24 @@ def run_low(args: argparse.Namespace) -> int:
     return 0
 
 
+@contextmanager
+def stop_cleanly_on_a_full_disk(args: argparse.Namespace, journal):
+    """A full disk during an evaluation: one line (folder, free space, episodes kept), resumable."""
+    from hingelab.disk_full import disk_full_error, is_disk_full
+    from hingelab.learning.eval_journal import resume_command
+
+    try:
+        yield
+    except OSError as exc:
+        if not is_disk_full(exc):
+            raise
+        raise disk_full_error(args.out, len(journal.rows), args.episodes,
+                              resume_command(getattr(args, "argv", None)).removesuffix(" --resume")) from exc
+
+
 def run_high(args: argparse.Namespace) -> int:
     from hingelab.analysis.documents import markdown_table
+    from hingelab.learning.eval_journal import prepare_resume
     from hingelab.episodes import create_dataset
     from hingelab.errors import ConfigError
     from hingelab.learning import high_level_eval as H
@@ -148,8 +175,6 @@ def run_high(args: argparse.Namespace) -> int:
         args.checkpoint = SHIPPED_HIGH_LEVEL
     if args.episodes < 1:
         raise ConfigError("--episodes must be at least 1")
-    if args.out.exists() and any(args.out.iterdir()):
-        raise ConfigError(f"{args.out} is not empty; evaluate into a new folder")
     if args.baseline:
         policy, label, observe_extent = H.baseline_policy(args.baseline), args.baseline, False
         # the heuristic bypasses the low level: privileged, as in hingelab generate heuristic
@@ -169,17 +194,22 @@ def run_high(args: argparse.Namespace) -> int:
               "low_level": low_level, "observe_extent": observe_extent,
               "seeds": f"{H.SEED_BASE} + seed * {H.SEED_STRIDE} + episode"}
     name = f"eval-high-{args.baseline or Path(args.checkpoint).stem}"
-    create_dataset(args.out, name=name, source="high_level_evaluation", config=config, seed=args.seed,
-                   description=f"hingelab eval high: {label} on ToolPick-v0, {args.object} {args.size * 100:g} cm")
+    journal = prepare_resume(args.out, {**config, "seed": args.seed}, args.resume)
+    if not args.resume:
+        create_dataset(args.out, name=name, source="high_level_evaluation", config={**config, "seed": args.seed},
+                       seed=args.seed, description=f"hingelab eval high: {label} on ToolPick-v0, {args.object} "
+                                                   f"{args.size * 100:g} cm")
     env = H.make_eval_env(args.object, args.size, low_level, record_dir=args.out, observe_extent=observe_extent,
                           extra_metadata={"policy": label, "low_level": low_level})
     try:
-        episodes = H.evaluate(policy, env, args.episodes, args.seed, progress=not args.no_progress,
-                              label=f"eval high {label}")
+        with stop_cleanly_on_a_full_disk(args, journal):
+            episodes = H.evaluate(policy, env, args.episodes, args.seed, progress=not args.no_progress,
+                                  label=f"eval high {label}", journal=journal)
     finally:
         env.close()
     table = H.success_table(episodes, args.object, args.size)
     episodes.to_csv(args.out / "episodes.csv", index=False)
+    journal.finish()
     table.to_csv(args.out / "table.csv", index=False)
     row = table.iloc[0]
     failures = ", ".join(f"{r} {int(row[f'failures_{r}'])}" for r in H.FAILURE_REASONS if row[f"failures_{r}"])

@@ -35,6 +35,9 @@ def add_heuristic_parser(sources) -> None:
     p.add_argument("--seed", type=int, default=d.seed, help=f"base seed (default {d.seed})")
     p.add_argument("--no-randomize", action="store_true", help="turn domain randomization off")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
+    p.add_argument("--resume", action="store_true",
+                   help="continue a stopped run (a full disk, a kill) in --out to --episodes with the same "
+                        "per-episode seeds; the other settings must be the run's")
     p.set_defaults(func=run_heuristic)
 
 
@@ -43,7 +46,12 @@ def run_heuristic(args: argparse.Namespace) -> int:
 
     config = HeuristicRunConfig(episodes=args.episodes, object=args.object, size=args.size, mass=args.mass,
                                 seed=args.seed, workers=args.workers, randomize=not args.no_randomize)
-    summaries, seconds = timed(generate_heuristic_dataset, args.out, config, progress=not args.no_progress)
-    print(f"Wrote {args.out}: {summarize(summaries, seconds)} "
+    summaries, seconds = timed(generate_heuristic_dataset, args.out, config, progress=not args.no_progress,
+                               resume=args.resume)
+    if not summaries:
+        print(f"{args.out} already holds the {config.episodes} episodes; nothing to do.")
+        return 0
+    resumed = f" (resumed: {config.episodes - len(summaries)} were there)" if args.resume else ""
+    print(f"Wrote {args.out}{resumed}: {summarize(summaries, seconds)} "
           f"Inspect it with `hingelab datasets info {args.out}`.")
     return 0

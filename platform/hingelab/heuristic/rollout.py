@@ -107,10 +107,42 @@ def _run_in_worker(seed: int) -> EpisodeSummary:
     return run_episode(_WORKER["env"], seed)
 
 
+RESUMABLE = ("episodes", "workers")  # what --resume may change; any other setting must match the card's
+
+
+def _seeds_to_run(out: Path, config: HeuristicRunConfig, resume: bool) -> list[int]:
+    """The episode seeds this run writes: all of them, or (``resume``) those the folder lacks."""
+    from hingelab.episodes.card import load_card
+    from hingelab.episodes.dataset import Dataset
+
+    seeds = [episode_seed(config.seed, k) for k in range(config.episodes)]
+    existing = list((out / "episodes").glob("*.mcap")) if (out / "episodes").is_dir() else []
+    if not resume:
+        if existing:
+            raise ConfigError(f"{out} already holds {len(existing)} episodes; write into a new --out folder "
+                              "(a dataset is the output of one run), delete it, or continue a stopped run "
+                              "with --resume")
+        return seeds
+    if not (out / "dataset.json").exists():
+        raise ConfigError(f"--resume: {out} holds no dataset to continue; leave --resume out to start one")
+    recorded = {k: v for k, v in (load_card(out).config or {}).items() if k not in RESUMABLE}
+    wanted = {k: v for k, v in asdict(config).items() if k not in RESUMABLE}
+    if recorded != wanted:
+        differ = sorted(k for k in set(recorded) | set(wanted) if recorded.get(k) != wanted.get(k))
+        raise ConfigError(f"--resume: {out} was made with other settings ({', '.join(differ)}: "
+                          f"{[recorded.get(k) for k in differ]}); give the same ones, or a new --out")
+    for partial in (out / "episodes").glob("*.partial"):  # unfinished writes of the stopped run: redone
+        partial.unlink()
+    done = set(Dataset(out).index["seed"].dropna().astype(int))
+    return [s for s in seeds if s not in done]
+
+
 def generate_heuristic_dataset(out: Path, config: HeuristicRunConfig, progress: bool = True,
-                               name: str | None = None) -> list[EpisodeSummary]:
-    """Write ``config.episodes`` heuristic episodes into a new dataset at ``out``."""
-    from tqdm import tqdm
+                               name: str | None = None, resume: bool = False) -> list[EpisodeSummary]:
+    """Write ``config.episodes`` heuristic episodes into a new dataset at ``out``; ``resume``: only the
+    episodes (seeds) a stopped run into ``out`` did not finish, so the folder ends as one
+    uninterrupted run's would. A full disk stops with ``DiskFullError`` (the finished episodes kept)."""
+    from hingelab.disk_full import disk_full_error, is_disk_full
 
     if config.episodes < 1:
         raise ConfigError(f"--episodes must be at least 1, not {config.episodes}")
@@ -118,14 +150,26 @@ def generate_heuristic_dataset(out: Path, config: HeuristicRunConfig, progress: 
         raise ConfigError(f"--workers must be at least 1, not {config.workers}")
     make_env(config).close()  # bad object, size or mass: a clear error before any file is made
     out = Path(out)
-    existing = list((out / "episodes").glob("*.mcap")) if (out / "episodes").is_dir() else []
-    if existing:
-        raise ConfigError(f"{out} already holds {len(existing)} episodes; write into a new --out folder "
-                          "(a dataset is the output of one run) or delete it")
-    create_dataset(out, name=name or out.name, source="heuristic", config=asdict(config), seed=config.seed,
-                   description=f"privileged heuristic demos on ToolPick-v0, {object_label(config.object)} "
-                               f"{config.size * 100:g} cm")
-    seeds = [episode_seed(config.seed, k) for k in range(config.episodes)]
+    seeds = _seeds_to_run(out, config, resume)
+    if not resume:
+        create_dataset(out, name=name or out.name, source="heuristic", config=asdict(config), seed=config.seed,
+                       description=f"privileged heuristic demos on ToolPick-v0, {object_label(config.object)} "
+                                   f"{config.size * 100:g} cm")
+    try:
+        return _generate(out, config, seeds, progress)
+    except OSError as exc:
+        if not is_disk_full(exc):
+            raise
+        kept = len(list((out / "episodes").glob("*.mcap")))
+        command = (f"hingelab generate heuristic --out {out} --episodes {config.episodes} --object {config.object} "
+                   f"--size {config.size:g} --mass {config.mass:g} --seed {config.seed}"
+                   + ("" if config.randomize else " --no-randomize"))
+        raise disk_full_error(out, kept, config.episodes, command) from exc
+
+
+def _generate(out: Path, config: HeuristicRunConfig, seeds: list[int], progress: bool) -> list[EpisodeSummary]:
+    from tqdm import tqdm
+
     bar = tqdm(total=len(seeds), desc=f"heuristic {object_label(config.object)}", unit="episode",
                disable=not progress)
     summaries: list[EpisodeSummary] = []

@@ -231,18 +231,27 @@ def run_episode(policy, env, seed: int) -> dict:
             "return": total, "object_target_distance_m": float(info["object_target_distance"])}
 
 
-def evaluate(policy, env, episodes: int, seed: int, progress: bool = False, label: str = "eval high") -> pd.DataFrame:
-    """``episodes`` episodes, episode i from ``episode_seed(seed, i)``; one row each."""
+def evaluate(policy, env, episodes: int, seed: int, progress: bool = False, label: str = "eval high",
+             journal=None) -> pd.DataFrame:
+    """``episodes`` episodes, episode i from ``episode_seed(seed, i)``; one row each. ``journal`` (an
+    ``eval_journal.EpisodeJournal``): its rows are kept and their episodes not run again; each new row
+    goes into it as its episode finishes."""
     from tqdm import tqdm
 
-    rows = []
-    with tqdm(range(episodes), desc=label, unit="episode", disable=not progress) as bar:
+    rows = list(journal.rows) if journal is not None else []
+    done = {int(r["episode"]) for r in rows}
+    with tqdm(range(episodes), desc=label, unit="episode", disable=not progress, initial=0) as bar:
         for i in bar:
+            if i in done:
+                continue
             if hasattr(env, "extra_metadata"):
                 env.extra_metadata = {**env.extra_metadata, "episode_index": str(i)}
-            rows.append({"episode": i, **run_episode(policy, env, episode_seed(seed, i))})
+            row = {"episode": i, **run_episode(policy, env, episode_seed(seed, i))}
+            if journal is not None:
+                journal.append(row)
+            rows.append(row)
             bar.set_postfix(success=f"{sum(r['success'] for r in rows) / len(rows):.2f}")
-    return pd.DataFrame(rows)
+    return pd.DataFrame(rows).sort_values("episode", ignore_index=True)
 
 
 def success_table(episodes: pd.DataFrame, object: str, size: float) -> pd.DataFrame:

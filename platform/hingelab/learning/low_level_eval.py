@@ -179,20 +179,29 @@ def region_table(episodes: pd.DataFrame) -> pd.DataFrame:
     return pd.DataFrame(rows)
 
 
-def evaluate_sampled_goals(policy, env: gym.Env, episodes: int, seed: int, progress: bool = False) -> pd.DataFrame:
+def evaluate_sampled_goals(policy, env: gym.Env, episodes: int, seed: int, progress: bool = False,
+                           journal=None) -> pd.DataFrame:
     """``episodes`` reachable goals (``sampled_goals``), one episode each, in order; each episode's goal
-    region and opening go into a recording env's metadata. One row per episode (``run_episode``)."""
+    region and opening go into a recording env's metadata. One row per episode (``run_episode``).
+    ``journal`` (``eval_journal.EpisodeJournal``): its rows are kept, their goals not run again."""
     from tqdm import tqdm
 
     unwrapped = env.unwrapped
     goals = sampled_goals(unwrapped.calibration, unwrapped.reachable_range, episodes, seed)
-    rows = []
+    rows = list(journal.rows) if journal is not None else []
+    done = {int(r["seed"]) for r in rows}
     with tqdm(goals, desc="eval low", unit="episode", disable=not progress) as bar:
         for goal in bar:
+            if int(goal["seed"]) in done:
+                continue
             env.extra_metadata = {"goal_region": goal["region"], "goal_opening_rad": f"{goal['opening_rad']:.5f}"}
-            rows.append(run_episode(policy, env, goal))
+            row = run_episode(policy, env, goal)
+            if journal is not None:
+                journal.append(row)
+            rows.append(row)
             bar.set_postfix(success=f"{sum(r['success'] for r in rows) / len(rows):.2f}")
-    return pd.DataFrame(rows)
+    order = {int(g["seed"]): k for k, g in enumerate(goals)}
+    return pd.DataFrame(rows).sort_values("seed", key=lambda s: s.map(order), ignore_index=True)
 
 
 def sampled_goals(calibration, reachable_range, n: int, seed: int) -> list[dict]:

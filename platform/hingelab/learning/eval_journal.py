@@ -1,0 +1,93 @@
+"""Resumable evaluations: each finished episode's row, one JSON line, flushed to disk as it finishes.
+
+``hingelab eval low|high --resume`` continues a stopped evaluation (a full disk, a kill) from
+``OUT/episodes.partial.jsonl``: the episodes it lists are kept, every other trace of the stopped run
+(``.partial`` files, an episode file finished just before the stop but not yet listed) is removed,
+and the remaining episodes run with their own seeds, so the folder ends as an uninterrupted run's.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+from pathlib import Path
+
+from hingelab.errors import ConfigError
+
+JOURNAL_FILE = "episodes.partial.jsonl"
+
+
+def _plain(value):
+    return value.tolist() if hasattr(value, "tolist") else str(value)
+
+
+class EpisodeJournal:
+    def __init__(self, folder):
+        self.path = Path(folder) / JOURNAL_FILE
+        self.rows: list[dict] = []
+
+    def load(self) -> list[dict]:
+        """The rows of a stopped run (a torn last line, written as the disk filled, is dropped)."""
+        self.rows = []
+        if self.path.exists():
+            for line in self.path.read_text().splitlines():
+                try:
+                    self.rows.append(json.loads(line))
+                except json.JSONDecodeError:
+                    break
+        return self.rows
+
+    def append(self, row: dict) -> None:
+        with open(self.path, "a") as stream:
+            stream.write(json.dumps(row, default=_plain) + "\n")
+            stream.flush()
+            os.fsync(stream.fileno())
+        self.rows.append(row)
+
+    def finish(self) -> None:
+        self.path.unlink(missing_ok=True)
+
+
+def prepare_resume(out: Path, config: dict, resume: bool) -> EpisodeJournal:
+    """The journal of an evaluation into ``out``: empty for a new folder; with ``resume``, the stopped run's
+    (its dataset card must hold the same ``config``), its stray files removed."""
+    from hingelab.episodes.card import load_card
+    from hingelab.episodes.dataset import Dataset
+
+    out = Path(out)
+    journal = EpisodeJournal(out)
+    if not resume:
+        if out.exists() and any(out.iterdir()):
+            raise ConfigError(f"{out} is not empty; evaluate into a new folder, or continue a stopped "
+                              "evaluation there with --resume")
+        return journal
+    if not (out / "dataset.json").exists():
+        raise ConfigError(f"--resume: {out} holds no evaluation to continue; leave --resume out to start one")
+    recorded = json.loads(json.dumps(load_card(out).config or {}, default=_plain))
+    wanted = json.loads(json.dumps(config, default=_plain))
+    if recorded != wanted:
+        differ = sorted(k for k in set(recorded) | set(wanted) if recorded.get(k) != wanted.get(k))
+        raise ConfigError(f"--resume: {out} was evaluated with other settings ({', '.join(differ)}); "
+                          "give the same ones, or a new --out")
+    rows = journal.load()
+    kept = {int(r["seed"]) for r in rows}
+    episodes = out / "episodes"
+    for partial in episodes.glob("*.partial"):
+        partial.unlink()
+    index = Dataset(out).build_index(rebuild=True)
+    for name, seed in zip(index["file"], index["seed"]):
+        if int(seed) not in kept:  # finished after the journal's last line: redone
+            (episodes / name).unlink()
+    (out / "index.parquet").unlink(missing_ok=True)
+    return journal
+
+
+def resume_command(argv: list[str] | None) -> str:
+    """The command line that continues this run (``--resume`` added)."""
+    import shlex
+
+    args = list(argv or [])
+    return "hingelab " + shlex.join(args + ([] if "--resume" in args else ["--resume"]))
+
+
+__all__ = ["EpisodeJournal", "JOURNAL_FILE", "prepare_resume", "resume_command"]
