@@ -28,7 +28,7 @@ def test_extent_is_the_bounding_box(object, size, extent_mm):
 
 def test_a_run_with_the_extent_trains_and_evaluates(tmp_path, capsys):
     from hingelab.cli.main import main
-    from hingelab.learning.checkpoints import load_sac_zip
+    from hingelab.learning.high_level_checkpoint import load_high_level_checkpoint
     from hingelab.learning.train_high import train_high
     from test_train_high import TINY
 
@@ -36,7 +36,7 @@ def test_a_run_with_the_extent_trains_and_evaluates(tmp_path, capsys):
                      bc_pretrain_updates=5, demo_offline_updates=0, env_kwargs={"observe_extent": True})
     summary = train_high(config, tmp_path / "run", progress=False)
     assert summary["prior"]["transitions"] > 0
-    model = load_sac_zip(tmp_path / "run" / "model.zip")
+    model = load_high_level_checkpoint(tmp_path / "run" / "model.zip")
     assert model.observation_space.shape == (17,)
     assert model.hingelab_provenance["env_kwargs"]["observe_extent"] is True
     out = tmp_path / "eval"

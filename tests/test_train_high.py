@@ -54,9 +54,9 @@ def test_run_writes_prior_rollouts_metrics_and_records(tiny_high):
     rollouts = Dataset(run / "dataset")
     assert len(rollouts) >= 300 // TINY.max_episode_steps
     assert (rollouts.index["source"] == "high_level_training").all()
-    from hingelab.learning.checkpoints import load_sac_zip
+    from hingelab.learning.safe_sb3 import read_plain_data
 
-    record = load_sac_zip(run / "model.zip").hingelab_provenance
+    record = read_plain_data(run / "model.zip")[0]["hingelab_provenance"]
     assert record["env_id"] == "hingelab/ToolPick-v0" and record["env_kwargs"]["low_level"] == "privileged"
     assert record["env_kwargs"]["reward"]["c_h1"] == TINY.c_h1
     assert record["action_scale"] == {"z_goal": 3.0, "hand_velocity_m_s": 0.08}
@@ -123,9 +123,14 @@ def test_flat_baseline_trains_on_its_own_env(tmp_path):
     assert summary["env_steps"] == 120 and summary["prior"] is None
     rollouts = Dataset(tmp_path / "flat" / "dataset")
     assert (rollouts.index["source"] == "flat_training").all()
+    import gymnasium as gym
+
+    from hingelab.envs import TOOL_PICK_FLAT_ID
     from hingelab.learning.checkpoints import load_sac_zip
 
-    model = load_sac_zip(tmp_path / "flat" / "model.zip")
+    env = gym.make(TOOL_PICK_FLAT_ID)
+    model = load_sac_zip(tmp_path / "flat" / "model.zip", env.observation_space, env.action_space)  # the env's spaces
+    env.close()
     assert model.action_space.shape == (12,) and model.hingelab_provenance["env_id"] == "hingelab/ToolPickFlat-v0"
     with pytest.raises(ConfigError, match="flat baseline learns without demonstrations"):
         replace(config, from_datasets=("x",))
@@ -140,10 +145,9 @@ def test_high_level_checkpoint_is_refused_beside_another_low_level(tiny_high):
         load_high_level_checkpoint(run / "model.zip", low_level="policy")
     # a policy learned over the shipped low level is refused over another trained one, not over the servo
     from hingelab.envs.low_level import SHIPPED_LOW_LEVEL_SAC
-    from hingelab.learning.checkpoints import load_sac_zip
     from hingelab.learning.high_level_checkpoint import check_context, training_context
 
-    model = load_sac_zip(run / "model.zip")
+    model = load_high_level_checkpoint(run / "model.zip")
     model.hingelab_provenance = {**model.hingelab_provenance, **training_context("policy")}
     check_context(model, "x.zip", "privileged")
     with pytest.raises(ConfigError, match="learned over the low level policy"):

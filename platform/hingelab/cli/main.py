@@ -25,6 +25,7 @@ VERB_MODULES = [
     "hingelab.cli.view",
     "hingelab.cli.report",
     "hingelab.cli.datasets",
+    "hingelab.cli.checkpoints",
     "hingelab.cli.bench",
 ]
 

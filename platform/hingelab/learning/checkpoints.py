@@ -26,17 +26,14 @@ BUFFER_FILE = "replay_buffer.pkl"
 STATE_FILE = "state.pkl"
 
 
-def load_sac_zip(path):
-    """A stable-baselines3 SAC zip, loaded on the CPU; a file SB3 cannot load is a one-line ConfigError.
+def load_sac_zip(path, observation_space, action_space):
+    """A stable-baselines3 SAC zip for these spaces, loaded on the CPU without unpickling anything of it
+    (``safe_sb3``); a file that is not one, or does not fit them, is a one-line ConfigError."""
+    from hingelab.learning.safe_sb3 import load_sac_zip_safely
 
-    The policies' loaders (``low_level_checkpoint``, ``high_level_checkpoint``) check its spaces.
-    """
-    from stable_baselines3 import SAC
-
-    try:
-        return SAC.load(str(path), device="cpu")
-    except Exception as exc:  # SB3 raises many kinds on a foreign file
-        raise ConfigError(f"{path} is not a stable-baselines3 SAC checkpoint ({type(exc).__name__})") from exc
+    if not Path(path).is_file():
+        raise ConfigError(f"{path} does not exist; give a SAC checkpoint (.zip)")
+    return load_sac_zip_safely(path, observation_space, action_space, device="cpu")
 
 
 def rng_states() -> dict:

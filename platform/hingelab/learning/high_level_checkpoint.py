@@ -84,20 +84,27 @@ def observes_extent(model) -> bool:
 def load_high_level_checkpoint(path, low_level: str | None = None):
     """A SAC zip trained on ToolPick-v0 (14-D observation, 17-D with ``observe_extent``; 5-D action),
     loaded on the CPU; with ``low_level``, checked against the low level and encoder it learned beside."""
+    import gymnasium as gym
+    import numpy as np
+
+    from hingelab.envs.tool_pick import observation_dim
     from hingelab.learning.checkpoints import load_sac_zip
+    from hingelab.learning.safe_sb3 import read_plain_data
 
     path = resolve_checkpoint(path)
-    from hingelab.envs.tool_pick import observation_dim
-
-    model = load_sac_zip(path)
-    space = model.observation_space
-    expected = (observation_dim(observes_extent(model)),)
-    if getattr(space, "spaces", None) is not None or tuple(space.shape or ()) != expected or \
-            tuple(model.action_space.shape or ()) != ACTION_SHAPE:
-        shapes = {k: tuple(v.shape) for k, v in getattr(space, "spaces", {}).items()} or tuple(space.shape or ())
-        raise ConfigError(f"{path} does not match ToolPick-v0 (observation {shapes}, action "
-                          f"{tuple(model.action_space.shape or ())}; ToolPick-v0 has observation {expected}, "
-                          f"action {ACTION_SHAPE}); give a high-level checkpoint trained on hingelab/ToolPick-v0")
+    plain, described = read_plain_data(path)
+    env_kwargs = (plain.get("hingelab_provenance") or {}).get("env_kwargs") or {}
+    expected = (observation_dim(bool(env_kwargs.get("observe_extent", False))),)
+    observation = gym.spaces.Box(-np.inf, np.inf, expected, np.float64)
+    try:
+        model = load_sac_zip(path, observation, gym.spaces.Box(-1.0, 1.0, ACTION_SHAPE, np.float32))
+    except ConfigError as exc:
+        if "do not fit" not in str(exc):
+            raise
+        recorded = {k: (described.get(k) or {}).get("_shape") for k in ("observation_space", "action_space")}
+        raise ConfigError(f"{path} does not match ToolPick-v0 (observation {recorded['observation_space']}, action "
+                          f"{recorded['action_space']}; ToolPick-v0 has observation {expected}, action "
+                          f"{ACTION_SHAPE}); give a high-level checkpoint trained on hingelab/ToolPick-v0") from exc
     if low_level is not None:
         check_context(model, path, low_level)
     return model

@@ -14,15 +14,27 @@ from hingelab.errors import ConfigError
 def load_sac_checkpoint(path: Path, encoder=None):
     """A ``hingelab train low`` SAC zip, checked: ToolShape-v0's spaces, and latents of ``encoder``
     (default: the shipped one; a checkpoint that recorded another encoder's fingerprint is refused)."""
-    from hingelab.learning.checkpoints import load_sac_zip
+    import gymnasium as gym
+    import numpy as np
 
-    model = load_sac_zip(path)
-    space = model.observation_space
-    shapes = {k: tuple(v.shape) for k, v in getattr(space, "spaces", {}).items()}
-    if shapes != {"observation": (26,), "achieved_goal": (2,), "desired_goal": (2,)} or \
-            tuple(model.action_space.shape) != (9,):
-        raise ConfigError(f"{path} does not match ToolShape-v0 (observation {shapes or space}, action "
-                          f"{model.action_space.shape}); give a checkpoint from `hingelab train low`")
+    from hingelab.learning.checkpoints import load_sac_zip
+    from hingelab.learning.safe_sb3 import read_plain_data
+
+    _, described = read_plain_data(path)
+    box = gym.spaces.Box
+    observation = gym.spaces.Dict({"achieved_goal": box(-np.inf, np.inf, (2,), np.float64),
+                                   "desired_goal": box(-np.inf, np.inf, (2,), np.float64),
+                                   "observation": box(-np.inf, np.inf, (26,), np.float64)})
+    try:
+        model = load_sac_zip(path, observation, box(-1.0, 1.0, (9,), np.float32))
+    except ConfigError as exc:
+        if "do not fit" not in str(exc):
+            raise
+        recorded = {k: (described.get(k) or {}) for k in ("observation_space", "action_space")}
+        raise ConfigError(f"{path} does not match ToolShape-v0 (observation "
+                          f"{recorded['observation_space'].get('spaces') or recorded['observation_space'].get('_shape')}, "
+                          f"action {recorded['action_space'].get('_shape')}); give a checkpoint from "
+                          "`hingelab train low`") from exc
     trained_with = (getattr(model, "hingelab_provenance", None) or {}).get("encoder_fingerprint")
     if trained_with is not None:  # checkpoints made before the fingerprint was recorded: not checked
         from hingelab.perception.encoder import shipped_encoder

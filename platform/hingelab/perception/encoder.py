@@ -22,6 +22,7 @@ import contextlib
 import functools
 import hashlib
 import json
+import pickle
 from dataclasses import asdict, dataclass, fields
 from pathlib import Path
 
@@ -308,9 +309,27 @@ def save_checkpoint(path, model: PointNetVAE, *, geometry_hash: str, registratio
         "state_dict": model.state_dict(), **info,
     }
     tmp = path.with_name(path.name + ".tmp")
-    torch.save(payload, tmp)
+    torch.save(plain_payload(payload), tmp)
     tmp.replace(path)
     return path
+
+
+def plain_payload(value):
+    """``value`` with tensors and plain Python values only (numpy scalars and arrays made plain), so
+    ``torch.load(weights_only=True)`` reads it back without unpickling any other object."""
+    if isinstance(value, torch.Tensor):
+        return value
+    if isinstance(value, dict):
+        return {str(k): plain_payload(v) for k, v in value.items()}
+    if isinstance(value, (list, tuple)):
+        return [plain_payload(v) for v in value]
+    if isinstance(value, np.generic):
+        return value.item()
+    if isinstance(value, np.ndarray):
+        return torch.from_numpy(np.ascontiguousarray(value))
+    if value is None or isinstance(value, (bool, int, float, str)):
+        return value
+    raise TypeError(f"an encoder checkpoint holds tensors and plain values only, not {type(value).__name__}")
 
 
 def rewrite_calibration(path, encoder: ToolEncoder, calibration: dict, **records) -> ToolEncoder:
@@ -331,18 +350,30 @@ def load_encoder(path=None, geometry=None) -> ToolEncoder:
 
     Refused with a one-line ``ConfigError``: a missing or unreadable file, another format or
     format version, an encoder config this code does not know, weights that do not fit the
-    config, or a tweezer geometry other than the current model's.
+    config, or a tweezer geometry other than the current model's; a file holding pickled objects
+    besides tensors and plain values (read with ``weights_only=True``, nothing of it runs).
     """
-    from hingelab.perception.calibration import OpeningCalibration
-    from hingelab.perception.clouds import ToolGeometry
-
     path = Path(path or SHIPPED_CHECKPOINT)
     if not path.exists():
         raise ConfigError(f"encoder checkpoint {path} does not exist; train one with `hingelab train encoder`")
-    try:
-        raw = torch.load(path, map_location="cpu", weights_only=False)
+    try:  # weights_only: tensors and plain values; any other pickled object is refused unread
+        raw = torch.load(path, map_location="cpu", weights_only=True)
+    except pickle.UnpicklingError as exc:
+        if "global" not in str(exc).lower():  # no object torch refused to import: a broken file
+            raise ConfigError(f"{path} is not a readable torch checkpoint (UnpicklingError)") from exc
+        raise ConfigError(f"{path} holds Python objects besides tensors and plain values, so it was not loaded "
+                          "(loading it could run code); if it is a trusted checkpoint from an older hingelab, "
+                          f"convert it with `hingelab checkpoints convert {path}`") from exc
     except Exception as exc:  # torch raises many kinds on a bad file
-        raise ConfigError(f"{path} is not a readable torch checkpoint ({type(exc).__name__}: {exc})") from exc
+        raise ConfigError(f"{path} is not a readable torch checkpoint ({type(exc).__name__}: "
+                          f"{str(exc).splitlines()[0] if str(exc) else ''})") from exc
+    return _encoder_from_raw(raw, path, geometry)
+
+
+def _encoder_from_raw(raw, path: Path, geometry=None) -> ToolEncoder:
+    from hingelab.perception.calibration import OpeningCalibration
+    from hingelab.perception.clouds import ToolGeometry
+
     if not isinstance(raw, dict) or raw.get("format") != CHECKPOINT_FORMAT:
         raise ConfigError(f"{path} is not a hingelab tool-encoder checkpoint (format "
                           f"{raw.get('format') if isinstance(raw, dict) else type(raw).__name__!r})")
@@ -364,6 +395,32 @@ def load_encoder(path=None, geometry=None) -> ToolEncoder:
     return ToolEncoder(model, calibration, raw.get("registration_config"), info)
 
 
+def convert_checkpoint(path) -> tuple[str, bool]:
+    """Rewrite a trusted checkpoint of an older hingelab with tensors and plain values only, so it loads
+    with ``weights_only=True``: (its fingerprint, whether it was rewritten). Reading the old file runs its
+    pickle: call this only on files you trust (``hingelab checkpoints convert`` is that decision)."""
+    path = Path(path)
+    try:
+        torch.load(path, map_location="cpu", weights_only=True)
+        return load_encoder(path).fingerprint, False
+    except pickle.UnpicklingError:
+        pass
+    raw = torch.load(path, map_location="cpu", weights_only=False)  # trusted by the caller
+    before = _encoder_from_raw(raw, path).fingerprint
+    tmp = path.with_name(path.name + ".converting")
+    torch.save(plain_payload(raw), tmp)
+    try:
+        after = load_encoder(tmp).fingerprint
+        if after != before:
+            raise ConfigError(f"{path}: the plain rewrite changed the encoder's fingerprint ({before} -> {after}); "
+                              "left unconverted")
+    except Exception:
+        tmp.unlink(missing_ok=True)
+        raise
+    tmp.replace(path)
+    return after, True
+
+
 @functools.cache
 def shipped_encoder() -> ToolEncoder:
     """The shipped checkpoint, loaded once per process."""
@@ -377,5 +434,5 @@ def shipped_encoder_fingerprint() -> str:
 
 __all__ = ["CHECKPOINT_FORMAT", "CHECKPOINT_VERSION", "EncoderConfig", "PointNetVAE", "SHIPPED_CHECKPOINT",
            "ToolEncoder", "chamfer", "load_encoder", "one_blas_thread", "one_torch_thread", "rewrite_calibration",
-           "save_checkpoint",
+           "convert_checkpoint", "plain_payload", "save_checkpoint",
            "shipped_encoder", "shipped_encoder_fingerprint", "vae_loss"]

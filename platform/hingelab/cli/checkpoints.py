@@ -1,0 +1,41 @@
+"""``hingelab checkpoints convert``: older trusted checkpoints rewritten so they load without running code."""
+
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+
+
+def add_parser(subparsers) -> None:
+    p = subparsers.add_parser("checkpoints", help="convert checkpoints to formats that load without running code",
+                              description="Checkpoints load without unpickling anything but tensors and plain "
+                                          "values (encoders with torch.load(weights_only=True); SAC zips without "
+                                          "their cloudpickle entries).")
+    verbs = p.add_subparsers(title="verbs", metavar="VERB", required=True)
+    convert = verbs.add_parser(
+        "convert", help="rewrite trusted encoder checkpoints of an older hingelab with plain values only",
+        description="Rewrite each encoder checkpoint (.pt) with tensors and plain values only, checking that its "
+                    "fingerprint (what its latents mean) is unchanged. Reading an old file runs its pickle: "
+                    "convert only files you trust. SAC zips (.zip) need no conversion: they are checked to load "
+                    "without unpickling.")
+    convert.add_argument("files", type=Path, nargs="*",
+                         help="checkpoints to convert (default: the shipped encoder, assets/checkpoints/encoder.pt)")
+    convert.set_defaults(func=run_convert)
+
+
+def run_convert(args: argparse.Namespace) -> int:
+    from hingelab.errors import ConfigError
+    from hingelab.learning.safe_sb3 import read_plain_data
+    from hingelab.perception.encoder import SHIPPED_CHECKPOINT, convert_checkpoint
+
+    for path in args.files or [SHIPPED_CHECKPOINT]:
+        if not path.is_file():
+            raise ConfigError(f"{path} does not exist")
+        if path.suffix == ".zip":
+            read_plain_data(path)
+            print(f"{path}: a SAC zip, read without unpickling; nothing to convert.")
+            continue
+        fingerprint, rewritten = convert_checkpoint(path)
+        state = "rewritten with plain values only" if rewritten else "already plain"
+        print(f"{path}: {state}; fingerprint {fingerprint} unchanged.")
+    return 0
