@@ -23,7 +23,7 @@ def disk_full_error(folder, kept: int, requested: int, resume_command: str) -> D
     except OSError:
         free = "free space unknown"
     return DiskFullError(f"the disk holding {folder} is full ({free}): kept the {kept} finished episodes of "
-                         f"{requested} (an unfinished one is left as .partial and redone); free some space, "
+                         f"{requested} (an unfinished one is redone); free some space, "
                          f"then continue with `{resume_command} --resume`")
 
 

@@ -60,6 +60,8 @@ def _verify_episode(path: Path) -> Problem | None:
             "not-mcap" if "not a valid MCAP" in text else "corrupt" if "is corrupt" in text else "metadata")
         if text.startswith(str(path)):
             text = text[len(str(path)):].lstrip(": ")
+        if text.startswith("is corrupt ("):  # "corrupt: is corrupt (X); ..." reads twice
+            text = text[len("is corrupt ("):].replace(");", ";", 1)
         return Problem(path, kind, text)
     except Exception as exc:  # noqa: BLE001 - e.g. an undecodable metadata record
         return Problem(path, "corrupt", f"{type(exc).__name__}: {exc}; restore it, or salvage with "
