@@ -103,3 +103,6 @@ def test_eval_high_resumes_after_a_full_disk(tmp_path, monkeypatch, capsys):
     good, problems = verify_dataset(stopped)
     assert len(good) == 4 and not problems
     assert main([*args, "--out", str(stopped)]) == 1  # a finished folder is not written into again
+    assert main([*args, "--out", str(stopped), "--resume"]) == 1  # nor redone by a --resume
+    assert "nothing to resume" in capsys.readouterr().err
+    assert len(verify_dataset(stopped)[0]) == 4

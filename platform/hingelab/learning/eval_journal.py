@@ -69,6 +69,9 @@ def prepare_resume(out: Path, config: dict, resume: bool) -> EpisodeJournal:
         differ = sorted(k for k in set(recorded) | set(wanted) if recorded.get(k) != wanted.get(k))
         raise ConfigError(f"--resume: {out} was evaluated with other settings ({', '.join(differ)}); "
                           "give the same ones, or a new --out")
+    if not journal.path.exists() and (out / "episodes.csv").exists():
+        raise ConfigError(f"--resume: {out} holds a finished evaluation (episodes.csv, no journal of a stopped "
+                          "one); nothing to resume")
     rows = journal.load()
     kept = {int(r["seed"]) for r in rows}
     episodes = out / "episodes"
