@@ -13,7 +13,6 @@ import argparse
 import importlib
 from pathlib import Path
 
-from hingelab.cli.options import add_on_corrupt
 from hingelab.errors import ConfigError
 
 LEARNERS = {
@@ -142,7 +141,6 @@ def add_run_arguments(p, default_out: str) -> None:
                         "--steps may raise the budget)")
     p.add_argument("--name", default=None, help="curve label in reports (default: the run folder's name)")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
-    add_on_corrupt(p)
 
 
 def add_low_parser(learners) -> None:

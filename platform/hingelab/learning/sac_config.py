@@ -58,6 +58,9 @@ class SACTrainConfig(RunConfig):
                                           "(else SAC's first rollouts scatter as widely as random ones)")
     bc_q_scaled: bool = option(False, "scale the BC term by the batch's mean |Q| (TD3+BC's normalization)")
     env_kwargs: dict = option(None, "more arguments of the env, as a JSON object", default_factory=dict)
+    on_corrupt: str = option("stop", "episode files of the --from datasets that cannot be read (corrupt, cut off): "
+                                     "stop names them all and ends; skip leaves them out and says how many",
+                             choices=("stop", "skip"))
 
     env_id = ""  # class attributes of each learner's config
     train_source = ""
@@ -72,6 +75,7 @@ class SACTrainConfig(RunConfig):
             "checkpoint_every": self.checkpoint_every >= 1, "max_episode_steps": self.max_episode_steps >= 1,
             "keep_checkpoints": self.keep_checkpoints >= 1, "torch_threads": self.torch_threads >= 1,
             "algorithm": self.algorithm in ALGORITHMS, "demo_bc_weight": self.demo_bc_weight >= 0,
+            "on_corrupt": self.on_corrupt in ("stop", "skip"),
             "bc_pretrain_updates": self.bc_pretrain_updates >= 0, "learning_starts": self.learning_starts >= 0,
             "net_arch": len(self.net_arch) >= 1 and all(int(n) >= 1 for n in self.net_arch),
             "ent_coef": _valid_ent_coef(self.ent_coef),

@@ -145,7 +145,10 @@ class SACRun:
             self.next_eval, self.next_checkpoint = 0, self.config.checkpoint_every
             self.mid_episode = False
             self._state_rng = None
-        self.use_datasets(new_run=state is None)
+        from hingelab.episodes.dataset import corrupt_policy
+
+        with corrupt_policy(self.config.on_corrupt):  # the --from datasets' unreadable files (recorded in config)
+            self.use_datasets(new_run=state is None)
         return self
 
     # ------------------------------------------------------------------ what the callbacks call
