@@ -22,10 +22,12 @@ def add_parser(subparsers) -> None:
 
     info = verbs.add_parser("info", help="the dataset card and episode counts per source and object")
     info.add_argument("dir", type=Path, help="dataset folder (holds dataset.json and episodes/)")
+    add_on_corrupt(info)
     info.set_defaults(func=run_info)
 
     index = verbs.add_parser("index", help="rebuild index.parquet from the episode files alone")
     index.add_argument("dir", type=Path, help="dataset folder")
+    add_on_corrupt(index)
     index.set_defaults(func=run_index)
 
     verify = verbs.add_parser("verify", help="check every episode file; exit 1 naming each bad one")
