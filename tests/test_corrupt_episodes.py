@@ -5,7 +5,6 @@ that read as the original; no read takes long or allocates much."""
 
 from __future__ import annotations
 
-import shutil
 import struct
 import time
 import tracemalloc
@@ -25,18 +24,9 @@ MAX_READ_BYTES = 64 << 20  # the episodes are ~100 KB; a hostile length must not
 
 
 @pytest.fixture(scope="module")
-def originals(tmp_path_factory) -> list[Path]:
+def originals(random_pick_dataset) -> list[Path]:
     """Two real ToolPick-v0 episodes (clouds, columns, metadata) recorded by RecordingWrapper."""
-    from hingelab.episodes import create_dataset
-    from hingelab.learning.high_level_eval import RandomPolicy, evaluate, make_eval_env
-
-    root = tmp_path_factory.mktemp("fuzz") / "random"
-    create_dataset(root, name="random", source="high_level_evaluation", seed=0, config={})
-    env = make_eval_env("cube", 0.02, "privileged", record_dir=root, max_episode_steps=25)
-    try:
-        evaluate(RandomPolicy(), env, 2, 0, progress=False, label="random")
-    finally:
-        env.close()
+    root = random_pick_dataset("fuzz", object="cube", episodes=2, max_episode_steps=25)
     return sorted((root / "episodes").glob("*.mcap"))
 
 

@@ -15,13 +15,8 @@ from hingelab.episodes.verify import verify_dataset
 ARGS = ["generate", "heuristic", "--episodes", "4", "--seed", "3", "--no-progress"]
 
 
-def _by_seed(root) -> dict:
-    dataset = Dataset(root)
-    return {int(seed): read_episode(dataset.episodes_dir / name)
-            for seed, name in zip(dataset.index["seed"], dataset.index["file"])}
-
-
-def test_disk_full_stops_cleanly_and_resume_completes_the_same_dataset(tmp_path, monkeypatch, capsys):
+def fill_the_disk_on_the_third_episode(monkeypatch):
+    """``EpisodeWriter.close`` raises ENOSPC on its 3rd call (as a full disk would); returns the real close."""
     from hingelab.episodes.writer import EpisodeWriter
 
     close, calls = EpisodeWriter.close, {"n": 0}
@@ -32,8 +27,21 @@ def test_disk_full_stops_cleanly_and_resume_completes_the_same_dataset(tmp_path,
             raise OSError(errno.ENOSPC, "No space left on device")
         return close(self)
 
-    stopped = tmp_path / "stopped"
     monkeypatch.setattr(EpisodeWriter, "close", fill_up_on_the_third)
+    return close
+
+
+def _by_seed(root) -> dict:
+    dataset = Dataset(root)
+    return {int(seed): read_episode(dataset.episodes_dir / name)
+            for seed, name in zip(dataset.index["seed"], dataset.index["file"])}
+
+
+def test_disk_full_stops_cleanly_and_resume_completes_the_same_dataset(tmp_path, monkeypatch, capsys):
+    from hingelab.episodes.writer import EpisodeWriter
+
+    stopped = tmp_path / "stopped"
+    close = fill_the_disk_on_the_third_episode(monkeypatch)
     assert main([*ARGS, "--out", str(stopped)]) == 1
     error = capsys.readouterr().err.strip()
     assert len(error.splitlines()) == 1 and str(stopped) in error and "MB free" in error
@@ -78,18 +86,10 @@ def test_eval_high_resumes_after_a_full_disk(tmp_path, monkeypatch, capsys):
 
     from hingelab.episodes.writer import EpisodeWriter
 
-    close, calls = EpisodeWriter.close, {"n": 0}
-
-    def fill_up_on_the_third(self):
-        calls["n"] += 1
-        if calls["n"] == 3:
-            raise OSError(errno.ENOSPC, "No space left on device")
-        return close(self)
-
     args = ["eval", "high", "--baseline", "scripted", "--low-level", "privileged", "--episodes", "4",
             "--seed", "2", "--no-progress"]
     stopped, whole = tmp_path / "stopped", tmp_path / "whole"
-    monkeypatch.setattr(EpisodeWriter, "close", fill_up_on_the_third)
+    close = fill_the_disk_on_the_third_episode(monkeypatch)
     assert main([*args, "--out", str(stopped)]) == 1
     error = capsys.readouterr().err.strip()
     assert "kept the 2 finished episodes of 4" in error and f"--out {stopped}" in error and "--resume" in error

@@ -15,19 +15,9 @@ from hingelab.episodes.errors import DatasetError
 
 
 @pytest.fixture(scope="module")
-def clean(tmp_path_factory) -> Path:
+def clean(random_pick_dataset) -> Path:
     """A dataset of 4 real ToolPick-v0 episodes (random actions, 15 steps)."""
-    from hingelab.episodes import create_dataset
-    from hingelab.learning.high_level_eval import RandomPolicy, evaluate, make_eval_env
-
-    root = tmp_path_factory.mktemp("corrupt") / "clean"
-    create_dataset(root, name="clean", source="high_level_evaluation", seed=0, config={})
-    env = make_eval_env("sphere", 0.02, "privileged", record_dir=root, max_episode_steps=15)
-    try:
-        evaluate(RandomPolicy(), env, 4, 0, progress=False, label="random")
-    finally:
-        env.close()
-    return root
+    return random_pick_dataset("clean", episodes=4, max_episode_steps=15)
 
 
 @pytest.fixture

@@ -99,6 +99,7 @@ def test_the_shipped_checkpoints_load_safely_and_as_before():
 
     for name in ("low_level.zip", "low_level_closed.zip"):
         ours, theirs = load_sac_checkpoint(ASSETS / name), SAC.load(ASSETS / name, device="cpu")
-        observation = {k: np.random.default_rng(1).normal(size=(8, *s.shape)) for k, s in theirs.observation_space.spaces.items()}
+        spaces = theirs.observation_space.spaces
+        observation = {k: np.random.default_rng(1).normal(size=(8, *s.shape)) for k, s in spaces.items()}
         assert np.array_equal(ours.predict(observation, deterministic=True)[0],
                               theirs.predict(observation, deterministic=True)[0])

@@ -38,18 +38,8 @@ def _listening_addresses(port: int) -> set[str]:
 
 
 @pytest.fixture(scope="module")
-def episode_file(tmp_path_factory) -> Path:
-    from hingelab.episodes import create_dataset
-    from hingelab.learning.high_level_eval import RandomPolicy, evaluate, make_eval_env
-
-    root = tmp_path_factory.mktemp("web") / "random"
-    create_dataset(root, name="random", source="high_level_evaluation", seed=0, config={})
-    env = make_eval_env("sphere", 0.02, "privileged", record_dir=root, max_episode_steps=5)
-    try:
-        evaluate(RandomPolicy(), env, 1, 0, progress=False, label="random")
-    finally:
-        env.close()
-    return next((root / "episodes").glob("*.mcap"))
+def episode_file(random_pick_dataset) -> Path:
+    return next((random_pick_dataset("web") / "episodes").glob("*.mcap"))
 
 
 @pytest.mark.skipif(not Path("/proc/net/tcp").exists(), reason="reads Linux's socket table")

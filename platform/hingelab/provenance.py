@@ -114,3 +114,16 @@ def machine() -> dict[str, str]:
         "python": _stdlib_platform.python_version(),
         "system": _stdlib_platform.platform(),
     }
+
+
+def differing_settings(recorded: dict | None, wanted: dict, ignore=()) -> dict:
+    """{setting: (recorded, wanted)} where a run's recorded config (a dataset card's, JSON) and the one asked
+    for now differ, compared as JSON (tuples as lists), ``ignore`` left out: what a ``--resume`` refuses."""
+    import json
+
+    def plain(config):
+        return {k: v for k, v in json.loads(json.dumps(config or {}, default=str)).items() if k not in ignore}
+
+    recorded, wanted = plain(recorded), plain(wanted)
+    return {k: (recorded.get(k), wanted.get(k)) for k in sorted(set(recorded) | set(wanted))
+            if recorded.get(k) != wanted.get(k)}

@@ -6,7 +6,8 @@ rate per goal region (thirds of the reachable opening range) with Wilson 95% int
 Success is the env's one verdict (ToolShape-v0: settled over the last 0.5 s), the episodes'
 recorded ``success``, so ``hingelab report`` of ``--out`` counts the same episodes.
 
-``high``: a high-level SAC checkpoint, or a baseline (heuristic, scripted, scripted-observed, scripted-feedback, random), on ToolPick-v0
+``high``: a high-level SAC checkpoint, or a baseline (heuristic, scripted, scripted-observed, scripted-feedback,
+random), on ToolPick-v0
 (``hingelab.learning.high_level_eval``): success within 200 steps and at the first attempt,
 attempts and failure reasons per episode; a table with Wilson 95% intervals (table.csv, report.md).
 """
@@ -61,8 +62,8 @@ def add_parser(subparsers) -> None:
     high.add_argument("--episodes", type=int, default=20, help="evaluation episodes (default 20)")
     high.add_argument("--out", type=Path, required=True, help="dataset folder to write (must be new or empty)")
     high.add_argument("--seed", type=int, default=0, help="seed of the episodes (default 0)")
-    high.add_argument("--baseline", choices=("heuristic", "scripted", "scripted-observed", "scripted-feedback", "random"),
-                      default=None,
+    high.add_argument("--baseline", default=None,
+                      choices=("heuristic", "scripted", "scripted-observed", "scripted-feedback", "random"),
                       help="evaluate a baseline instead of a checkpoint: heuristic (privileged, commands the "
                            "hinge), scripted (the heuristic's motion as latent goals over the low level), "
                            "scripted-observed (scripted, told the object's position by the policy's observation: "
@@ -145,15 +146,15 @@ def run_low(args: argparse.Namespace) -> int:
 def stop_cleanly_on_a_full_disk(args: argparse.Namespace, journal):
     """A full disk during an evaluation: one line (folder, free space, episodes kept), resumable."""
     from hingelab.disk_full import disk_full_error, is_disk_full
-    from hingelab.learning.eval_journal import resume_command
+    from hingelab.learning.eval_journal import command_line
 
     try:
         yield
     except OSError as exc:
         if not is_disk_full(exc):
             raise
-        raise disk_full_error(args.out, len(journal.rows), args.episodes,
-                              resume_command(getattr(args, "argv", None)).removesuffix(" --resume")) from exc
+        command = command_line(getattr(args, "argv", None))
+        raise disk_full_error(args.out, len(journal.rows), args.episodes, command) from exc
 
 
 def run_high(args: argparse.Namespace) -> int:

@@ -17,6 +17,7 @@ import numpy as np
 
 from hingelab.episodes import create_dataset
 from hingelab.errors import ConfigError
+from hingelab.provenance import differing_settings
 from hingelab.sim.mesh_objects import is_mesh, mesh_sha256, object_label
 
 SEED_STRIDE = 100_003
@@ -125,12 +126,11 @@ def _seeds_to_run(out: Path, config: HeuristicRunConfig, resume: bool) -> list[i
         return seeds
     if not (out / "dataset.json").exists():
         raise ConfigError(f"--resume: {out} holds no dataset to continue; leave --resume out to start one")
-    recorded = {k: v for k, v in (load_card(out).config or {}).items() if k not in RESUMABLE}
-    wanted = {k: v for k, v in asdict(config).items() if k not in RESUMABLE}
-    if recorded != wanted:
-        differ = sorted(k for k in set(recorded) | set(wanted) if recorded.get(k) != wanted.get(k))
-        raise ConfigError(f"--resume: {out} was made with other settings ({', '.join(differ)}: "
-                          f"{[recorded.get(k) for k in differ]}); give the same ones, or a new --out")
+    differ = differing_settings(load_card(out).config, asdict(config), ignore=RESUMABLE)
+    if differ:
+        raise ConfigError(f"--resume: {out} was made with other settings ("
+                          + ", ".join(f"{k} {old!r}, now {new!r}" for k, (old, new) in differ.items())
+                          + "); give the same ones, or a new --out")
     for partial in (out / "episodes").glob("*.partial"):  # unfinished writes of the stopped run: redone
         partial.unlink()
     done = set(Dataset(out).index["seed"].dropna().astype(int))

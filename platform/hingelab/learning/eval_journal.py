@@ -13,6 +13,7 @@ import os
 from pathlib import Path
 
 from hingelab.errors import ConfigError
+from hingelab.provenance import differing_settings
 
 JOURNAL_FILE = "episodes.partial.jsonl"
 
@@ -63,12 +64,11 @@ def prepare_resume(out: Path, config: dict, resume: bool) -> EpisodeJournal:
         return journal
     if not (out / "dataset.json").exists():
         raise ConfigError(f"--resume: {out} holds no evaluation to continue; leave --resume out to start one")
-    recorded = json.loads(json.dumps(load_card(out).config or {}, default=_plain))
-    wanted = json.loads(json.dumps(config, default=_plain))
-    if recorded != wanted:
-        differ = sorted(k for k in set(recorded) | set(wanted) if recorded.get(k) != wanted.get(k))
-        raise ConfigError(f"--resume: {out} was evaluated with other settings ({', '.join(differ)}); "
-                          "give the same ones, or a new --out")
+    differ = differing_settings(load_card(out).config, config)
+    if differ:
+        raise ConfigError(f"--resume: {out} was evaluated with other settings ("
+                          + ", ".join(f"{k} {old!r}, now {new!r}" for k, (old, new) in differ.items())
+                          + "); give the same ones, or a new --out")
     if not journal.path.exists() and (out / "episodes.csv").exists():
         raise ConfigError(f"--resume: {out} holds a finished evaluation (episodes.csv, no journal of a stopped "
                           "one); nothing to resume")
@@ -85,12 +85,11 @@ def prepare_resume(out: Path, config: dict, resume: bool) -> EpisodeJournal:
     return journal
 
 
-def resume_command(argv: list[str] | None) -> str:
-    """The command line that continues this run (``--resume`` added)."""
+def command_line(argv: list[str] | None) -> str:
+    """The command that ran, ``--resume`` left out (``disk_full_error`` adds it)."""
     import shlex
 
-    args = list(argv or [])
-    return "hingelab " + shlex.join(args + ([] if "--resume" in args else ["--resume"]))
+    return "hingelab " + shlex.join([a for a in (argv or []) if a != "--resume"])
 
 
-__all__ = ["EpisodeJournal", "JOURNAL_FILE", "prepare_resume", "resume_command"]
+__all__ = ["EpisodeJournal", "JOURNAL_FILE", "command_line", "prepare_resume"]
