@@ -141,12 +141,11 @@ def test_a_low_level_dataset_is_a_one_line_error_naming_it(tmp_path, heuristic):
         high_level_transitions([heuristic], HighLevelRewardConfig(success_radius=0.02))
 
 
-def test_demo_share_buffer_keeps_the_demos_in_every_batch(heuristic):
-    import pickle
-
+def test_demo_share_buffer_keeps_the_demos_in_every_batch(heuristic, tmp_path):
     from stable_baselines3 import SAC
 
     from hingelab.learning.high_level_prefill import DemoShareReplayBuffer
+    from hingelab.learning.plain_state import load_buffer, save_buffer
 
     tr = high_level_transitions([heuristic])
     # a demo row: its observation (the buffer keeps the float64 observation space) and float32 action; a
@@ -173,7 +172,11 @@ def test_demo_share_buffer_keeps_the_demos_in_every_batch(heuristic):
     assert from_demos[:25].all() and not from_demos[25:].any() and batch.rewards.shape == (100, 1)
     model.train(gradient_steps=2, batch_size=32)  # SAC's updates take the mixed batches
     assert model._n_updates == 2
-    copy = pickle.loads(pickle.dumps(buffer))  # what save_replay_buffer does
-    assert copy.demo_share == 0.25 and copy.demos.size() == len(tr)
+    save_buffer(buffer, tmp_path / "buffer.npz")  # a checkpoint's, read back into the buffer a resume builds
+    copy = DemoShareReplayBuffer(500, buffer.observation_space, buffer.action_space, demos=tr, demo_share=0.25)
+    load_buffer(copy, tmp_path / "buffer.npz")
+    assert copy.size() == 30 and copy.demos.size() == len(tr)
+    np.testing.assert_array_equal(copy.observations, buffer.observations)
+    np.testing.assert_array_equal(copy.demos.actions, buffer.demos.actions)
     with pytest.raises(ConfigError, match="demo_share"):
         DemoShareReplayBuffer(10, buffer.observation_space, buffer.action_space, demos=tr, demo_share=1.5)

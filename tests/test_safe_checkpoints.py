@@ -103,3 +103,122 @@ def test_the_shipped_checkpoints_load_safely_and_as_before():
         observation = {k: np.random.default_rng(1).normal(size=(8, *s.shape)) for k, s in spaces.items()}
         assert np.array_equal(ours.predict(observation, deterministic=True)[0],
                               theirs.predict(observation, deterministic=True)[0])
+
+
+# ---------------------------------------------------------------------- a run's resume state
+TINY_RUN = dict(steps=60, n_envs=1, max_episode_steps=10, learning_starts=20, batch_size=16, buffer_size=500,
+                eval_every=60, eval_goals_per_region=1, checkpoint_every=30, keep_checkpoints=10,
+                algorithm="sac", record=False)
+
+
+@pytest.fixture(scope="module")
+def tiny_low_run(tmp_path_factory):
+    from hingelab.learning.low_level_config import LowLevelTrainConfig
+    from hingelab.learning.train_low import train_low
+
+    config = LowLevelTrainConfig(**TINY_RUN)
+    run = tmp_path_factory.mktemp("resume") / "run"
+    train_low(config, run, progress=False)
+    return config, run
+
+
+def _params(path) -> dict:
+    from stable_baselines3 import SAC  # the run's own final zip: trusted
+
+    return SAC.load(path, device="cpu").policy.state_dict()
+
+
+def _boundary(run: Path) -> Path:
+    """A checkpoint between episodes (resuming from it continues exactly), before the last step."""
+    from hingelab.learning import checkpoints as ckpt
+
+    return next(p for p in ckpt.checkpoint_dirs(run) if not ckpt.read_state(p)["mid_episode"]
+                and 0 < ckpt.read_state(p)["model"]["num_timesteps"] < TINY_RUN["steps"])
+
+
+def _resume_from(run: Path, step: Path, target: Path) -> Path:
+    """A copy of ``run`` cut back to checkpoint ``step``."""
+    from hingelab.learning import checkpoints as ckpt
+
+    shutil.copytree(run, target)
+    for later in ckpt.checkpoint_dirs(target):
+        if later.name > step.name:
+            shutil.rmtree(later)
+    (target / "model.zip").unlink()
+    return target / "checkpoints" / step.name
+
+
+def test_a_runs_checkpoints_hold_no_pickles(tiny_low_run):
+    from hingelab.learning import checkpoints as ckpt
+
+    _, run = tiny_low_run
+    for step in ckpt.checkpoint_dirs(run):
+        assert sorted(p.name for p in step.iterdir()) == ["model.zip", "replay_buffer.npz", "state.json"]
+        with np.load(step / ckpt.BUFFER_FILE, allow_pickle=False) as saved:  # no object arrays in it
+            assert all(saved[key].dtype != object for key in saved.files)
+        json.loads((step / ckpt.STATE_FILE).read_text())
+
+
+def test_resume_reads_no_pickle_of_a_booby_trapped_checkpoint(tiny_low_run, tmp_path):
+    """The checkpoint's model.zip with every pickled entry a trap: the run resumes, exactly, and
+    nothing ran (resume takes only its tensors and its plain counters)."""
+    from hingelab.learning import checkpoints as ckpt
+    from hingelab.learning.train_low import train_low
+
+    config, run = tiny_low_run
+    marker = tmp_path / "ran"
+    step = _resume_from(run, _boundary(run), tmp_path / "copy")
+    _trap_zip(step / ckpt.MODEL_FILE, step / "trapped.zip", marker)
+    (step / "trapped.zip").replace(step / ckpt.MODEL_FILE)
+    train_low(config, tmp_path / "copy", resume=True, progress=False)
+    assert not marker.exists()
+    ours, theirs = _params(tmp_path / "copy" / "model.zip"), _params(run / "model.zip")
+    assert all(torch.equal(ours[k], theirs[k]) for k in theirs)
+
+
+def _as_older_hingelab(step: Path, config, buffer_from: Path, marker: Path | None) -> None:
+    """Rewrite a checkpoint the way hingelab wrote them before plain resume state (pickles); with
+    ``marker``, its state.pkl is a trap."""
+    from hingelab.learning import checkpoints as ckpt
+    from hingelab.learning.train_low import LowLevelRun
+
+    state = ckpt.read_state(step)
+    rng = state.pop("rng")
+    state.pop("episodes")
+    state["num_timesteps"] = state.pop("model")["num_timesteps"]
+    state["rng"] = {"torch": torch.tensor(rng["torch"], dtype=torch.uint8),
+                    "numpy": (rng["numpy"][0], np.asarray(rng["numpy"][1], dtype=np.uint32), *rng["numpy"][2:]),
+                    "python": (rng["python"][0], tuple(rng["python"][1]), rng["python"][2])}
+    resumed = LowLevelRun(config, buffer_from, resume=True, progress=False).setup()
+    resumed.env.close()
+    resumed.close_evaluator()
+    (step / "replay_buffer.pkl").write_bytes(pickle.dumps(resumed.model.replay_buffer))
+    (step / "state.pkl").write_bytes(pickle.dumps(Trap(marker) if marker else state))
+    (step / ckpt.STATE_FILE).unlink()
+    (step / ckpt.BUFFER_FILE).unlink()
+
+
+def test_an_older_pickled_checkpoint_is_refused_unread_and_converted_on_request(tiny_low_run, tmp_path, capsys):
+    from hingelab.cli.main import main
+    from hingelab.learning import checkpoints as ckpt
+    from hingelab.learning.train_low import train_low
+
+    config, run = tiny_low_run
+    first = _boundary(run)
+    reference = _resume_from(run, first, tmp_path / "reference")  # a plain copy, to read the buffer from
+    marker = tmp_path / "ran"
+    trapped = _resume_from(run, first, tmp_path / "trapped")
+    _as_older_hingelab(trapped, config, tmp_path / "reference", marker)
+    with pytest.raises(ConfigError, match="older hingelab.*checkpoints convert"):
+        train_low(config, tmp_path / "trapped", resume=True, progress=False)
+    assert not marker.exists()
+    # a trusted one: `checkpoints convert RUNDIR` rewrites it, and the run resumes exactly
+    old = _resume_from(run, first, tmp_path / "old")
+    _as_older_hingelab(old, config, tmp_path / "reference", None)
+    assert main(["checkpoints", "convert", str(tmp_path / "old")]) == 0
+    assert "1 pickled checkpoint" in capsys.readouterr().out
+    assert sorted(p.name for p in old.iterdir()) == ["model.zip", "replay_buffer.npz", "state.json"]
+    train_low(config, tmp_path / "old", resume=True, progress=False)
+    ours, theirs = _params(tmp_path / "old" / "model.zip"), _params(run / "model.zip")
+    assert all(torch.equal(ours[k], theirs[k]) for k in theirs)
+    assert reference.exists()

@@ -66,15 +66,21 @@ def test_run_writes_prior_rollouts_metrics_and_records(tiny_high):
     assert Dataset(run / "prior").card.config["policy"] == "scripted"
 
 
-def test_demo_share_keeps_the_demos_in_every_batch(tiny_high):
+def test_demo_share_keeps_the_demos_in_every_batch(tiny_high, tmp_path):
     """The kept demo share: the demos sit in their own store, never overwritten, and half of a batch."""
     from hingelab.learning.demo_sac import DemoSAC
     from hingelab.learning.high_level_prefill import DemoShareReplayBuffer
 
+    from hingelab.learning.train_high import HighLevelRun
+
     run, summary = tiny_high
-    model = DemoSAC.load(ckpt.latest_checkpoint(run) / "model.zip", device="cpu")
-    model.load_replay_buffer(ckpt.latest_checkpoint(run) / "replay_buffer.pkl")
-    buffer = model.replay_buffer
+    copy = tmp_path / "copy"
+    shutil.copytree(run, copy)
+    resumed = HighLevelRun(TINY, copy, resume=True, progress=False).setup()  # the checkpoint, read back
+    resumed.env.close()
+    resumed.close_evaluator()
+    assert isinstance(resumed.model, DemoSAC) and resumed.model.num_timesteps == 300
+    buffer = resumed.model.replay_buffer
     assert isinstance(buffer, DemoShareReplayBuffer) and buffer.demo_share == 0.5
     assert buffer.demos.size() == summary["prior"]["transitions"] and buffer.size() == 300
     batch = buffer.sample(16)

@@ -13,13 +13,15 @@ def add_parser(subparsers) -> None:
                                           "their cloudpickle entries).")
     verbs = p.add_subparsers(title="verbs", metavar="VERB", required=True)
     convert = verbs.add_parser(
-        "convert", help="rewrite trusted encoder checkpoints of an older hingelab with plain values only",
+        "convert", help="rewrite trusted checkpoints of an older hingelab with plain values only",
         description="Rewrite each encoder checkpoint (.pt) with tensors and plain values only, checking that its "
-                    "fingerprint (what its latents mean) is unchanged. Reading an old file runs its pickle: "
-                    "convert only files you trust. SAC zips (.zip) need no conversion: they are checked to load "
-                    "without unpickling.")
+                    "fingerprint (what its latents mean) is unchanged; for a run folder, rewrite its pickled "
+                    "resume checkpoints (state.pkl, replay_buffer.pkl) as state.json and replay_buffer.npz so "
+                    "--resume can read them. Reading an old file runs its pickle: convert only files you trust. "
+                    "SAC zips (.zip) need no conversion: they are checked to load without unpickling.")
     convert.add_argument("files", type=Path, nargs="*",
-                         help="checkpoints to convert (default: the shipped encoder, assets/checkpoints/encoder.pt)")
+                         help="checkpoints or run folders to convert (default: the shipped encoder, "
+                              "assets/checkpoints/encoder.pt)")
     convert.set_defaults(func=run_convert)
 
 
@@ -29,6 +31,13 @@ def run_convert(args: argparse.Namespace) -> int:
     from hingelab.perception.encoder import SHIPPED_CHECKPOINT, convert_checkpoint
 
     for path in args.files or [SHIPPED_CHECKPOINT]:
+        if path.is_dir():
+            from hingelab.learning.checkpoints import convert_pickled
+
+            rewritten = convert_pickled(path)
+            print(f"{path}: {len(rewritten)} pickled checkpoint(s) rewritten as state.json and replay_buffer.npz"
+                  if rewritten else f"{path}: no pickled checkpoints; nothing to convert.")
+            continue
         if not path.is_file():
             raise ConfigError(f"{path} does not exist")
         if path.suffix == ".zip":

@@ -18,6 +18,7 @@ from pathlib import Path
 
 from hingelab.errors import ConfigError
 from hingelab.learning import checkpoints as ckpt
+from hingelab.learning import plain_state
 from hingelab.learning.callbacks import CHECKPOINT_PATIENCE_EPISODES, RunClock, run_callbacks
 from hingelab.learning.fast_sac import configure_torch
 from hingelab.learning.run_folder import RunFolder
@@ -127,10 +128,10 @@ class SACRun:
         if self.resume and latest is None:
             raise ConfigError(f"cannot resume: {self.run_dir} has no complete checkpoint yet; start it anew "
                               "(delete the folder or pass another --out)")
+        self.model = self.build_model(self.env)
         if latest is not None:
-            self.model, state = ckpt.load_checkpoint(latest, algorithm_class(self.config), self.env)
+            state = ckpt.load_checkpoint(latest, self.model)  # weights, counters, buffer: nothing unpickled
         else:
-            self.model = self.build_model(self.env)
             self.start_new_model()
         setattr(self.model, PROVENANCE_ATTRIBUTE, self.provenance())
         if state is not None:
@@ -183,7 +184,7 @@ class SACRun:
             desc=f"{self.label} {self.name}", progress=self.progress, next_eval=self.next_eval,
             next_checkpoint=self.next_checkpoint, mid_episode=self.mid_episode)
         if self._state_rng is not None:  # last, after everything that seeds on load
-            ckpt.restore_rng_states(self._state_rng[0])
+            plain_state.restore_rng_states(self._state_rng[0])
             self.model.action_space.np_random.bit_generator.state = self._state_rng[1]
         remaining = self.config.steps - self.model.num_timesteps
         self.model.learn(total_timesteps=max(remaining, 0), callback=self.callbacks, reset_num_timesteps=False,

@@ -12,7 +12,7 @@ A zip whose tensors do not fit the nets that describes is refused with a one-lin
 
 For inference (evaluations, the frozen low level, the demo): the loaded model has a one-slot
 replay buffer and the run's optimizer states; a run's ``--resume`` builds its model from the run's
-config instead (``checkpoints.load_checkpoint``).
+config and gives it the checkpoint's tensors (``set_weights_from_zip``, ``checkpoints.load_checkpoint``).
 """
 
 from __future__ import annotations
@@ -103,7 +103,6 @@ def load_sac_zip_safely(path, observation_space, action_space, device: str = "cp
     from gymnasium import spaces
     from stable_baselines3 import SAC
     from stable_baselines3.common.type_aliases import TrainFreq, TrainFrequencyUnit
-    from stable_baselines3.common.save_util import recursive_setattr
     from stable_baselines3.common.utils import ConstantSchedule, FloatSchedule
 
     path = Path(path)
@@ -118,6 +117,16 @@ def load_sac_zip_safely(path, observation_space, action_space, device: str = "cp
     model.train_freq = TrainFreq(1, TrainFrequencyUnit.STEP)
     model.buffer_size, model.replay_buffer_class, model.replay_buffer_kwargs, model.n_envs = 1, None, {}, 1
     model._setup_model()
+    set_weights_from_zip(model, path, device=device)
+    return model
+
+
+def set_weights_from_zip(model, path, device: str = "cpu") -> None:
+    """Give ``model`` the zip's tensors (policy, optimizers, entropy coefficient), read with
+    ``torch.load(weights_only=True)``; tensors that do not fit its nets are a one-line ConfigError."""
+    from stable_baselines3.common.save_util import recursive_setattr
+
+    path = Path(path)
     try:
         with zipfile.ZipFile(path) as archive:
             tensors = {name[:-len(".pth")]: th.load(io.BytesIO(archive.read(name)), map_location=device,
@@ -130,12 +139,12 @@ def load_sac_zip_safely(path, observation_space, action_space, device: str = "cp
     try:
         model.set_parameters(tensors, exact_match=True, device=device)
     except Exception as exc:  # noqa: BLE001 - shapes or names that do not fit
-        raise ConfigError(f"{path}: its weights do not fit a SAC policy for observation {observation_space} and "
-                          f"action {action_space} ({type(exc).__name__}); give a checkpoint of this env") from exc
+        raise ConfigError(f"{path}: its weights do not fit a SAC policy for observation {model.observation_space} "
+                          f"and action {model.action_space} ({type(exc).__name__}); give a checkpoint of this env "
+                          "(or, resuming, the config the run was started with)") from exc
     for name, value in variables.items():
         if value is not None:
             recursive_setattr(model, f"{name}.data", value.data)
-    return model
 
 
-__all__ = ["load_sac_zip_safely", "read_plain_data"]
+__all__ = ["load_sac_zip_safely", "read_plain_data", "set_weights_from_zip"]
