@@ -93,17 +93,16 @@ def _collect(buffer, prefix: str, arrays: dict, meta: dict) -> None:
         elif isinstance(value, dict) and value and all(isinstance(v, np.ndarray) for v in value.values()):
             for part, array in value.items():
                 arrays[f"{key}/{part}"] = array
-        elif isinstance(value, (bool, int, float, np.generic)) and not isinstance(value, type):
+        elif isinstance(value, (bool, int, float, np.generic)):
             meta["scalars"][key] = value
-        elif _is_buffer(value):
-            meta["buffers"].append(key)
+        elif _is_buffer(value):  # the demo store of a DemoShareReplayBuffer
             _collect(value, key + ".", arrays, meta)
 
 
 def save_buffer(buffer, path: Path) -> None:
     """Write ``buffer`` (and the buffers it holds) to ``path`` (.npz, uncompressed)."""
     arrays: dict[str, np.ndarray] = {}
-    meta: dict = {"class": type(buffer).__name__, "scalars": {}, "objects": {}, "buffers": []}
+    meta: dict = {"class": type(buffer).__name__, "scalars": {}, "objects": {}}
     _collect(buffer, "", arrays, meta)
     with open(path, "wb") as f:
         np.savez(f, **arrays, **{META_KEY: np.frombuffer(dumps(meta).encode(), dtype=np.uint8)})
