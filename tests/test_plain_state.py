@@ -74,8 +74,11 @@ def test_a_buffer_of_another_shape_or_a_damaged_file_is_refused(tmp_path):
     buffer = ReplayBuffer(10, box, box)
     buffer.add(np.zeros(3), np.ones(3), np.zeros(3), np.zeros(1), np.zeros(1), [{}])
     save_buffer(buffer, tmp_path / "b.npz")
-    with pytest.raises(ConfigError, match="observations is float32\\[10, 1, 3\\].*float32\\[20, 1, 3\\]"):
+    with pytest.raises(ConfigError, match="buffer_size=10, this run.s 20"):
         load_buffer(ReplayBuffer(20, box, box), tmp_path / "b.npz")
+    with pytest.raises(ConfigError, match=r"observations is float32\[1, 1, 3\] \(rows written\), this run's is "
+                                          r"float32\[10, 1, 4\]"):
+        load_buffer(ReplayBuffer(10, spaces.Box(-1, 1, (4,)), box), tmp_path / "b.npz")
     with pytest.raises(ConfigError, match="holds a ReplayBuffer, this run uses a DictReplayBuffer"):
         load_buffer(DictReplayBuffer(10, spaces.Dict({"x": box}), box), tmp_path / "b.npz")
     raw = (tmp_path / "b.npz").read_bytes()

@@ -5,7 +5,8 @@ Nothing here unpickles: ``np.load(allow_pickle=False)`` reads the buffer, ``json
 * **Replay buffer** (``save_buffer`` / ``load_buffer``): every array of the buffer object (SB3's
   ``ReplayBuffer``, ``DictReplayBuffer``, ``HerReplayBuffer``, the platform's
   ``DemoShareReplayBuffer``) and of any buffer it holds (the demo store, under ``demos.``),
-  dict observations per key, and its plain counters (``pos``, ``full``, ...). HER's per-slot info
+  dict observations per key, and its plain counters (``pos``, ``full``, ...). Of the ring arrays
+  only the rows written so far are stored. HER's per-slot info
   dicts (an object array, for the effort term of the reward) go as JSON of the filled slots. On
   load the run has built its own buffer from its config; the saved arrays are copied into it
   in place and must have its shapes and dtypes, else a one-line ``ConfigError``.
@@ -83,16 +84,26 @@ def _is_buffer(value) -> bool:
 
 
 def _collect(buffer, prefix: str, arrays: dict, meta: dict) -> None:
+    size = buffer.buffer_size
+    filled = size if buffer.full else buffer.pos
+
+    def ring_rows(key: str, array: np.ndarray) -> np.ndarray:
+        """Only the rows written so far of a ring array (a fresh 1M buffer is gigabytes of zeros)."""
+        if array.ndim and array.shape[0] == size and not key.rpartition(".")[2].startswith("_"):
+            meta["rows"][key] = [int(filled), *array.shape[1:]]
+            return array[:filled]
+        return array
+
     for name, value in vars(buffer).items():
         key = prefix + name
         if isinstance(value, np.ndarray) and value.dtype == object:  # HER's info dicts
-            filled = [[int(i), int(j), cell] for (i, j), cell in np.ndenumerate(value) if cell]
-            meta["objects"][key] = {"shape": list(value.shape), "filled": filled}
+            cells = [[int(i), int(j), cell] for (i, j), cell in np.ndenumerate(value) if cell]
+            meta["objects"][key] = {"shape": list(value.shape), "filled": cells}
         elif isinstance(value, np.ndarray):
-            arrays[key] = value
+            arrays[key] = ring_rows(key, value)
         elif isinstance(value, dict) and value and all(isinstance(v, np.ndarray) for v in value.values()):
             for part, array in value.items():
-                arrays[f"{key}/{part}"] = array
+                arrays[f"{key}/{part}"] = ring_rows(f"{key}/{part}", array)
         elif isinstance(value, (bool, int, float, np.generic)):
             meta["scalars"][key] = value
         elif _is_buffer(value):  # the demo store of a DemoShareReplayBuffer
@@ -102,7 +113,7 @@ def _collect(buffer, prefix: str, arrays: dict, meta: dict) -> None:
 def save_buffer(buffer, path: Path) -> None:
     """Write ``buffer`` (and the buffers it holds) to ``path`` (.npz, uncompressed)."""
     arrays: dict[str, np.ndarray] = {}
-    meta: dict = {"class": type(buffer).__name__, "scalars": {}, "objects": {}}
+    meta: dict = {"class": type(buffer).__name__, "scalars": {}, "objects": {}, "rows": {}}
     _collect(buffer, "", arrays, meta)
     with open(path, "wb") as f:
         np.savez(f, **arrays, **{META_KEY: np.frombuffer(dumps(meta).encode(), dtype=np.uint8)})
@@ -120,11 +131,16 @@ def _owner(buffer, key: str, path: Path):
     return owner, name
 
 
-def _fits(path: Path, key: str, ours, saved: np.ndarray) -> None:
-    if not isinstance(ours, np.ndarray) or ours.shape != saved.shape or ours.dtype != saved.dtype:
+def _fits(path: Path, key: str, ours, saved: np.ndarray, rows: bool) -> None:
+    """``ours`` has ``saved``'s dtype and shape (``rows``: its shape but for the number of rows, at least
+    ``saved``'s: the written rows of a ring array)."""
+    fits = isinstance(ours, np.ndarray) and ours.dtype == saved.dtype and (
+        ours.shape[1:] == saved.shape[1:] and ours.shape[0] >= saved.shape[0] if rows else ours.shape == saved.shape)
+    if not fits:
         found = "nothing" if not isinstance(ours, np.ndarray) else f"{ours.dtype}{list(ours.shape)}"
-        raise ConfigError(f"{path}: the checkpoint's replay buffer {key} is {saved.dtype}{list(saved.shape)}, "
-                          f"this run's is {found}; resume with the config the run was started with")
+        raise ConfigError(f"{path}: the checkpoint's replay buffer {key} is {saved.dtype}{list(saved.shape)}"
+                          f"{' (rows written)' if rows else ''}, this run's is {found}; resume with the config the "
+                          "run was started with")
 
 
 def load_buffer(buffer, path: Path) -> None:
@@ -136,6 +152,14 @@ def load_buffer(buffer, path: Path) -> None:
             if meta["class"] != type(buffer).__name__:
                 raise ConfigError(f"{path} holds a {meta['class']}, this run uses a {type(buffer).__name__}; resume "
                                   "with the config the run was started with")
+            for key, value in meta["scalars"].items():
+                owner, name = _owner(buffer, key, path)
+                if name in COUNTERS:
+                    setattr(owner, name, value)
+                elif getattr(owner, name, None) != value:  # a setting (buffer_size, demo_share, her_ratio, ...)
+                    raise ConfigError(f"{path}: the checkpoint's replay buffer has {key}={value!r}, this run's "
+                                      f"{getattr(owner, name, None)!r}; resume with the config the run was started "
+                                      "with")
             for key in saved.files:
                 if key == META_KEY:
                     continue
@@ -144,18 +168,18 @@ def load_buffer(buffer, path: Path) -> None:
                 ours = getattr(owner, name, None)
                 if part:
                     ours = ours.get(part) if isinstance(ours, dict) else None
-                _fits(path, key, ours, saved[key])
-                ours[...] = saved[key]  # in place: samplers that hold views of the arrays stay valid
+                array, rows = saved[key], key in meta["rows"]
+                _fits(path, key, ours, array, rows)
+                # in place (samplers that hold views of the arrays stay valid); unwritten rows stay as built
+                if rows:
+                    ours[:len(array)] = array
+                else:
+                    ours[...] = array
+    except ConfigError:
+        raise
     except (OSError, ValueError, KeyError, EOFError, zipfile.BadZipFile, UnicodeDecodeError) as exc:
         raise ConfigError(f"{path} is not a readable replay buffer ({type(exc).__name__}: {exc}); resume from "
                           "an earlier checkpoint (delete this one) or start anew") from exc
-    for key, value in meta["scalars"].items():
-        owner, name = _owner(buffer, key, path)
-        if name in COUNTERS:
-            setattr(owner, name, value)
-        elif getattr(owner, name, None) != value:  # a setting (buffer_size, demo_share, her_ratio, ...)
-            raise ConfigError(f"{path}: the checkpoint's replay buffer has {key}={value!r}, this run's "
-                              f"{getattr(owner, name, None)!r}; resume with the config the run was started with")
     for key, doc in meta["objects"].items():
         owner, name = _owner(buffer, key, path)
         rows, columns = doc["shape"]
