@@ -432,3 +432,19 @@ def test_init_from_starts_a_new_run_from_a_trained_policy(tiny_run, tmp_path):
     with pytest.raises(ConfigError, match="does not exist"):
         train_low(replace(start, init_from=str(tmp_path / "nowhere.zip")), tmp_path / "none", progress=False)
     assert not (tmp_path / "none").exists()  # nothing to clear away before running it again
+
+
+def test_resume_on_the_command_line_keeps_the_runs_settings(tiny_run, tmp_path, capsys):
+    """``--resume`` continues the run as its config.json says: no default --steps extends it, and a
+    given flag that differs from the run's (other than --steps and --on-corrupt) is refused."""
+    from hingelab.cli.main import main
+
+    run, _ = tiny_run
+    copy = tmp_path / "tiny"
+    shutil.copytree(run, copy)
+    assert main(["train", "low", "--out", str(copy), "--resume", "--seed", "3", "--no-progress"]) == 1
+    error = capsys.readouterr().err
+    assert "--seed (seed=3, the run's 0)" in error and "--steps and --on-corrupt" in error
+    assert main(["train", "low", "--out", str(copy), "--resume", "--on-corrupt", "skip", "--no-progress"]) == 0
+    assert pd.read_csv(copy / "metrics.csv")["env_steps"].max() == TINY.steps  # not the default --steps
+    assert ckpt.read_state(ckpt.latest_checkpoint(copy))["model"]["num_timesteps"] == TINY.steps

@@ -163,16 +163,20 @@ def add_low_parser(learners) -> None:
 
 def run_low(args: argparse.Namespace) -> int:
     from hingelab.learning.low_level_config import LowLevelTrainConfig
-    from hingelab.learning.run_config import config_from_args
+    from hingelab.learning.run_config import config_from_args, given_settings
+    from hingelab.learning.run_folder import resumed_config
     from hingelab.learning.train_low import train_low
     from hingelab.paths import REPO_ROOT, refuse_to_replace_shipped
 
-    if args.init_from:  # the run folder records where it started from, wherever it is run
+    if getattr(args, "init_from", ""):  # the run folder records where it started from, wherever it is run
         args.init_from = str(Path(args.init_from).resolve())
-    args.from_datasets = tuple(str(p) for p in args.from_datasets)
+    if hasattr(args, "from_datasets"):
+        args.from_datasets = tuple(str(p) for p in args.from_datasets)
     config = config_from_args(LowLevelTrainConfig, args)
-    out = args.out or REPO_ROOT / "runs" / f"low_seed{args.seed}{'' if config.use_effort else '_no_effort'}"
+    out = args.out or REPO_ROOT / "runs" / f"low_seed{config.seed}{'' if config.use_effort else '_no_effort'}"
     refuse_to_replace_shipped(out, args.force)
+    if args.resume:
+        config = resumed_config(out, config, given_settings(LowLevelTrainConfig, args))
     s = train_low(config, out, resume=args.resume, progress=not args.no_progress, name=args.name)
     last, best = s["last_evaluation"], s["best"]
     prefill = ""

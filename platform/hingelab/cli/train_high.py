@@ -53,7 +53,8 @@ def add_flat_parser(learners) -> None:
 
 
 def run_high(args: argparse.Namespace) -> int:
-    from hingelab.learning.run_config import config_from_args
+    from hingelab.learning.run_config import config_from_args, given_settings
+    from hingelab.learning.run_folder import resumed_config
     from hingelab.learning.train_high import train_high
     from hingelab.paths import REPO_ROOT, refuse_to_replace_shipped
 
@@ -64,6 +65,8 @@ def run_high(args: argparse.Namespace) -> int:
     config = config_from_args(args.config_class, args)
     out = args.out or REPO_ROOT / args.default_out.format(SEED=config.seed)
     refuse_to_replace_shipped(out, args.force)
+    if args.resume:
+        config = resumed_config(out, config, given_settings(args.config_class, args))
     s = train_high(config, out, resume=args.resume, progress=not args.no_progress, name=args.name)
     last, best = s["last_evaluation"], s["best"]
     prior = s["prior"]

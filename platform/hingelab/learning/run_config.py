@@ -36,7 +36,7 @@ def option(default: Any = MISSING, help: str = "", *, flag: str | None = None, n
     return field(default=default, metadata=metadata)
 
 
-def _flag(f) -> str:
+def flag_of(f) -> str:
     return f.metadata.get("flag") or "--" + f.name.replace("_", "-")
 
 
@@ -76,15 +76,15 @@ def add_config_arguments(parser: argparse.ArgumentParser, config_class, skip: tu
         kwargs: dict[str, Any] = {"dest": f.name}
         if isinstance(default, bool):
             if meta.get("negate"):  # its flag sets False (--no-effort); --field-name sets True
-                group.add_argument(_flag(f), action="store_false", default=default,
+                group.add_argument(flag_of(f), action="store_false", default=argparse.SUPPRESS,
                                    help=f"{help_text}{' (the default)' if not default else ''}", **kwargs)
-                group.add_argument("--" + f.name.replace("_", "-"), action="store_true", default=default,
+                group.add_argument("--" + f.name.replace("_", "-"), action="store_true", default=argparse.SUPPRESS,
                                    help=f"the opposite{' (the default)' if default else ''}", **kwargs)
             else:
-                group.add_argument(_flag(f), action=argparse.BooleanOptionalAction, default=default,
-                                   help=help_text, **kwargs)
+                group.add_argument(flag_of(f), action=argparse.BooleanOptionalAction, default=argparse.SUPPRESS,
+                                   help=f"{help_text} (default {_default_text(default)})", **kwargs)
             continue
-        kwargs["default"] = default
+        kwargs["default"] = argparse.SUPPRESS  # absent unless given: a --resume tells given flags from defaults
         if meta.get("metavar"):
             kwargs["metavar"] = meta["metavar"]
         if meta.get("choices"):
@@ -95,11 +95,18 @@ def add_config_arguments(parser: argparse.ArgumentParser, config_class, skip: tu
             kwargs["type"] = _json_object
         else:
             kwargs["type"] = meta.get("parse") or type(default)
-        group.add_argument(_flag(f), help=f"{help_text} (default {_default_text(default)})", **kwargs)
+        group.add_argument(flag_of(f), help=f"{help_text} (default {_default_text(default)})", **kwargs)
+
+
+def given_settings(config_class, args: argparse.Namespace) -> set[str]:
+    """The config fields whose flags were given on the command line (``add_config_arguments`` leaves
+    the others out of ``args``)."""
+    return {f.name for f in fields(config_class) if hasattr(args, f.name)}
 
 
 def config_from_args(config_class, args: argparse.Namespace, **overrides):
-    """The config of the parsed flags (fields without a flag keep their defaults unless overridden)."""
+    """The config of the parsed flags (fields whose flags were not given keep their defaults unless
+    overridden)."""
     defaults = config_class()
     values = {f.name: getattr(args, f.name) for f in fields(config_class) if hasattr(args, f.name)}
     for name, value in values.items():
@@ -153,4 +160,4 @@ class RunConfig:
                               f"{', '.join(f'{b}={getattr(self, b)!r}' for b in bad)}")
 
 
-__all__ = ["option", "add_config_arguments", "config_from_args", "RunConfig"]
+__all__ = ["option", "add_config_arguments", "config_from_args", "given_settings", "flag_of", "RunConfig"]

@@ -28,6 +28,8 @@ CONFIG_FILE = "config.json"
 RUN_FILE = "run.json"
 METRICS_FILE = "metrics.csv"
 DATASET_DIR = "dataset"
+# what a --resume may change of a run's config.json: how long it runs, what it does with corrupt input
+RESUME_SETTINGS = ("steps", "on_corrupt")
 
 
 class MetricsLog:
@@ -85,6 +87,28 @@ class MetricsLog:
             f.flush()
 
 
+def resumed_config(run_dir: Path, config, given: set[str]):
+    """The config a command line's ``--resume`` continues ``run_dir`` with: its ``config.json``, with
+    the ``RESUME_SETTINGS`` among the ``given`` flags (``run_config.given_settings``). Any other given
+    flag that differs from the run's is refused: the run goes on as it was started, or not at all."""
+    from dataclasses import fields
+
+    from hingelab.learning.run_config import flag_of
+
+    path = Path(run_dir) / CONFIG_FILE
+    if not path.exists():
+        return config  # RunFolder says what is missing
+    saved = type(config).load(path)
+    by_name = {f.name: f for f in fields(type(config))}
+    differing = [f"{flag_of(by_name[name])} ({name}={getattr(config, name)!r}, the run's {getattr(saved, name)!r})"
+                 for name in sorted(given - set(RESUME_SETTINGS)) if getattr(config, name) != getattr(saved, name)]
+    if differing:
+        raise ConfigError(f"--resume continues {run_dir} as its config.json says, but these flags differ from it: "
+                          f"{'; '.join(differing)}. Drop them (a resume may change only --steps and --on-corrupt), "
+                          "or start a new run with another --out")
+    return replace(saved, **{name: getattr(config, name) for name in RESUME_SETTINGS if name in given})
+
+
 class RunFolder:
     """The files of one run; ``config`` is the run's config (the saved one when resuming)."""
 
@@ -96,7 +120,7 @@ class RunFolder:
             if not config_path.exists():
                 raise ConfigError(f"cannot resume: {config_path} does not exist; start the run without --resume")
             saved = type(config).load(config_path)
-            self.config = replace(saved, steps=max(config.steps, saved.steps))
+            self.config = replace(saved, steps=max(config.steps, saved.steps), on_corrupt=config.on_corrupt)
         else:
             if config_path.exists():
                 raise ConfigError(f"{self.path} already holds a run; continue it with --resume or pass another --out")
