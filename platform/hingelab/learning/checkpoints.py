@@ -120,6 +120,8 @@ def convert_pickled(run_dir: Path) -> list[Path]:
     (this unpickles them: only for runs you trust). Returns the checkpoints rewritten."""
     import pickle
 
+    from hingelab.learning.safe_sb3 import read_plain_data
+
     rewritten = []
     root = Path(run_dir) / CHECKPOINTS_DIR
     for path in sorted(root.glob("step_*")) if root.is_dir() else []:
@@ -129,13 +131,8 @@ def convert_pickled(run_dir: Path) -> list[Path]:
             state = pickle.load(f)  # noqa: S301 - the user vouches for this run (the command says so)
         with open(path / "replay_buffer.pkl", "rb") as f:
             buffer = pickle.load(f)  # noqa: S301
-        from hingelab.learning.safe_sb3 import read_plain_data
-
         plain, _ = read_plain_data(path / MODEL_FILE)
-        torch_state, numpy_state, python_state = (state["rng"][k] for k in ("torch", "numpy", "python"))
-        state["rng"] = {"torch": torch_state.tolist(),
-                        "numpy": [numpy_state[0], numpy_state[1].tolist(), *numpy_state[2:]],
-                        "python": [python_state[0], list(python_state[1]), python_state[2]]}
+        state["rng"] = plain_state.plain_rng_states(*(state["rng"][k] for k in ("torch", "numpy", "python")))
         state["model"] = {name: plain[name] for name in MODEL_COUNTERS if name in plain}
         state["episodes"] = {"ep_info_buffer": [], "ep_success_buffer": []}  # SB3 pickled these; not read
         plain_state.save_buffer(buffer, path / BUFFER_FILE)

@@ -61,9 +61,14 @@ def loads(text: str):
 
 # ---------------------------------------------------------------------- RNG states
 def rng_states() -> dict:
-    name, keys, pos, has_gauss, cached = np.random.get_state()
-    version, internal, gauss_next = random.getstate()
-    return {"torch": torch.get_rng_state().tolist(),
+    return plain_rng_states(torch.get_rng_state(), np.random.get_state(), random.getstate())
+
+
+def plain_rng_states(torch_state, numpy_state, python_state) -> dict:
+    """The three generators' states (as their ``get_state`` functions give them) as JSON values."""
+    name, keys, pos, has_gauss, cached = numpy_state
+    version, internal, gauss_next = python_state
+    return {"torch": torch_state.tolist(),
             "numpy": [name, keys.tolist(), int(pos), int(has_gauss), float(cached)],
             "python": [version, list(internal), gauss_next]}
 
@@ -189,4 +194,4 @@ def load_buffer(buffer, path: Path) -> None:
         setattr(owner, name, cells)
 
 
-__all__ = ["save_buffer", "load_buffer", "rng_states", "restore_rng_states", "dumps", "loads"]
+__all__ = ["save_buffer", "load_buffer", "rng_states", "plain_rng_states", "restore_rng_states", "dumps", "loads"]

@@ -120,7 +120,9 @@ class RunFolder:
             if not config_path.exists():
                 raise ConfigError(f"cannot resume: {config_path} does not exist; start the run without --resume")
             saved = type(config).load(config_path)
-            self.config = replace(saved, steps=max(config.steps, saved.steps), on_corrupt=config.on_corrupt)
+            # RESUME_SETTINGS come from the caller (a run may be extended, not shortened)
+            given = {name: getattr(config, name) for name in RESUME_SETTINGS}
+            self.config = replace(saved, **{**given, "steps": max(config.steps, saved.steps)})
         else:
             if config_path.exists():
                 raise ConfigError(f"{self.path} already holds a run; continue it with --resume or pass another --out")
