@@ -446,5 +446,7 @@ def test_resume_on_the_command_line_keeps_the_runs_settings(tiny_run, tmp_path, 
     error = capsys.readouterr().err
     assert "--seed (seed=3, the run's 0)" in error and "--steps and --on-corrupt" in error
     assert main(["train", "low", "--out", str(copy), "--resume", "--on-corrupt", "skip", "--no-progress"]) == 0
-    assert pd.read_csv(copy / "metrics.csv")["env_steps"].max() == TINY.steps  # not the default --steps
+    steps = pd.read_csv(copy / "metrics.csv")["env_steps"]
+    assert steps.max() == TINY.steps  # not the default --steps
+    assert steps.is_unique  # a resume with nothing left to run does not evaluate its end again
     assert ckpt.read_state(ckpt.latest_checkpoint(copy))["model"]["num_timesteps"] == TINY.steps

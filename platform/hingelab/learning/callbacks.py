@@ -85,11 +85,12 @@ class EvaluationCallback(BaseCallback):
     """``evaluate(env_steps, extras) -> row`` at every multiple of ``every`` env steps and at the end."""
 
     def __init__(self, evaluate: Callable[[int, dict], dict], every: int, extras: Callable[[], dict],
-                 next_eval: int = 0):
+                 next_eval: int = 0, last_row: dict | None = None):
+        """``last_row``: a resumed run's last metrics row (its end is not evaluated twice)."""
         super().__init__(verbose=0)
         self.evaluate, self.every, self.extras = evaluate, every, extras
         self.next_eval = next_eval
-        self.last_row: dict = {}
+        self.last_row: dict = dict(last_row or {})
 
     def state_dict(self) -> dict:
         return {"next_eval": self.next_eval}
@@ -169,10 +170,10 @@ class ProgressCallback(BaseCallback):
 def run_callbacks(clock: RunClock, evaluate: Callable[[int, dict], dict], save: Callable[[bool], object], *,
                   eval_every: int, checkpoint_every: int, patience: int, total_steps: int, desc: str,
                   progress: bool = True, next_eval: int = 0, next_checkpoint: int = 0,
-                  mid_episode: bool = False) -> CallbackList:
+                  mid_episode: bool = False, last_row: dict | None = None) -> CallbackList:
     """The four callbacks of a run, wired together, in their order."""
     stats = TrainingStats(clock)
-    evaluation = EvaluationCallback(evaluate, eval_every, stats.extras, next_eval=next_eval)
+    evaluation = EvaluationCallback(evaluate, eval_every, stats.extras, next_eval=next_eval, last_row=last_row)
     checkpoint = CheckpointCallback(save, checkpoint_every, patience, next_checkpoint, mid_episode=mid_episode)
 
     def status() -> dict:

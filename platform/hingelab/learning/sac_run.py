@@ -182,7 +182,8 @@ class SACRun:
             self.clock, self.evaluate_now, self.checkpoint_now, eval_every=self.config.eval_every,
             checkpoint_every=self.config.checkpoint_every, patience=patience, total_steps=self.config.steps,
             desc=f"{self.label} {self.name}", progress=self.progress, next_eval=self.next_eval,
-            next_checkpoint=self.next_checkpoint, mid_episode=self.mid_episode)
+            next_checkpoint=self.next_checkpoint, mid_episode=self.mid_episode,
+            last_row=(self.metrics.rows() or [{}])[-1] if self.resume else None)
         if self._state_rng is not None:  # last, after everything that seeds on load
             plain_state.restore_rng_states(self._state_rng[0])
             self.model.action_space.np_random.bit_generator.state = self._state_rng[1]
