@@ -87,6 +87,7 @@ def test_bench_perception_quick(tmp_path, capsys):
     text = (tmp_path / "perception.md").read_text()
     assert "Open3D point-to-point ICP" in text and "rot_median ours/open3d" in text
     assert "tool state, 64 clouds per update" in text
+    assert "camera pipeline filters, Open3D" in text and "env steps/s, camera / synthesized" in text
 
 
 @pytest.mark.parametrize("failure, advice", [

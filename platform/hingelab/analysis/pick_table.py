@@ -21,7 +21,7 @@ from hingelab.analysis.wilson import wilson_interval
 from hingelab.errors import ConfigError
 
 # the failure reasons of ToolPick-v0 episodes (hingelab.learning.high_level_eval.FailureReasonWrapper)
-FAILURE_REASONS = ("divergence", "tool_drop", "slip", "table_collision", "missed_grasp", "timeout")
+FAILURE_REASONS = ("divergence", "no_camera_cloud", "tool_drop", "slip", "table_collision", "missed_grasp", "timeout")
 
 
 def pick_rates(episodes: pd.DataFrame) -> dict:

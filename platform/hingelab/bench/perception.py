@@ -1,4 +1,4 @@
-"""``hingelab bench perception``: registration vs Open3D ICP, encoder quality, tool-state speed.
+"""``hingelab bench perception``: registration vs Open3D ICP, encoder quality, tool-state speed, the camera.
 
 Held-out clouds (seeds the training data never used), all in ``hand_base``:
 
@@ -16,6 +16,11 @@ Held-out clouds (seeds the training data never used), all in ``hand_base``:
   1 and 64 clouds per update.
 * tracking: a resting tool, sim-like clouds: the tracked pose's rotation change per step
   (all of it noise) and omega_bar, with the motion prior and frame by frame (no prior).
+* camera: rendered depth frames per second (render, noise model, cloud pipeline), ToolShape-v0
+  env steps per second with camera perception against synthesized clouds (same seeds, random
+  actions), and the pipeline's outlier removal and 2 mm voxel grid (numpy + scipy) against
+  Open3D's ``remove_statistical_outlier`` and ``voxel_down_sample`` on the same tool points from
+  rendered frames: time, and whether the results agree (points kept, voxels, centroid distance).
 """
 
 from __future__ import annotations
@@ -33,7 +38,9 @@ from hingelab.paths import ANALYSIS_DIR
 # the code and models this benchmark measures (the bench module itself: hingelab.bench.measured_paths);
 # the tool's geometry comes from tweezer.xml, its frame names from sim/names.py
 MEASURES = ("platform/hingelab/perception", "platform/hingelab/sim/names.py", "assets/tweezer",
-            "assets/checkpoints/encoder.pt")
+            "assets/checkpoints/encoder.pt", "platform/hingelab/camera.py", "platform/hingelab/sim/rig_camera.py",
+            "platform/hingelab/sim/depth_render.py", "platform/hingelab/sim/depth_noise.py",
+            "platform/hingelab/envs/tool_perception.py")
 
 PLOT_PATH = ANALYSIS_DIR / "perception" / "latent_space.png"
 SEED = 2026  # held-out: datasets and training use small seeds
@@ -259,6 +266,114 @@ def bench_tracking(episodes: int, steps: int, rows: list) -> dict:
     return out
 
 
+def _camera_points(frames: int) -> list[np.ndarray]:
+    """The tool's masked points (hand_base, before outlier removal) of rendered, noisy frames of
+    ToolShape-v0 with random finger motion, and the time per frame of the whole camera path."""
+    import gymnasium as gym
+
+    from hingelab.envs import TOOL_SHAPE_ID
+    from hingelab.perception.camera_cloud import crop, depth_to_points, transform
+
+    env = gym.make(TOOL_SHAPE_ID, perception="camera")
+    points = []
+    try:
+        env.reset(seed=SEED)
+        rng = np.random.default_rng(SEED)
+        for _ in range(frames):
+            env.step(rng.uniform(-0.3, 0.3, 9))
+            camera = env.unwrapped.perception.camera
+            f, config = camera.frame, camera.config
+            raw = transform(depth_to_points(f.depth, f.intrinsics, f.tool_mask), f.camera_rotation, f.camera_position)
+            points.append(crop(raw, config.crop_low, config.crop_high))
+    finally:
+        env.close()
+    return points
+
+
+def _env_steps_per_second(perception: str, steps: int) -> float:
+    import gymnasium as gym
+
+    from hingelab.envs import TOOL_SHAPE_ID
+
+    env = gym.make(TOOL_SHAPE_ID, perception=perception)
+    try:
+        env.reset(seed=SEED)
+        env.step(np.zeros(9))  # the renderer's context is made on the first frames
+        rng = np.random.default_rng(SEED)
+        start = time.perf_counter()
+        for _ in range(steps):
+            env.step(rng.uniform(-0.3, 0.3, 9))
+        return steps / (time.perf_counter() - start)
+    finally:
+        env.close()
+
+
+def bench_camera(frames: int, rows: list, notes: list) -> dict:
+    """Camera frames and env steps per second; the pipeline's filters against Open3D's on the same points."""
+    from scipy.spatial import cKDTree
+
+    from hingelab.camera import AZURE_KINECT_NFOV_UNBINNED
+    from hingelab.envs.tool_perception import CameraClouds
+    from hingelab.perception.camera_cloud import ToolCloudConfig, remove_statistical_outliers, voxel_downsample
+    from hingelab.sim.core import SimCore
+
+    o3d = _require_open3d()
+    out = {}
+    # frames per second of the camera path alone: render (depth + segmentation), noise, pipeline
+    sim = SimCore("tool_shape", camera=AZURE_KINECT_NFOV_UNBINNED)
+    sim.reset(seed=SEED)
+    camera = CameraClouds()
+    camera.new_episode(SEED)
+    try:
+        camera.cloud(sim)  # the GL context
+        start = time.perf_counter()
+        for _ in range(frames):
+            camera.cloud(sim)
+        out["frames_per_s"] = frames / (time.perf_counter() - start)
+    finally:
+        camera.close()
+    rows.append({"method": f"camera frames ({AZURE_KINECT_NFOV_UNBINNED.width}x{AZURE_KINECT_NFOV_UNBINNED.height}: "
+                           "render, noise, pipeline)", "updates/s": out["frames_per_s"],
+                 "ms per update": 1000 / out["frames_per_s"]})
+    for perception in ("synthesized", "camera"):
+        out[f"env_{perception}"] = _env_steps_per_second(perception, frames)
+        rows.append({"method": f"ToolShape-v0 env steps, {perception} perception", "updates/s": out[f"env_{perception}"],
+                     "ms per update": 1000 / out[f"env_{perception}"]})
+    # the filters on the same points, ours and Open3D's
+    config = ToolCloudConfig()
+    clouds = _camera_points(frames)
+    ours_s = o3d_s = 0.0
+    kept_ours = kept_o3d = voxels_ours = voxels_o3d = 0
+    gaps = []
+    for pts in clouds:
+        start = time.perf_counter()
+        kept = remove_statistical_outliers(pts, config.outlier_neighbours, config.outlier_std_ratio)
+        vox = voxel_downsample(kept, config.voxel_m)
+        ours_s += time.perf_counter() - start
+        start = time.perf_counter()
+        cloud = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(pts))
+        filtered, _ = cloud.remove_statistical_outlier(nb_neighbors=config.outlier_neighbours,
+                                                       std_ratio=config.outlier_std_ratio)
+        down = np.asarray(filtered.voxel_down_sample(config.voxel_m).points)
+        o3d_s += time.perf_counter() - start
+        kept_ours, kept_o3d = kept_ours + len(kept), kept_o3d + len(filtered.points)
+        voxels_ours, voxels_o3d = voxels_ours + len(vox), voxels_o3d + len(down)
+        gaps.append(cKDTree(down).query(vox)[0])
+    gaps = np.concatenate(gaps)
+    points_in = sum(len(p) for p in clouds)
+    out.update(ours_ms=1000 * ours_s / len(clouds), o3d_ms=1000 * o3d_s / len(clouds))
+    rows.append({"method": "camera pipeline filters, ours (scipy cKDTree, numpy voxels)", "ms per cloud": out["ours_ms"]})
+    rows.append({"method": "camera pipeline filters, Open3D (remove_statistical_outlier, voxel_down_sample)",
+                 "ms per cloud": out["o3d_ms"]})
+    out["kept_ratio"] = kept_ours / kept_o3d
+    out["voxel_ratio"] = voxels_ours / voxels_o3d
+    notes.append(f"camera pipeline filters on {len(clouds)} rendered frames' tool points ({points_in / len(clouds):.0f} "
+                 f"per frame): outlier removal kept {kept_ours} (ours) and {kept_o3d} (Open3D) points, the 2 mm grid "
+                 f"made {voxels_ours} and {voxels_o3d} voxels; each of our voxel centroids lies "
+                 f"{1000 * np.median(gaps):.3f} mm (median) and {1000 * gaps.max():.3f} mm (max) from Open3D's nearest")
+    return out
+
+
 def run(quick: bool = False, encoder: Path | None = None) -> BenchTable:
     """``encoder``: a checkpoint to measure instead of the shipped one (the encoder rows)."""
     n = 64 if quick else 400
@@ -276,6 +391,7 @@ def run(quick: bool = False, encoder: Path | None = None) -> BenchTable:
     runtime = bench_encoder(200 if quick else 1000, 8 if quick else 32, 0.003, rows, notes, plot=None,
                             encoder_path=encoder)
     tracking = bench_tracking(2 if quick else 10, 20 if quick else 60, rows)
+    camera = bench_camera(10 if quick else 100, rows, notes)
     notes.append(f"latent-space plot: {plot if quick else plot.relative_to(ANALYSIS_DIR.parent)}")
     notes.append("ratios are ours / Open3D (below 1: ours better or faster); the clouds are held out "
                  f"(seed {SEED}), {n} for registration")
@@ -292,8 +408,14 @@ def run(quick: bool = False, encoder: Path | None = None) -> BenchTable:
                    "opening bias (read - true), 3 mm clouds (the sim's), mrad": runtime["bias_mrad"],
                    "tool-state updates/s, 64 vs 1 cloud per update": speed[64] / speed[1],
                    "rotation change per step at rest, motion prior / frame by frame":
-                       tracking["motion prior"] / tracking["frame by frame"]})
-    return BenchTable(name="perception", title="Tool perception: registration vs Open3D ICP, encoder, tool state",
+                       tracking["motion prior"] / tracking["frame by frame"],
+                   "camera frames/s (render, noise, pipeline)": camera["frames_per_s"],
+                   "ToolShape-v0 env steps/s, camera / synthesized perception":
+                       camera["env_camera"] / camera["env_synthesized"],
+                   "camera pipeline filters ms, ours/open3d": camera["ours_ms"] / camera["o3d_ms"],
+                   "camera pipeline outlier removal, points kept ours/open3d": camera["kept_ratio"],
+                   "camera pipeline voxels, ours/open3d": camera["voxel_ratio"]})
+    return BenchTable(name="perception", title="Tool perception: registration vs Open3D ICP, encoder, tool state, depth camera",
                       columns=columns, rows=rows, ratios=ratios, notes=notes,
                       config={"quick": quick, "registration_clouds": n, "seed": SEED,
                               "encoder": str(encoder) if encoder else "shipped"})

@@ -10,6 +10,9 @@ recorded ``success``, so ``hingelab report`` of ``--out`` counts the same episod
 random), on ToolPick-v0
 (``hingelab.learning.high_level_eval``): success within 200 steps and at the first attempt,
 attempts and failure reasons per episode; a table with Wilson 95% intervals (table.csv, report.md).
+
+``perception``: the depth camera's perception against the synthesized clouds on the same poses
+(``hingelab.cli.eval_perception``).
 """
 
 from __future__ import annotations
@@ -78,6 +81,9 @@ def add_parser(subparsers) -> None:
                       help="continue a stopped evaluation (a full disk, a kill) in --out: its finished episodes are "
                            "kept, the rest run with their own seeds; the other settings must be the same")
     high.set_defaults(func=run_high)
+    from hingelab.cli import eval_perception
+
+    eval_perception.add_parser(what)
 
 
 def run_low(args: argparse.Namespace) -> int:

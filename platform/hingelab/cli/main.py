@@ -50,7 +50,24 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
+def mujoco_importable() -> str | None:
+    """None, or the one-line reason MuJoCo does not import: a ``MUJOCO_GL`` it cannot use fails at import."""
+    try:
+        import mujoco  # noqa: F401
+    except Exception as exc:  # RuntimeError (an unknown value) or AttributeError (a backend's library missing)
+        if "MUJOCO_GL" not in os.environ:
+            raise
+        first = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
+        return (f"MuJoCo does not load with MUJOCO_GL={os.environ['MUJOCO_GL']} ({first}); set MUJOCO_GL to a "
+                "backend this machine has: egl (headless), osmesa (Mesa's software renderer) or glfw (a display)")
+    return None
+
+
 def main(argv: list[str] | None = None) -> int:
+    problem = mujoco_importable()
+    if problem:
+        print(f"hingelab: error: {problem}", file=sys.stderr)
+        return 1
     parser = build_parser()
     args = parser.parse_args(argv)
     args.argv = list(sys.argv[1:] if argv is None else argv)  # the command line (a resume hint repeats it)

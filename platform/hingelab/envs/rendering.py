@@ -25,6 +25,9 @@ class SimRenderMixin:
         return self._renderer.render()
 
     def close(self):
+        perception = getattr(self, "perception", None)
+        if perception is not None:
+            perception.close()
         if self._renderer is not None:
             self._renderer.close()
             self._renderer = None

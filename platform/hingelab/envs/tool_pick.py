@@ -61,7 +61,7 @@ from hingelab.envs.low_level import SHIPPED_LOW_LEVEL, PolicyLowLevel, Privilege
 from hingelab.envs.rendering import SimRenderMixin
 from hingelab.envs.rewards import HighLevelRewardConfig, high_level_terms
 from hingelab.envs.tool_shape import DROP_DISTANCE_M
-from hingelab.envs.tool_perception import ToolPerception
+from hingelab.envs.tool_perception import ToolPerception, camera_for
 from hingelab.errors import ConfigError
 from hingelab.sim import scripted
 from hingelab.sim.core import SimCore
@@ -92,14 +92,15 @@ class ToolPickEnv(SimRenderMixin, gym.Env):
                  low_level: str = "privileged", randomize: bool = True, placement_half_width: float = 0.05,
                  max_episode_steps: int = 200, encoder_path: str | None = None,
                  reward: HighLevelRewardConfig | None = None, render_mode: str | None = None,
-                 terminate_on_drop: bool = True, observe_extent: bool = False):
+                 terminate_on_drop: bool = True, observe_extent: bool = False, perception: str = "synthesized"):
         from hingelab.perception.encoder import load_encoder
 
         self.object = ObjectSpec(object, size, mass)
         if max_episode_steps < 1:
             raise ConfigError(f"max_episode_steps must be positive, not {max_episode_steps}")
-        self.sim = SimCore("tool_pick", obj=self.object, randomization=RandomizationConfig(enabled=randomize))
-        self.perception = ToolPerception(load_encoder(encoder_path), dt=self.sim.control_dt)
+        self.sim = SimCore("tool_pick", obj=self.object, randomization=RandomizationConfig(enabled=randomize),
+                           camera=camera_for(perception))
+        self.perception = ToolPerception(load_encoder(encoder_path), dt=self.sim.control_dt, perception=perception)
         calibration = self.perception.calibration
         if calibration is None:
             raise ConfigError("the encoder checkpoint has no latent-opening calibration; retrain it")
@@ -202,9 +203,13 @@ class ToolPickEnv(SimRenderMixin, gym.Env):
         info["executed_action"] = np.asarray(executed, float)
         dropped = info["tool_dropped"] and not success and not result.diverged
         terminated = success or (dropped and self.terminate_on_drop)
-        truncated = (not terminated) and (result.diverged or self.steps >= self.max_episode_steps)
+        blind = self.perception.flag is not None  # the camera gave no cloud: end the episode, keep what it did
+        info["perception_flag"] = self.perception.flag
+        truncated = (not terminated) and (result.diverged or blind or self.steps >= self.max_episode_steps)
         if result.diverged:
             info["failure_reason"] = "divergence"
+        elif blind and not terminated:
+            info["failure_reason"] = "no_camera_cloud"
         elif dropped:
             info["failure_reason"] = "tool_drop"
         elif truncated:

@@ -96,7 +96,7 @@ from gymnasium import spaces
 from hingelab.envs.rendering import SimRenderMixin
 from hingelab.envs.rewards import (LowLevelRewardConfig, drift_term, effort_from_info, effort_quantities,
                                    effort_terms, goal_reward)
-from hingelab.envs.tool_perception import ToolPerception
+from hingelab.envs.tool_perception import ToolPerception, camera_for
 from hingelab.errors import ConfigError
 from hingelab.perception.clouds import ToolGeometry
 from hingelab.sim.core import SimCore
@@ -122,16 +122,18 @@ class ToolShapeEnv(SimRenderMixin, gym.Env):
                  encoder_path: str | None = None, realistic_clouds: bool = True,
                  reward: LowLevelRewardConfig | None = None, render_mode: str | None = None,
                  smoothing_alpha: float = 0.9, terminate_on_drop: bool = True, effort_weight: float | None = None,
-                 drift_weight: float = 0.0, goal_openings: tuple[float, float] | None = None):
+                 drift_weight: float = 0.0, goal_openings: tuple[float, float] | None = None,
+                 perception: str = "synthesized"):
         if goal_sampling not in GOAL_SAMPLERS:
             raise ConfigError(f"goal_sampling {goal_sampling!r} is unknown; choose one of {GOAL_SAMPLERS}")
         if not 0 < action_scale <= 0.5:
             raise ConfigError(f"action_scale {action_scale} rad per step is out of range (0, 0.5]")
         from hingelab.perception.encoder import load_encoder
 
-        self.sim = SimCore("tool_shape", randomization=RandomizationConfig(enabled=randomize))
+        self.sim = SimCore("tool_shape", randomization=RandomizationConfig(enabled=randomize),
+                           camera=camera_for(perception))
         self.perception = ToolPerception(load_encoder(encoder_path), realistic=realistic_clouds,
-                                         dt=self.sim.control_dt, alpha=smoothing_alpha)
+                                         dt=self.sim.control_dt, alpha=smoothing_alpha, perception=perception)
         self.calibration = self.perception.calibration
         if self.calibration is None:
             raise ConfigError("the encoder checkpoint has no latent-opening calibration; "
@@ -213,9 +215,13 @@ class ToolShapeEnv(SimRenderMixin, gym.Env):
         info["diverged"] = result.diverged
         reward = goal + tool_term + finger_term + terms.get("drift", 0.0)
         terminated = bool(info["dropped"]) and not result.diverged and self.terminate_on_drop
-        truncated = bool(result.diverged)  # a void episode, not a task outcome
+        info["perception_flag"] = self.perception.flag
+        blind = self.perception.flag is not None  # the camera gave no cloud: end the episode, keep what it did
+        truncated = bool(result.diverged) or (blind and not terminated)  # void episodes, not task outcomes
         if result.diverged:
             info["failure_reason"] = "divergence"
+        elif blind and not terminated:
+            info["failure_reason"] = "no_camera_cloud"
         elif info["dropped"]:
             info["failure_reason"] = "drop"
         self.last_record = self._record(action, reward, info)

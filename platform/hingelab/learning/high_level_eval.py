@@ -11,9 +11,9 @@ noise. (``hingelab generate heuristic`` uses ``K * 100_003 + i``: the evaluation
 The random baseline draws its actions from ``numpy.random.default_rng(episode seed)``.
 
 Failure reasons (``FailureReasonWrapper``, recorded as the episode's ``failure_reason``): the env
-gives ``divergence``, ``tool_drop``, and at the time limit ``drop`` (a grasp held and was lost,
+gives ``divergence``, ``no_camera_cloud`` (camera perception: a frame gave no tool cloud), ``tool_drop``, and at the time limit ``drop`` (a grasp held and was lost,
 attempt > 1) or ``timeout``. From what the episode did (privileged state, every step) they become,
-first match wins: ``divergence``; ``tool_drop``; ``slip`` (the env's ``drop``: the object was held
+first match wins: ``divergence``; ``no_camera_cloud``; ``tool_drop``; ``slip`` (the env's ``drop``: the object was held
 off the platform and lost); ``table_collision`` (the hand or tool touched the table during the
 episode); ``missed_grasp`` (the object was never held, though the tweezer's grip point came within
 2 cm of it); ``timeout`` (anything else: never got near, or held but not brought to the target).
@@ -72,7 +72,7 @@ class FailureReasonWrapper(gym.Wrapper):
         return obs, reward, terminated, truncated, info
 
     def classify(self, env_reason: str) -> str:
-        if env_reason in ("divergence", "tool_drop"):
+        if env_reason in ("divergence", "no_camera_cloud", "tool_drop"):
             return env_reason
         if env_reason == "drop":
             return "slip"

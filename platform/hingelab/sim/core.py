@@ -50,10 +50,10 @@ class SimCore:
 
     def __init__(self, scene: str = "tool_pick", obj: ObjectSpec | None = None,
                  randomization: RandomizationConfig | None = None, control_hz: float = CONTROL_HZ,
-                 seed: int | None = None):
+                 seed: int | None = None, camera=None):
         self.scene = scene
         self.object = obj
-        self.model = load_scene(scene, obj)
+        self.model = load_scene(scene, obj, camera)  # camera: rig_camera.DepthIntrinsics or None
         self.data = mujoco.MjData(self.model)
         self.control_dt = 1.0 / control_hz
         self.n_substeps = int(round(self.control_dt / self.model.opt.timestep))

@@ -34,8 +34,11 @@ def load_spec(scene: str) -> mujoco.MjSpec:
         raise AssetError(f"scene file {path} is malformed ({first}); {REBUILD_HINT}") from exc
 
 
-def load_scene(scene: str = "tool_pick", obj: ObjectSpec | None = None) -> mujoco.MjModel:
+def load_scene(scene: str = "tool_pick", obj: ObjectSpec | None = None, camera=None) -> mujoco.MjModel:
     """Compile a scene, with the pick scene's object replaced by ``obj`` if given.
+
+    ``camera``: a ``rig_camera.DepthIntrinsics`` to add the rig's depth camera with (None: no
+    camera; a camera changes nothing in the physics).
 
     The swapped object keeps the body name ``object`` and its free joint; its geom gets the
     requested shape, size and mass. Its resting height is corrected at reset (``SimCore``).
@@ -48,6 +51,10 @@ def load_scene(scene: str = "tool_pick", obj: ObjectSpec | None = None) -> mujoc
         for geom in list(body.geoms):
             spec.delete(geom)
         add_object_geom(spec, body, obj)
+    if camera is not None:
+        from hingelab.sim.rig_camera import add_rig_camera
+
+        add_rig_camera(spec, scene_path(scene).stem, camera)
     try:
         model = spec.compile()
     except ValueError as exc:
