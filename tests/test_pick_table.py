@@ -11,10 +11,12 @@ from hingelab.episodes import create_dataset
 from hingelab.errors import ConfigError
 
 
-def eval_folder(root, policy, obj, size, outcomes, low_level="policy"):
+def eval_folder(root, policy, obj, size, outcomes, low_level="policy", perception=None):
     """An `eval high --out` folder: its card and episodes.csv (outcomes: (success, first, attempts, reason))."""
-    create_dataset(root, name=root.name, source="high_level_evaluation", seed=1000,
-                   config={"policy": policy, "object": obj, "size": size, "low_level": low_level})
+    config = {"policy": policy, "object": obj, "size": size, "low_level": low_level}
+    if perception:  # as `eval high --perception camera` records it (synthesized: not recorded)
+        config["perception"] = perception
+    create_dataset(root, name=root.name, source="high_level_evaluation", seed=1000, config=config)
     pd.DataFrame([{"episode": i, "success": s, "first_attempt_success": f, "attempts": a, "failure_reason": r}
                   for i, (s, f, a, r) in enumerate(outcomes)]).to_csv(root / "episodes.csv", index=False)
     return root
@@ -36,8 +38,19 @@ def test_rows_pooled_rows_and_intervals(tmp_path, capsys):
     assert table[(table.policy == "scripted") & (table.object == "all")].iloc[0].success_rate == 1.0
     assert main(["report", "--picks", str(a), str(b), str(c), "--out", str(tmp_path / "out"), "--allow-dirty"]) == 0
     page = (tmp_path / "out" / "picks.md").read_text()
-    assert "| x/model.zip | policy | sphere | 2.000 | 10 | 8 | 0.800 |" in page and "hingelab report --picks" in page
+    assert "| x/model.zip | policy | synthesized | sphere | 2.000 | 10 | 8 | 0.800 |" in page
+    assert "hingelab report --picks" in page
     assert len(pd.read_csv(tmp_path / "out" / "picks.csv")) == 5
+
+
+def test_camera_perception_is_a_row_of_its_own(tmp_path):
+    synthesized = eval_folder(tmp_path / "s", "runs/x/model.zip", "sphere", 0.02, [(True, True, 1, "")] * 4)
+    camera = eval_folder(tmp_path / "c", "runs/x/model.zip", "sphere", 0.02,
+                         [(True, True, 1, "")] * 2 + [(False, False, 1, "no_camera_cloud")] * 2, perception="camera")
+    table = pick_table([synthesized, camera])
+    pooled = table[table.object == "all"].set_index("perception")
+    assert pooled.loc["synthesized", "success_rate"] == 1.0 and pooled.loc["camera", "success_rate"] == 0.5
+    assert pooled.loc["camera", "failures_no_camera_cloud"] == 2
 
 
 def test_a_folder_that_is_not_an_eval_high_one_is_refused(tmp_path, capsys):

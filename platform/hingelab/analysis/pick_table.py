@@ -66,11 +66,12 @@ def read_folder(folder) -> tuple[dict, pd.DataFrame]:
 
 
 def pick_table(folders) -> pd.DataFrame:
-    """One row per folder, then per (policy, low level) a pooled row (``object`` = "all")."""
+    """One row per folder, then per (policy, low level, perception) a pooled row (``object`` = "all")."""
     rows, frames = [], []
     for folder in folders:
         config, frame = read_folder(folder)
-        key = {"policy": policy_label(config), "low_level": str(config.get("low_level", "?"))}
+        key = {"policy": policy_label(config), "low_level": str(config.get("low_level", "?")),
+               "perception": str(config.get("perception", "synthesized"))}
         seed = json.loads((Path(folder) / "dataset.json").read_text()).get("seed")
         rows.append({**key, "object": str(config["object"]), "size_cm": round(100 * float(config["size"]), 3),
                      "episodes": len(frame), "seed": seed, **pick_rates(frame)})
@@ -80,11 +81,13 @@ def pick_table(folders) -> pd.DataFrame:
         raise ConfigError("give at least one `hingelab eval high` folder to --picks")
     # each policy's sets together, in the order its first folder came (the folders' names sort otherwise:
     # learned_cube, learned_privileged_cube, learned_sphere)
-    order = {key: i for i, key in reversed(list(enumerate((r["policy"], r["low_level"]) for r in rows)))}
-    rows.sort(key=lambda r: (order[(r["policy"], r["low_level"])], r["object"], r["size_cm"]))
+    keys = ("policy", "low_level", "perception")
+    order = {key: i for i, key in reversed(list(enumerate(tuple(r[k] for k in keys) for r in rows)))}
+    rows.sort(key=lambda r: (order[tuple(r[k] for k in keys)], r["object"], r["size_cm"]))
     pooled = []
-    for (policy, low_level), part in pd.concat(frames).groupby(["policy", "low_level"], sort=False):
-        pooled.append({"policy": policy, "low_level": low_level, "object": "all", "size_cm": float("nan"),
+    for (policy, low_level, perception), part in pd.concat(frames).groupby(list(keys), sort=False):
+        pooled.append({"policy": policy, "low_level": low_level, "perception": perception, "object": "all",
+                       "size_cm": float("nan"),
                        "episodes": len(part), "seed": None, **pick_rates(part),
                        "lowest_set_success_rate": float(part["_set_rate"].min()),
                        "lowest_set_first_attempt_success_rate": float(part["_set_first"].min())})
@@ -99,13 +102,14 @@ def write_picks(folders, out, command: str) -> pd.DataFrame:
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
     table.to_csv(out / "picks.csv", index=False)
-    shown = table[["policy", "low_level", "object", "size_cm", "episodes", "first_attempt_successes",
+    shown = table[["policy", "low_level", "perception", "object", "size_cm", "episodes", "first_attempt_successes",
                    "first_attempt_success_rate", "first_attempt_ci_low", "first_attempt_ci_high", "successes",
                    "success_rate", "ci_low", "ci_high", "mean_attempts"]]
-    failures = table[["policy", "low_level", "object", "size_cm", *[f"failures_{r}" for r in FAILURE_REASONS]]]
+    failures = table[["policy", "low_level", "perception", "object", "size_cm",
+                      *[f"failures_{r}" for r in FAILURE_REASONS]]]
     version = code_version()
     (out / "picks.md").write_text(
-        "# Pick table\n\nPer policy (and the low level under it), shape and size: success at the first attempt "
+        "# Pick table\n\nPer policy (and the low level under it, and where its tool clouds came from), shape and size: success at the first attempt "
         "and within the 200 steps (object within 1 cm of the target), Wilson 95% intervals; `all` pools the "
         "policy's sets.\n\n" + markdown_table(shown.round(3)) + "\n\n## Failure reasons\n\n"
         + markdown_table(failures) + f"\n\nMade by: `{command}` (hingelab {version['hingelab_version']}, "

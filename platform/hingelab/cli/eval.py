@@ -45,6 +45,9 @@ def add_parser(subparsers) -> None:
                           "synergy (the scripted controller: z_goal -> calibrated opening -> grasp-synergy "
                           "finger targets)")
     low.add_argument("--no-randomize", action="store_true", help="evaluate without domain randomization")
+    low.add_argument("--perception", choices=("synthesized", "camera"), default="synthesized",
+                     help="where the tool clouds come from: synthesized from the tool's model (default, as in "
+                          "training) or the rendered depth camera through the camera cloud pipeline")
     low.add_argument("--no-progress", action="store_true", help="no progress bar")
     low.add_argument("--resume", action="store_true",
                       help="continue a stopped evaluation (a full disk, a kill) in --out: its finished episodes are "
@@ -76,6 +79,9 @@ def add_parser(subparsers) -> None:
     high.add_argument("--low-level", default=None,
                       help="the frozen low level: policy (the shipped low-level policy), privileged, or a low-level "
                            "checkpoint (default: the one the checkpoint learned over; for baselines, policy)")
+    high.add_argument("--perception", choices=("synthesized", "camera"), default="synthesized",
+                      help="where the tool clouds come from: synthesized from the tool's model (default, as in "
+                           "training) or the rendered depth camera through the camera cloud pipeline")
     high.add_argument("--no-progress", action="store_true", help="no progress bar")
     high.add_argument("--resume", action="store_true",
                       help="continue a stopped evaluation (a full disk, a kill) in --out: its finished episodes are "
@@ -106,6 +112,8 @@ def run_low(args: argparse.Namespace) -> int:
     provenance = getattr(model, "hingelab_provenance", {}) or {}
     # the env the checkpoint was trained on (its record), on held-out goals: not its training goal band
     env_args = {**(evaluation_env_arguments(model) if model is not None else {}), "randomize": not args.no_randomize}
+    if args.perception != "synthesized":  # recorded only when it differs: older evaluations resume unchanged
+        env_args["perception"] = args.perception
     config = {"checkpoint": label, "episodes": args.episodes, "env": env_args,
               "checkpoint_git_commit": provenance.get("git_commit", "unknown")}
     # a run's model.zip and best_model.zip: the run folder names the dataset
@@ -196,10 +204,13 @@ def run_high(args: argparse.Namespace) -> int:
         policy, label = H.ModelPolicy(model), str(args.checkpoint)
         observe_extent = observes_extent(model)
     # bad object or low level: an error before files
-    H.make_eval_env(args.object, args.size, low_level, observe_extent=observe_extent).close()
+    H.make_eval_env(args.object, args.size, low_level, observe_extent=observe_extent,
+                    perception=args.perception).close()
     config = {"policy": label, "object": args.object, "size": args.size, "episodes": args.episodes,
               "low_level": low_level, "observe_extent": observe_extent,
               "seeds": f"{H.SEED_BASE} + seed * {H.SEED_STRIDE} + episode"}
+    if args.perception != "synthesized":  # recorded only when it differs: older evaluations resume unchanged
+        config["perception"] = args.perception
     name = f"eval-high-{args.baseline or Path(args.checkpoint).stem}"
     journal = prepare_resume(args.out, {**config, "seed": args.seed}, args.resume)
     if not args.resume:
@@ -207,7 +218,8 @@ def run_high(args: argparse.Namespace) -> int:
                        seed=args.seed, description=f"hingelab eval high: {label} on ToolPick-v0, {args.object} "
                                                    f"{args.size * 100:g} cm")
     env = H.make_eval_env(args.object, args.size, low_level, record_dir=args.out, observe_extent=observe_extent,
-                          extra_metadata={"policy": label, "low_level": low_level})
+                          extra_metadata={"policy": label, "low_level": low_level, "perception": args.perception},
+                          perception=args.perception)
     try:
         with stop_cleanly_on_a_full_disk(args, journal):
             episodes = H.evaluate(policy, env, args.episodes, args.seed, progress=not args.no_progress,
@@ -221,7 +233,8 @@ def run_high(args: argparse.Namespace) -> int:
     row = table.iloc[0]
     failures = ", ".join(f"{r} {int(row[f'failures_{r}'])}" for r in H.FAILURE_REASONS if row[f"failures_{r}"])
     summary = (f"Evaluated {label} (low level {low_level}) on {args.episodes} episodes of ToolPick-v0 with a "
-               f"{args.object} of {args.size * 100:g} cm, seed {args.seed}: success within 200 steps (object within "
+               f"{args.object} of {args.size * 100:g} cm, {args.perception} perception, seed {args.seed}: success "
+               f"within 200 steps (object within "
                f"1 cm of the target, the episodes' recorded verdict) {int(row['successes'])}/{args.episodes} = "
                f"{row['success_rate']:.2f} [{row['ci_low']:.2f}, {row['ci_high']:.2f}], at the first attempt "
                f"{int(row['first_attempt_successes'])}/{args.episodes} = {row['first_attempt_success_rate']:.2f} "

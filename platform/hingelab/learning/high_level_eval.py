@@ -84,15 +84,18 @@ class FailureReasonWrapper(gym.Wrapper):
 
 
 def make_eval_env(object: str, size: float, low_level: str, record_dir: Path | None = None,
-                  extra_metadata: dict | None = None, max_episode_steps: int = 200, observe_extent: bool = False):
+                  extra_metadata: dict | None = None, max_episode_steps: int = 200, observe_extent: bool = False,
+                  perception: str = "synthesized"):
     """ToolPick-v0 (randomized as in training), failure reasons refined, recorded into ``record_dir``;
-    ``observe_extent`` as the policy was trained (its checkpoint's ``env_kwargs``)."""
+    ``observe_extent`` as the policy was trained (its checkpoint's ``env_kwargs``); ``perception``:
+    synthesized clouds or the depth camera."""
     from hingelab.envs import TOOL_PICK_ID
     from hingelab.envs.recording import RecordingWrapper
     from hingelab.sim.mesh_objects import object_label
 
     env = FailureReasonWrapper(gym.make(TOOL_PICK_ID, object=object, size=size, low_level=low_level,
-                                        max_episode_steps=max_episode_steps, observe_extent=observe_extent))
+                                        max_episode_steps=max_episode_steps, observe_extent=observe_extent,
+                                        perception=perception))
     if record_dir is not None:
         env = RecordingWrapper(env, record_dir, source="high_level_evaluation", object_name=object_label(object),
                                action_level="high", extra_metadata={"object_size": size, **(extra_metadata or {})})
