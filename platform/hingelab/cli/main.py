@@ -21,6 +21,7 @@ VERB_MODULES = [
     "hingelab.cli.generate",
     "hingelab.cli.train",
     "hingelab.cli.eval",
+    "hingelab.cli.trial",
     "hingelab.cli.compose",
     "hingelab.cli.view",
     "hingelab.cli.report",

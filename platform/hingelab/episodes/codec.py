@@ -102,6 +102,45 @@ def encode_frame_transform(log_time_ns: int, position, orientation_xyzw) -> byte
     ).SerializeToString()
 
 
+def encode_camera_transform(log_time_ns: int, rotation, position) -> bytes:
+    """The depth camera's optical frame in hand_base: R (3, 3) camera -> hand_base, position (3,) m."""
+    from scipy.spatial.transform import Rotation
+
+    quat = Rotation.from_matrix(np.asarray(rotation, float)).as_quat()  # x, y, z, w
+    pose = _pose(position, quat)
+    return S.FrameTransform(
+        timestamp=timestamp(log_time_ns), parent_frame_id=S.FRAME_HAND,
+        child_frame_id=S.FRAME_CAMERA, translation=pose["position"], rotation=pose["orientation"],
+    ).SerializeToString()
+
+
+def encode_depth_image(log_time_ns: int, depth_m: np.ndarray) -> bytes:
+    """A depth image (H, W) metres (0: no return) as foxglove.RawImage 16UC1 millimetres (the camera's own format)."""
+    depth = np.asarray(depth_m, dtype=np.float64)
+    mm = np.clip(np.rint(depth * 1000.0), 0, 65535).astype("<u2")
+    height, width = mm.shape
+    return S.RawImage(timestamp=timestamp(log_time_ns), frame_id=S.FRAME_CAMERA, width=width, height=height,
+                      encoding="16UC1", step=2 * width, data=mm.tobytes()).SerializeToString()
+
+
+def decode_depth_image(message) -> np.ndarray:
+    """foxglove.RawImage 16UC1 millimetres -> (H, W) float32 metres."""
+    if message.encoding != "16UC1":
+        raise ValueError(f"depth image encoding {message.encoding!r}, expected 16UC1")
+    mm = np.frombuffer(message.data, dtype="<u2").reshape(message.height, message.width)
+    return mm.astype(np.float32) / 1000.0
+
+
+def encode_camera_calibration(log_time_ns: int, intrinsics) -> bytes:
+    """``hingelab.camera.DepthIntrinsics`` as foxglove.CameraCalibration (no distortion: an undistorted image)."""
+    k = intrinsics
+    return S.CameraCalibration(
+        timestamp=timestamp(log_time_ns), frame_id=S.FRAME_CAMERA, width=k.width, height=k.height,
+        distortion_model="", D=[], K=[k.fx, 0.0, k.cx, 0.0, k.fy, k.cy, 0.0, 0.0, 1.0],
+        R=[1.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0], P=[k.fx, 0.0, k.cx, 0.0, 0.0, k.fy, k.cy, 0.0, 0.0, 0.0, 1.0, 0.0],
+    ).SerializeToString()
+
+
 def encode_point3(log_time_ns: int, position) -> bytes:
     """A point (3,) metres in hand_base as foxglove.Point3InFrame."""
     p = np.asarray(position, dtype=np.float64)

@@ -5,7 +5,7 @@ Formats (documented in ``datasets/README.md``):
 - integers (``seed``, ``length``, ``attempt``, ``schema_version``): decimal, ``"42"``
 - floats (``return``, ``start_time_s``, ``end_time_s``): Python ``repr``, the shortest
   string that round-trips the float64 exactly (``"12.75"``, ``"nan"``, ``"inf"``)
-- booleans (``success``, ``recovered``, ``last_step_success``): ``"true"`` / ``"false"``
+- booleans (``success``, ``recovered``, ``last_step_success``, ``first_attempt_success``): ``"true"`` / ``"false"``
 - lists of names (``joint_names``): comma-separated, no spaces
 - everything else: the string itself. A fact that is unknown is left out, never ``"None"``.
 """
@@ -19,7 +19,7 @@ from hingelab.episodes import schemas as S
 
 INT_KEYS = frozenset({S.KEY_SEED, S.KEY_LENGTH, S.KEY_ATTEMPT, S.KEY_SCHEMA_VERSION})
 FLOAT_KEYS = frozenset({S.KEY_RETURN, S.KEY_START_TIME, S.KEY_END_TIME})
-BOOL_KEYS = frozenset({S.KEY_SUCCESS, S.KEY_TRUNCATED_FILE, S.KEY_LAST_STEP_SUCCESS})
+BOOL_KEYS = frozenset({S.KEY_SUCCESS, S.KEY_TRUNCATED_FILE, S.KEY_LAST_STEP_SUCCESS, S.KEY_FIRST_ATTEMPT_SUCCESS})
 LIST_KEYS = frozenset({S.KEY_JOINT_NAMES})
 
 

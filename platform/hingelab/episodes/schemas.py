@@ -15,12 +15,14 @@ from __future__ import annotations
 from google.protobuf import descriptor_pb2, descriptor_pool, timestamp_pb2
 from google.protobuf.message_factory import GetMessageClass
 
+from foxglove_schemas_protobuf.CameraCalibration_pb2 import CameraCalibration
 from foxglove_schemas_protobuf.FrameTransform_pb2 import FrameTransform
 from foxglove_schemas_protobuf.JointStates_pb2 import JointStates
 from foxglove_schemas_protobuf.PackedElementField_pb2 import PackedElementField
 from foxglove_schemas_protobuf.Point3InFrame_pb2 import Point3InFrame
 from foxglove_schemas_protobuf.PointCloud_pb2 import PointCloud
 from foxglove_schemas_protobuf.PoseInFrame_pb2 import PoseInFrame
+from foxglove_schemas_protobuf.RawImage_pb2 import RawImage
 
 # Version of topics, schemas and metadata keys. Bump on any incompatible change
 # and keep the reader able to read every older version.
@@ -28,11 +30,15 @@ from foxglove_schemas_protobuf.PoseInFrame_pb2 import PoseInFrame
 #   2: metadata keys ``success_verdict`` and ``last_step_success``; ToolShape-v0's ``success`` is
 #      the settled verdict (version 1 recorded its last step's). Messages unchanged: the proto file
 #      stays ``episodes_v1.proto``, and a version-1 file reads as before (no ``success_verdict``).
-SCHEMA_VERSION = 2
+#   3: optional topics of a camera and an arm (robot trials, ``hingelab trial``): /camera/depth,
+#      /camera/calibration, /camera/pose, /arm/joints; metadata key ``outcome_by`` (who judged a trial:
+#      ``operator`` or ``simulation``). Files of versions 1 and 2 have none of them and read as before.
+SCHEMA_VERSION = 3
 
 # --- frames -------------------------------------------------------------------
 FRAME_HAND = "hand_base"  # the SVH hand's base frame; every position below is in it
 FRAME_TOOL = "tool"  # the registered tool (tweezer) frame, child of hand_base
+FRAME_CAMERA = "camera_depth_optical"  # the depth camera's optical frame (x right, y down, z forward)
 
 # --- topics (name -> what is on it) ---------------------------------------------
 TOPIC_POINTS = "/tool/points"  # foxglove.PointCloud, 256 x (x, y, z) float32 metres, hand_base
@@ -48,6 +54,13 @@ TOPIC_TARGET = "/target/position"  # foxglove.Point3InFrame, metres, hand_base
 TOPIC_PRIVILEGED = "/sim/privileged"  # hingelab.PrivilegedState: simulator ground truth
 TOPIC_STEP = "/step"  # hingelab.Step: the compact learner record
 TOPIC_COLUMNS = "/episode/columns"  # hingelab.EpisodeColumns: one message per episode
+# Camera and arm (schema 3; trials record them, simulated training rollouts do not). Depth frames are
+# not in /episode/columns (their size); ``hingelab.episodes.camera_topics.read_camera`` reads them.
+TOPIC_DEPTH = "/camera/depth"  # foxglove.RawImage "16UC1", millimetres along the optical axis, 0: no return
+TOPIC_CAMERA_CALIBRATION = "/camera/calibration"  # foxglove.CameraCalibration of the depth image (undistorted)
+TOPIC_CAMERA_POSE = "/camera/pose"  # foxglove.FrameTransform hand_base -> camera_depth_optical
+TOPIC_ARM_JOINTS = "/arm/joints"  # foxglove.JointStates, the arm's 6 joints: rad, rad/s
+CAMERA_TOPICS = (TOPIC_DEPTH, TOPIC_CAMERA_CALIBRATION, TOPIC_CAMERA_POSE)
 # Columns of /episode/columns under this name hold the CRC32 of each metadata record (MCAP metadata
 # records carry no CRC; the columns' chunk does): "<this>:<record name>", uint32 (metadata_digest).
 DIGEST_COLUMNS = "/episode/metadata_crc32"
@@ -86,6 +99,8 @@ KEY_JOINT_NAMES = "joint_names"
 KEY_ACTION_LEVEL = "action_level"
 KEY_SUCCESS_VERDICT = "success_verdict"  # (v2) which verdict ``success`` is: a key of SUCCESS_VERDICTS
 KEY_LAST_STEP_SUCCESS = "last_step_success"  # (v2) ToolShape-v0's secondary, one-frame verdict; never ``success``
+KEY_OUTCOME_BY = "outcome_by"  # (v3) who judged a trial's outcome: "operator" or "simulation"
+KEY_FIRST_ATTEMPT_SUCCESS = "first_attempt_success"  # ToolPick-v0 episodes and trials: success at attempt 1
 
 # The verdicts ``success`` may be (the ``success_verdict`` values): one per task, the one the
 # env's info["is_success"], the demo, eval, report and the benches count.
@@ -95,6 +110,8 @@ SUCCESS_VERDICTS = {
     "settled_0.5s": "settled over the last 0.5 s (ToolShape-v0)",
     # the object within 1 cm of the target (the episode ends on it; the heuristic's episodes too)
     "object_within_1cm": "object within 1 cm of the target (ToolPick-v0)",
+    # (v3) robot trials judged on the terminal (hingelab trial --operator)
+    "operator": "judged by the operator (robot trials)",
 }
 # What version-1 episodes (no ``success_verdict``) recorded as ``success``, by task
 SCHEMA_V1_VERDICTS = {
@@ -250,6 +267,10 @@ TOPIC_TYPES = {
     TOPIC_PRIVILEGED: PrivilegedState,
     TOPIC_STEP: Step,
     TOPIC_COLUMNS: EpisodeColumns,
+    TOPIC_DEPTH: RawImage,
+    TOPIC_CAMERA_CALIBRATION: CameraCalibration,
+    TOPIC_CAMERA_POSE: FrameTransform,
+    TOPIC_ARM_JOINTS: JointStates,
 }
 
 # Schema names a hingelab episode may carry; anything else is a foreign schema.

@@ -282,6 +282,25 @@ class EpisodeWriter:
                 or (self.flush_every_steps and self._steps_since_flush >= self.flush_every_steps)):
             self._flush_block()
 
+    def write_camera(self, time_s: float, depth_m, intrinsics, camera_rotation, camera_position,
+                     calibration: bool = False) -> None:
+        """Log a depth frame (H, W) metres on /camera/depth (16-bit millimetres), the camera's pose in
+        hand_base on /camera/pose and, with ``calibration`` (the first frame), /camera/calibration.
+        Not in /episode/columns: ``hingelab.episodes.camera_topics.read_camera`` reads them back."""
+        t = self.time_offset_ns + round(time_s * 1e9)
+        if calibration:
+            self._emit(S.TOPIC_CAMERA_CALIBRATION, t, codec.encode_camera_calibration(t, intrinsics))
+        self._emit(S.TOPIC_CAMERA_POSE, t, codec.encode_camera_transform(t, camera_rotation, camera_position))
+        self._emit(S.TOPIC_DEPTH, t, codec.encode_depth_image(t, depth_m))
+        if max(self._pending_bytes) >= self.chunk_bytes:
+            self._flush_block()
+
+    def write_arm_joints(self, time_s: float, names, position, velocity) -> None:
+        """The arm's joints (6, rad and rad/s) on /arm/joints."""
+        t = self.time_offset_ns + round(time_s * 1e9)
+        self._emit(S.TOPIC_ARM_JOINTS, t, codec.encode_joint_states(t, names, position, velocity),
+                   position=np.asarray(position, float), velocity=np.asarray(velocity, float))
+
     def write_final_observation(self, observation, time_s: float | None = None) -> None:
         """The observation after the last action (for next-observation of the last transition)."""
         t = self._last_ns if time_s is None else self.time_offset_ns + round(time_s * 1e9)

@@ -1,7 +1,8 @@
 """The Rerun blueprints (view layouts) of ``hingelab view``, built in code and kept as files.
 
 ``episode_blueprint()``: the 3-D tool view in hand_base (cloud, tool frame, tips,
-object, target) beside the latent plane (z and z_goal, the trajectory), and below
+object, target; a trial's camera frustum) beside the latent plane (z and z_goal, the
+trajectory) and the depth camera's image (trials), and below
 them time series of the latent, the hand joints, the reward terms and the hinge
 angle with the success and attempt markers, plus the episode's facts and events.
 
@@ -50,7 +51,9 @@ def _episode_views() -> rrb.Container:
     side = rrb.Vertical(
         rrb.TextDocumentView(name="episode", origin=E.FACTS),
         rrb.TextLogView(name="events", origin=E.EVENTS),
-        row_shares=[3, 1],
+        # robot trials: the depth camera's image (empty for simulated rollouts, which record no camera)
+        rrb.Spatial2DView(name="depth camera", origin=E.CAMERA),
+        row_shares=[3, 1, 2],
     )
     return rrb.Vertical(
         rrb.Horizontal(scene, plane, side, column_shares=[3, 2, 1.2]),

@@ -25,6 +25,8 @@ TIPS = "world/tips"  # Points3D, 2 per step: tip a, tip b (privileged)
 OBJECT = "world/object"  # Points3D, 1 per step: object position (as observed)
 TARGET = "world/target"  # Points3D, 1 per step: target position
 TIP_PATH = "world/tip_path"  # LineStrips3D (static): the midpoint of the tips over the episode
+CAMERA = "world/camera"  # Transform3D per recorded frame (optical frame in hand_base) + Pinhole (static): frustum
+CAMERA_DEPTH = "world/camera/depth"  # DepthImage, millimetres (trials: every --depth-every step)
 
 # --- one episode (series and the latent plane) ----------------------------------------------------
 HAND_JOINTS = "hand/joint_position"  # Scalars, 9 per step, rad

@@ -3,7 +3,8 @@
 Every per-step series goes out as columns on the timelines ``step`` (control step)
 and ``sim_time`` (seconds), so scrubbing either replays the episode. Static parts:
 hand_base as the 3-D frame, the tool frame's axes, series names and colors, the
-episode's facts, the latent trajectory on the latent plane and the tips' path.
+episode's facts, the latent trajectory on the latent plane and the tips' path. Episodes with
+a camera (robot trials) add its depth image and frustum (``camera_log``).
 """
 
 from __future__ import annotations
@@ -12,6 +13,7 @@ import rerun as rr
 
 from hingelab.episodes import Episode
 from hingelab.viewers import entities as E
+from hingelab.viewers.camera_log import log_camera
 from hingelab.viewers.episode_series import (
     Series, episode_facts_markdown, episode_series, latent_trajectory, tip_midpoints,
 )
@@ -35,6 +37,7 @@ def log_episode(rec: rr.RecordingStream, episode: Episode) -> list[Series]:
     path = tip_midpoints(episode)
     if path is not None and len(path) > 1:
         rec.log(E.TIP_PATH, rr.LineStrips3D([path], colors=[COLORS[E.TIPS]], radii=[0.0005]), static=True)
+    log_camera(rec, episode)  # trials: the depth image and the camera's frustum beside the cloud
     return series
 
 

@@ -1,0 +1,6 @@
+"""Robots behind one interface: the MuJoCo stand-in of the rig, and the place a real driver plugs in.
+
+``interface``: what the hierarchical controller reads and commands (``Robot``, ``RobotReadings``);
+``stand_in``: the MuJoCo stand-in (``StandInRobot``); ``controller``: the hierarchical policy acting
+on readings (``HierarchicalController``); ``trial``: ``hingelab trial``'s loop and recording.
+"""

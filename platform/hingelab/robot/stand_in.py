@@ -1,0 +1,100 @@
+"""The MuJoCo stand-in of the rig behind the robot interface: ToolPick-v0's scene, seen by the depth camera.
+
+Underneath is ``hingelab/ToolPick-v0`` with ``perception="camera"`` and domain randomization (so the
+arm, hand, tool, object and the rendered, noisy depth frames are the envs' own), driven by raw
+commands: the hand velocity and the hand's position targets go to the sim as they would go to a
+real arm and hand (``ToolPickEnv.command_privileged`` without a hinge command: the fingers alone
+move the tweezer). The env keeps its one verdict (object within 1 cm of the target), the attempts
+and the failure reasons (``FailureReasonWrapper``); ``verdict()`` reports them.
+
+What the stand-in reports as the object estimate is what a camera's object segmentation gives: the
+object's centre (the middle of its resting height) and its bounding box, each with 2 mm noise.
+
+Latency: a rig's readings are old when the controller gets them (exposure, transfer, the cloud
+pipeline). The stand-in delivers each reading ``latency_steps`` control periods late, drawn per
+trial as the env's observation delay (0 to 150 ms, ``RandomizationConfig``) rounded to whole 50 ms
+periods; the policies were trained under those delays (on 20 trials of the 2 cm sphere the shipped
+hierarchy picked 15 with them and 10 without).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from collections import deque
+
+from hingelab.robot.interface import RobotReadings, Verdict
+from hingelab.sim import names
+
+OBJECT_NOISE_M = 0.002
+
+
+class StandInRobot:
+    source = "stand_in"
+    arm_joint_names = names.ARM_JOINTS
+    hand_joint_names = names.HAND_ACTUATORS
+
+    def __init__(self, object: str = "sphere", size: float = 0.02, mass: float = 0.01, max_steps: int = 200,
+                 randomize: bool = True):
+        import gymnasium as gym
+
+        from hingelab.envs import TOOL_PICK_ID
+        from hingelab.learning.high_level_eval import FailureReasonWrapper
+
+        self.env = FailureReasonWrapper(gym.make(TOOL_PICK_ID, object=object, size=size, mass=mass,
+                                                 low_level="privileged", perception="camera", randomize=randomize,
+                                                 max_episode_steps=max_steps))
+        self.pick = self.env.unwrapped
+        self.sim = self.pick.sim
+        self._arm_qpos = [self.sim.model.joint(j).qposadr[0] for j in names.ARM_JOINTS]
+        self._arm_dof = [self.sim.model.joint(j).dofadr[0] for j in names.ARM_JOINTS]
+        self._verdict: Verdict | None = None
+        self.rng = np.random.default_rng()
+        self.last_info: dict = {}
+        self.latency_steps = 0
+        self._readings: deque[RobotReadings] = deque(maxlen=8)
+
+    def start_trial(self, seed: int) -> RobotReadings:
+        _, info = self.env.reset(seed=seed)
+        self.rng = np.random.default_rng([seed, 31])
+        self.last_info = info
+        self._verdict = Verdict(False, 1, False, False)
+        episode = self.sim.episode
+        self.latency_steps = int(round(episode.observation_delay_s / self.sim.control_dt)) if episode else 0
+        self._readings.clear()
+        return self._deliver(self._read())
+
+    def command(self, hand_velocity: np.ndarray, hand_changes: np.ndarray) -> RobotReadings:
+        rotation = self.sim.data.xmat[self.pick._hand_body].reshape(3, 3)
+        targets = self.sim.hand.q(self.sim.data) + np.asarray(hand_changes, float)  # at the servo: its own position
+        self.pick.command_privileged(rotation @ np.asarray(hand_velocity, float), None, targets)
+        _, _, terminated, truncated, info = self.env.step(np.zeros(5))
+        self.last_info = info
+        success = bool(info["is_success"])
+        self._verdict = Verdict(success, int(info["attempt"]), bool(info["first_attempt_success"]),
+                                bool(terminated or truncated), None if success else info.get("failure_reason"))
+        return self._deliver(self._read())
+
+    def verdict(self) -> Verdict | None:
+        return self._verdict
+
+    def close(self) -> None:
+        self.env.close()
+
+    def _deliver(self, fresh: RobotReadings) -> RobotReadings:
+        """The reading ``latency_steps`` periods old (the oldest one kept, early in a trial)."""
+        self._readings.append(fresh)
+        return self._readings[max(len(self._readings) - 1 - self.latency_steps, 0)]
+
+    def _read(self) -> RobotReadings:
+        data = self.sim.data
+        q, qdot = self.sim.hand.q(data), self.sim.hand.qdot(data)  # as measured now; _deliver makes them late
+        centre = self.pick.observed_object_centre() + self.rng.normal(0.0, OBJECT_NOISE_M, 3)
+        extent = self.pick.observed_object_extent() + self.rng.normal(0.0, OBJECT_NOISE_M, 3)
+        return RobotReadings(
+            stamp_s=float(data.time), arm_position=data.qpos[self._arm_qpos].copy(),
+            arm_velocity=data.qvel[self._arm_dof].copy(), hand_position=np.asarray(q, float).copy(),
+            hand_velocity=np.asarray(qdot, float).copy(),
+            hand_rotation=data.xmat[self.pick._hand_body].reshape(3, 3).copy(),
+            hand_translation=data.xpos[self.pick._hand_body].copy(), frame=self.pick.perception.camera.frame,
+            object_centre=centre, object_extent=extent)

@@ -1,0 +1,181 @@
+"""``hingelab trial``: the hierarchical policy on a robot, trial by trial, each trial one MCAP episode.
+
+A trial: the robot sets the scene up (``Robot.start_trial``; the stand-in resets, a real rig waits
+for the operator), then up to ``max_steps`` control periods of 50 ms: the controller reads the
+robot (camera frame, joints, object estimate) and commands it. Attempts: a grasp that lifts the
+object and loses it ends an attempt; the policy goes on with the next one within the same steps
+(as in ``eval high``).
+
+The outcome: without ``--operator`` the simulation's verdict (the object within 1 cm of the
+target; ``Robot.verdict``); with it, the operator is asked after each attempt on the terminal,
+``[s]uccess``, ``[f]ailure`` or ``[a]bort``, and the answers are the episode's ``success``,
+``attempt`` and ``first_attempt_success`` (``outcome_by``: ``operator``). A failure with steps left
+lets the policy try again; an abort ends the trial (``failure_reason``: ``aborted``).
+
+Each trial's episode (source ``stand_in`` or ``real``) holds per step the camera's tool cloud, the
+tracked tool pose (``/tool/pose`` and ``/tf``), the hand's and the arm's joints, the latents, the
+high-level action and latent goal, the object estimate and the target, and every ``depth_every``-th
+control period the depth image (``/camera/depth``, 16-bit mm), the camera's pose in hand_base and,
+once, its calibration. The stand-in adds the simulator's truth (``/sim/privileged``). The file is
+flushed every ``FLUSH_EVERY`` steps and kept as ``.partial`` if the trial is cut off (Ctrl-C, a
+crash): ``hingelab datasets recover`` salvages it.
+"""
+
+from __future__ import annotations
+
+from dataclasses import asdict, dataclass
+
+import numpy as np
+import pandas as pd
+
+from hingelab.errors import ConfigError
+from hingelab.robot.controller import HierarchicalController, Step
+from hingelab.robot.interface import Robot, RobotReadings
+
+FLUSH_EVERY = 20  # steps: what a crash can lose at most
+SEED_BASE = 800_000_000  # trial k of --seed S resets with SEED_BASE + S * SEED_STRIDE + k: not the eval seeds
+SEED_STRIDE = 100_003
+ANSWERS = {"s": "success", "success": "success", "f": "failure", "failure": "failure", "a": "abort", "abort": "abort"}
+
+
+def trial_seed(seed: int, index: int) -> int:
+    return SEED_BASE + int(seed) * SEED_STRIDE + int(index)
+
+
+@dataclass(frozen=True)
+class TrialConfig:
+    object: str = "sphere"
+    size: float = 0.02
+    trials: int = 12
+    seed: int = 0
+    max_steps: int = 200
+    depth_every: int = 4  # record the depth image every this many steps (5 Hz at 20 Hz control)
+    operator: bool = False
+
+    def __post_init__(self):
+        if self.trials < 1 or self.max_steps < 1 or self.depth_every < 1:
+            raise ConfigError(f"--trials, the step limit and --depth-every must be at least 1: {asdict(self)}")
+
+
+def ask_operator(question: str, read=input, write=print) -> str:
+    """One of success, failure, abort, asked until the answer is one of them (end of input: abort)."""
+    while True:
+        try:
+            answer = read(question).strip().lower()
+        except EOFError:
+            write("no answer (end of input): the trial is aborted")
+            return "abort"
+        if answer in ANSWERS:
+            return ANSWERS[answer]
+        write("answer s (success), f (failure) or a (abort)")
+
+
+def _record_step(writer, robot: Robot, readings: RobotReadings, step: Step, t: float, index: int,
+                 config: TrialConfig) -> None:
+    from scipy.spatial.transform import Rotation
+
+    from hingelab.envs.recording import privileged_fields
+
+    sample = step.sample
+    pose = None
+    if sample is not None:
+        pose = (sample.position[0], Rotation.from_matrix(sample.rotation[0]).as_quat())
+    privileged = None
+    if hasattr(robot, "sim"):  # the stand-in knows the truth; a real rig does not
+        privileged = privileged_fields(robot.sim.reader.read(robot.sim.data))
+    writer.write_step(t, points_hand=step.cloud, tool_pose_hand=pose, joint_position=readings.hand_position,
+                      joint_velocity=readings.hand_velocity,
+                      latent_z=None if sample is None else sample.z[0],
+                      latent_z_smoothed=None if sample is None else sample.z_smoothed[0],
+                      action=step.action, goal_z=step.z_goal, object_position_hand=step.object_hand,
+                      target_position_hand=step.target_hand, privileged=privileged)
+    writer.write_arm_joints(t, robot.arm_joint_names, readings.arm_position, readings.arm_velocity)
+    if index % config.depth_every == 0:
+        frame = readings.frame
+        writer.write_camera(t, frame.depth, frame.intrinsics, frame.camera_rotation, frame.camera_position,
+                            calibration=index == 0)
+
+
+def run_trial(robot: Robot, controller: HierarchicalController, writer, seed: int, config: TrialConfig,
+              read=input, write=print, label: str = "") -> dict:
+    """One trial into ``writer`` (open); returns its row: success, first_attempt_success, attempts, reason."""
+    readings = robot.start_trial(seed)
+    if not config.operator and robot.verdict() is None:
+        raise ConfigError(f"the robot {type(robot).__name__} cannot judge a trial's outcome; run with --operator")
+    controller.reset(readings, seed)
+    start = readings.stamp_s
+    attempt, outcome, reason, steps = 1, None, None, 0
+    while steps < config.max_steps:
+        step = controller.act(readings)
+        _record_step(writer, robot, readings, step, readings.stamp_s - start, steps, config)
+        if step.flag is not None:
+            outcome, reason = "failure", "no_camera_cloud"
+            write(f"{label}: the camera gave no tool cloud ({step.flag}); the trial ends")
+            break
+        readings = robot.command(step.hand_velocity, step.hand_changes)
+        steps += 1
+        verdict = robot.verdict()
+        if config.operator:
+            if verdict is None:  # a real rig: nothing tells an attempt's end; the operator judges at the step limit
+                attempt_over = steps >= config.max_steps
+            else:
+                attempt_over = verdict.done or verdict.attempt > attempt or steps >= config.max_steps
+            if attempt_over:
+                answer = ask_operator(f"{label}, attempt {attempt}: [s]uccess, [f]ailure or [a]bort? ", read, write)
+                if answer != "failure":
+                    outcome, reason = answer, (None if answer == "success" else "aborted")
+                    break
+                if verdict is None or verdict.done or steps >= config.max_steps:
+                    outcome = "failure"
+                    reason = (verdict.failure_reason if verdict is not None else None) or "operator_failure"
+                    break
+                attempt += 1
+        elif verdict.done:
+            outcome = "success" if verdict.success else "failure"
+            attempt, reason = verdict.attempt, verdict.failure_reason
+            break
+    if outcome is None:  # the step limit without a verdict that ended it
+        verdict = robot.verdict()
+        success = bool(verdict and verdict.success)
+        outcome, reason = ("success" if success else "failure"), (None if success else "timeout")
+        attempt = verdict.attempt if verdict else attempt
+    success = outcome == "success"
+    if not config.operator:
+        verdict = robot.verdict()
+        first = bool(verdict.first_attempt_success) if verdict else success and attempt == 1
+    else:
+        first = success and attempt == 1
+    writer.set_outcome(success, failure_reason=None if success else (reason or "timeout"), attempt=attempt,
+                       first_attempt_success=first, outcome_by="operator" if config.operator else "simulation")
+    return {"seed": seed, "success": success, "first_attempt_success": first, "attempts": attempt,
+            "failure_reason": "" if success else (reason or "timeout"), "steps": steps}
+
+
+def run_trials(robot: Robot, controller: HierarchicalController, dataset_dir, config: TrialConfig,
+               read=input, write=print, progress: bool = True, extra_metadata: dict | None = None) -> pd.DataFrame:
+    """``config.trials`` trials into the dataset ``dataset_dir`` (made by ``create_dataset``); their table."""
+    from tqdm import tqdm
+
+    from hingelab.episodes import EpisodeWriter
+    from hingelab.episodes import schemas as S
+    from hingelab.sim import names
+    from hingelab.sim.mesh_objects import object_label
+
+    rows = []
+    bar = tqdm(range(config.trials), desc=f"trials {config.object} {100 * config.size:g} cm", unit="trial",
+               disable=not progress or config.operator)
+    for index in bar:
+        seed = trial_seed(config.seed, index)
+        writer = EpisodeWriter(dataset_dir, source=robot.source, task="ToolPick trial",
+                               object=object_label(config.object), seed=seed, action_level="high",
+                               joint_names=names.HAND_ACTUATORS, flush_every_steps=FLUSH_EVERY,
+                               keep_partial_on_error=True,
+                               extra_metadata={"object_size": config.size, "trial": index, S.KEY_SUCCESS_VERDICT:
+                                               "operator" if config.operator else "object_within_1cm",
+                                               **(extra_metadata or {})})
+        with writer:
+            row = run_trial(robot, controller, writer, seed, config, read=read, write=write,
+                            label=f"trial {index + 1}/{config.trials}")
+        rows.append({"trial": index, **row})
+        bar.set_postfix(success=f"{sum(r['success'] for r in rows) / len(rows):.2f}")
+    return pd.DataFrame(rows)
