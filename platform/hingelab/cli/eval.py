@@ -118,6 +118,8 @@ def run_low(args: argparse.Namespace) -> int:
               "checkpoint_git_commit": provenance.get("git_commit", "unknown")}
     # a run's model.zip and best_model.zip: the run folder names the dataset
     name = f"eval-{args.baseline}" if args.baseline else f"eval-{args.checkpoint.parent.name}-{args.checkpoint.stem}"
+    if args.perception != "synthesized":  # a report of both sets of one policy tells them apart by name
+        name += f"-{args.perception}"
     journal = prepare_resume(args.out, {**config, "seed": args.seed}, args.resume)
     if not args.resume:
         create_dataset(args.out, name=name, source="low_level_evaluation", config={**config, "seed": args.seed},
@@ -212,6 +214,8 @@ def run_high(args: argparse.Namespace) -> int:
     if args.perception != "synthesized":  # recorded only when it differs: older evaluations resume unchanged
         config["perception"] = args.perception
     name = f"eval-high-{args.baseline or Path(args.checkpoint).stem}"
+    if args.perception != "synthesized":
+        name += f"-{args.perception}"
     journal = prepare_resume(args.out, {**config, "seed": args.seed}, args.resume)
     if not args.resume:
         create_dataset(args.out, name=name, source="high_level_evaluation", config={**config, "seed": args.seed},
