@@ -196,14 +196,47 @@ def step_learned_hierarchy(seed: int) -> dict:
                         observe_extent=observes_extent(model))
 
 
+DEMO_TRIAL_DATASET = DATASETS_DIR / "demo_stand_in_trial"
+
+
+def step_stand_in_trial(seed: int) -> dict:
+    """Issue 28: one `hingelab trial` on the MuJoCo stand-in of the rig: the depth camera's frames through
+    the camera cloud pipeline, the shipped hierarchy acting through the robot interface."""
+    from hingelab.episodes import create_dataset
+    from hingelab.learning.high_level_checkpoint import SHIPPED_HIGH_LEVEL
+    from hingelab.robot.controller import CheckpointHighLevel, HierarchicalController
+    from hingelab.robot.stand_in import StandInRobot
+    from hingelab.robot.trial import TrialConfig, run_trials
+
+    shutil.rmtree(DEMO_TRIAL_DATASET, ignore_errors=True)
+    if not SHIPPED_HIGH_LEVEL.exists():
+        print(f"  no shipped high-level policy ({SHIPPED_HIGH_LEVEL}) yet: step skipped")
+        return {"skipped": True}
+    started = time.perf_counter()
+    create_dataset(DEMO_TRIAL_DATASET, name="demo-stand-in-trial", source="stand_in", seed=seed,
+                   config={"robot": "sim", "object": "sphere", "size": 0.02, "trials": 1},
+                   description="hingelab demo: hingelab trial --robot sim --object sphere --trials 1")
+    robot = StandInRobot("sphere", 0.02)
+    try:
+        controller = HierarchicalController(CheckpointHighLevel(SHIPPED_HIGH_LEVEL))
+        rows = run_trials(robot, controller, DEMO_TRIAL_DATASET, TrialConfig(trials=1, seed=seed), progress=False)
+    finally:
+        robot.close()
+    row = rows.iloc[0]
+    outcome = "picked and lifted to the target" if row.success else f"failed ({row.failure_reason})"
+    print(f"  stand-in trial with the depth camera: {outcome} in {row.steps} steps, {row.attempts} attempt(s), "
+          f"{time.perf_counter() - started:.1f} s; depth images, camera pose and clouds recorded in "
+          f"{DEMO_TRIAL_DATASET}")
+    return {"dataset": str(DEMO_TRIAL_DATASET), "success": bool(row.success), "steps": int(row.steps)}
+
+
 def step_report_and_recording(seed: int) -> dict:
     """Issue 6: a success-rate report and a Rerun recording of the demo dataset."""
     from hingelab.analysis import build_report
     from hingelab.viewers.view import view
 
     datasets = [DEMO_DATASET, DEMO_LOW_LEVEL_DATASET, DEMO_HIERARCHY_DATASET]
-    if (DEMO_LEARNED_DATASET / "dataset.json").exists():
-        datasets.append(DEMO_LEARNED_DATASET)
+    datasets += [d for d in (DEMO_LEARNED_DATASET, DEMO_TRIAL_DATASET) if (d / "dataset.json").exists()]
     report = build_report(datasets, DEMO_OUT)
     result, _ = view(DEMO_DATASET, save=DEMO_OUT / "demo_heuristic.rrd", progress=False)
     # one line per dataset: the two tasks count different verdicts (the report names each)
@@ -225,6 +258,7 @@ STEPS = [
      step_scripted_hierarchy),
     ("the shipped high-level policy over the shipped low-level policy on ToolPick-v0 (the 2 cm sphere)",
      step_learned_hierarchy),
+    ("a trial on the MuJoCo stand-in of the rig, seen by its depth camera (hingelab trial)", step_stand_in_trial),
     ("report and Rerun recording of the demo datasets", step_report_and_recording),
 ]
 
