@@ -79,8 +79,6 @@ def import_bags(bags, out, topics=(), progress: bool = False, encoder=None,
 
     names = topic_names(topics)
     out = Path(out)
-    create_dataset(out, name=out.name, source=SOURCE, config=import_config(names, cloud),
-                   description="real-rig trials imported from ROS 2 bags (hingelab datasets import-ros2)")
     from hingelab.perception.tool_state import ToolState
 
     state = ToolState(encoder=encoder or load_encoder(), n_tools=1, dt=STEP_NS / 1e9)  # reset per episode
@@ -208,11 +206,14 @@ def _events(bag: Bag, name: str) -> list:
 
 def import_bag(path, out, names: dict, state, progress: bool = False,
                cloud: ToolCloudConfig = ToolCloudConfig()) -> BagSummary:
-    """One bag into the dataset ``out`` (already created); see the module docstring. ``state``: a ``ToolState``
+    """One bag into the dataset ``out`` (created if needed); see the module docstring. ``state``: a ``ToolState``
     (n_tools 1, 20 Hz), reset at every episode."""
     path = Path(path)
     bag = open_bag(path, topics=set(names.values()))
     camera_kind = _check_topics(bag, names)
+    # the dataset is made once the first bag is known to fit: a refused bag leaves no empty dataset behind
+    create_dataset(out, name=Path(out).name, source=SOURCE, config=import_config(names, cloud),
+                   description="real-rig trials imported from ROS 2 bags (hingelab datasets import-ros2)")
     summary = BagSummary(bag.name)
     summary.messages = sum(len(m) for m in bag.raw.values())
     if bag.cut_off:
