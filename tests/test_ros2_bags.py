@@ -262,3 +262,21 @@ def test_a_trial_without_end_closes_at_the_last_message_and_says_so(tmp_path, ca
     assert second.metadata["success"] is True  # its success event came before the bag ended
     assert second.topics["/step"]["truncated"][-1] and not second.topics["/step"]["terminated"].any()
     assert second.metadata["length"] > first.metadata["length"]  # it ran on to the bag's last message (the gap)
+
+
+def test_frames_without_a_tool_cloud_are_dropped_and_the_steps_take_an_earlier_one(tmp_path, capsys):
+    blind = tuple(range(10, 24))  # 14 frames (0.47 s at 30 Hz) that see only the table, inside the trial
+    write_rig_bag(tmp_path / "bag", RigBagSpec(trials=[RigTrial(duration_s=1.0)], gap_s=0.2, blind_frames=blind))
+    assert main(["datasets", "import-ros2", str(tmp_path / "bag"), "--out", str(tmp_path / "a"), "--no-progress"]) == 0
+    out = capsys.readouterr().out
+    assert "camera frames without a tool cloud in the crop box (too_few_points)" in out
+    (episode,) = _episodes(tmp_path / "a")
+    step = episode.topics["/step"]
+    times = int(episode.metadata["ros2_trial_start_ns"]) + step["log_time_ns"]
+    stamps, _ = _bag_messages(tmp_path / "bag", "/camera/depth/points")
+    last_seen = stamps[blind[0] - 1]  # the last frame with the tool before the blind run
+    held = (times >= stamps[blind[0]]) & (times < stamps[blind[-1] + 1])
+    assert held.sum() >= 8
+    # those steps hold the last frame that saw the tool: older than one frame period, never a later one
+    assert step["info.age_cloud_s"][held] == pytest.approx((times[held] - last_seen) / 1e9, abs=1e-9)
+    assert (step["info.age_cloud_s"] >= 0).all() and step["info.age_cloud_s"][~held].max() < 1 / 30 + 1e-6

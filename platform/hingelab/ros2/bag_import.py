@@ -35,7 +35,7 @@ from hingelab.episodes.errors import DatasetError
 from hingelab.episodes.writer import EpisodeWriter
 from hingelab.perception.camera_cloud import ToolCloudConfig, tool_cloud_from_frame, tool_cloud_from_points, transform
 from hingelab.ros2 import ros_messages as M
-from hingelab.ros2.bag_source import Bag, Stream, open_bag
+from hingelab.ros2.bag_source import Bag, Stream, message_stamp, open_bag, sort_stamps
 from hingelab.ros2.tf_tree import TfTree
 from hingelab.ros2.topics import ARM_JOINT_NAMES, KINDS, hand_joint_aliases, topic_names
 from hingelab.ros2.trials import Trial, split_trials
@@ -111,27 +111,64 @@ def _check_topics(bag: Bag, names: dict) -> str:
 
 
 class _Camera:
-    """Tool clouds from the camera stream, each message processed at most once."""
+    """Tool clouds from the camera topic, read in passes so that its large messages are never held at once.
 
-    def __init__(self, bag: Bag, stream: Stream, kind: str, info: Stream | None, tf: TfTree, cloud: ToolCloudConfig,
-                 summary: BagSummary, seed: int):
-        self.bag, self.stream, self.kind, self.info, self.tf = bag, stream, kind, info, tf
-        self.config, self.summary = cloud, summary
-        self.rng = np.random.default_rng(seed)
-        self._result: dict[int, tuple | None] = {}  # index -> (cloud, n_distinct, tf stamp) or None
-        self._valid_at_or_before: dict[int, int] = {}
+    The first pass reads every message's stamp (from the CDR header) and sorts them; ``prepare(times)``
+    then runs the pipeline on the frames that are the latest at or before some step (and, where one
+    gives no tool cloud, on earlier ones until one does), one more pass over the topic each time;
+    only the 256-point results are kept. The pipeline's random draw is seeded by the frame's stamp,
+    so a frame gives the same cloud whichever steps or bags ask for it.
+    """
 
-    def _process(self, i: int):
-        stamp = int(self.stream.stamps[i])
-        msg = self.bag.deserialize(self.stream.payloads[i], self.stream.msgtype)
-        where = f"{self.bag.path}: {self.stream.topic} at {stamp / 1e9:.3f} s"
+    def __init__(self, bag: Bag, topic: str, kind: str, info: Stream | None, tf: TfTree, cloud: ToolCloudConfig,
+                 summary: BagSummary):
+        self.bag, self.topic, self.msgtype, self.kind = bag, topic, bag.topics[topic], kind
+        self.info, self.tf, self.config, self.summary = info, tf, cloud, summary
+        raw = np.array([message_stamp(payload[:12], t, self.msgtype) for _, t, payload in bag.messages([topic])],
+                       dtype=np.int64)
+        order, keep, reordered = sort_stamps(raw)
+        self.stamps, self.ordinals = raw[order][keep], order[keep]  # sorted position -> position in the bag
+        self.messages = len(raw)
+        if reordered:
+            summary.notes.append(f"{reordered} messages on {topic} were stamped earlier than the one before them "
+                                 "(non-monotonic stamps); re-ordered by stamp")
+        summary.drop(f"{topic} messages with a stamp already seen (the later kept)", int(len(raw) - keep.sum()))
+        self._result: dict[int, tuple | None] = {}  # sorted position -> (cloud, n_distinct, tf stamp) or None
+
+    def _run(self, positions) -> None:
+        todo = {int(self.ordinals[p]): p for p in positions if p not in self._result}
+        if not todo:
+            return
+        for ordinal, (_, _, payload) in enumerate(self.bag.messages([self.topic])):
+            if ordinal in todo:
+                self._result[todo[ordinal]] = self._process(bytes(payload), int(self.stamps[todo[ordinal]]))
+
+    def prepare(self, times_ns: np.ndarray) -> None:
+        """Process the frames the steps at ``times_ns`` take (see the class docstring)."""
+        needed = {int(p) for p in np.searchsorted(self.stamps, times_ns, side="right") - 1 if p >= 0}
+        self._run(needed)
+        while True:
+            want = set()
+            for p in needed:
+                while p >= 0 and p in self._result and self._result[p] is None:
+                    p -= 1
+                if p >= 0 and p not in self._result:
+                    want.update(range(max(0, p - 7), p + 1))  # a run of frames without a cloud: 8 at a time
+            if not want:
+                return
+            self._run(want)
+
+    def _process(self, payload: bytes, stamp: int):
+        msg = self.bag.deserialize(payload, self.msgtype)
+        where = f"{self.bag.path}: {self.topic} at {stamp / 1e9:.3f} s"
         pose = self.tf.lookup("hand_base", msg.header.frame_id, stamp)
         if isinstance(pose, str):
             self.summary.drop(f"camera frames without the camera's pose in hand_base ({pose})")
             return None
         rot, pos, tf_stamp = pose
+        rng = np.random.default_rng(stamp)
         if self.kind == "points":
-            result = tool_cloud_from_points(transform(M.cloud_xyz(msg, where), rot, pos), self.config, self.rng)
+            result = tool_cloud_from_points(transform(M.cloud_xyz(msg, where), rot, pos), self.config, rng)
         else:
             j = self.info.latest_at_or_before(stamp)
             if j < 0:
@@ -143,29 +180,19 @@ class _Camera:
                 self.summary.drop("depth images whose size differs from their camera_info")
                 return None
             frame = CameraFrame(depth, intrinsics, rot, pos, stamp_s=stamp / 1e9)
-            result = tool_cloud_from_frame(frame, self.config, self.rng, mask=np.ones(depth.shape, bool))
+            result = tool_cloud_from_frame(frame, self.config, rng, mask=np.ones(depth.shape, bool))
         if result.points is None:
             self.summary.drop(f"camera frames without a tool cloud in the crop box ({result.flag})")
             return None
         return result.points, result.n_distinct, tf_stamp
 
     def latest(self, t_ns: int):
-        """(index, cloud, n_distinct, tf stamp) of the latest usable frame stamped at or before t_ns, or None."""
-        i = self.stream.latest_at_or_before(t_ns)
-        visited = []
-        while i >= 0:
-            if i in self._valid_at_or_before:
-                i = self._valid_at_or_before[i]
-                break
-            if i not in self._result:
-                self._result[i] = self._process(i)
-            visited.append(i)
-            if self._result[i] is not None:
-                break
-            i -= 1
-        for v in visited:
-            self._valid_at_or_before[v] = i
-        return None if i < 0 else (i, *self._result[i])
+        """(sorted position, cloud, n_distinct, tf stamp) of the latest usable frame stamped at or before t_ns,
+        or None (after ``prepare`` for t_ns)."""
+        p = int(np.searchsorted(self.stamps, t_ns, side="right")) - 1
+        while p >= 0 and self._result.get(p) is None:
+            p -= 1
+        return None if p < 0 else (p, *self._result[p])
 
 
 class _Joints:
@@ -198,53 +225,56 @@ class _Joints:
         return self._cache[i]
 
 
-def _events(bag: Bag, name: str) -> list:
-    """(log time ns, text) of the event topic in time order (events are stamped by their log time)."""
-    msgtype = bag.topics[name]
-    return [(t, bag.deserialize(payload, msgtype).data) for t, payload in bag.raw.get(name, [])]
-
-
 def import_bag(path, out, names: dict, state, progress: bool = False,
                cloud: ToolCloudConfig = ToolCloudConfig()) -> BagSummary:
     """One bag into the dataset ``out`` (created if needed); see the module docstring. ``state``: a ``ToolState``
     (n_tools 1, 20 Hz), reset at every episode."""
     path = Path(path)
-    bag = open_bag(path, topics=set(names.values()))
+    bag = open_bag(path)
     camera_kind = _check_topics(bag, names)
     # the dataset is made once the first bag is known to fit: a refused bag leaves no empty dataset behind
     create_dataset(out, name=Path(out).name, source=SOURCE, config=import_config(names, cloud),
                    description="real-rig trials imported from ROS 2 bags (hingelab datasets import-ros2)")
     summary = BagSummary(bag.name)
-    summary.messages = sum(len(m) for m in bag.raw.values())
     if bag.cut_off:
         summary.notes.append(bag.cut_off)
         for topic, n in bag.lost_messages.items():
             summary.drop(f"{topic} messages lost in the cut-off end of the bag", n)
-    streams = {kind: bag.stream(names[kind]) for kind in ("joints", camera_kind, "action", "object", "camera_info")
-               if names[kind] in bag.topics and (kind != "camera_info" or camera_kind == "depth")}
-    for stream in streams.values():
-        if stream.reordered:
-            summary.notes.append(f"{stream.reordered} messages on {stream.topic} were stamped earlier than the one "
-                                 "before them (non-monotonic stamps); re-ordered by stamp")
-        summary.drop(f"{stream.topic} messages with a stamp already seen (the later kept)", stream.duplicates)
+    small = [k for k in ("joints", "action", "object", "events", "tf", "tf_static")
+             + (("camera_info",) if camera_kind == "depth" else ()) if names[k] in bag.topics]
+    raw = bag.read({names[k] for k in small})
+    summary.messages = sum(len(m) for m in raw.values())
+    streams = {}
+    for kind in ("joints", "action", "object", "camera_info"):
+        if kind in small:
+            stream = streams[kind] = bag.stream(names[kind], raw[names[kind]])
+            if stream.reordered:
+                summary.notes.append(f"{stream.reordered} messages on {stream.topic} were stamped earlier than the "
+                                     "one before them (non-monotonic stamps); re-ordered by stamp")
+            summary.drop(f"{stream.topic} messages with a stamp already seen (the later kept)", stream.duplicates)
     tf = TfTree()
     for kind, static in (("tf_static", True), ("tf", False)):
-        for _, payload in bag.raw.get(names[kind], []):
+        for _, payload in raw.get(names[kind], []):
             tf.add(bag.deserialize(payload, bag.topics[names[kind]]), static)
     tf.finish()
     summary.drop("transforms naming a second parent for a frame", tf.reparented)
-    trials, notes = split_trials(_events(bag, names["events"]), bag.end_ns)
+    events = [(t, bag.deserialize(p, bag.topics[names["events"]]).data) for t, p in raw[names["events"]]]
+    trials, notes = split_trials(events, bag.end_ns)
     summary.notes.extend(notes)
     if not trials:
         summary.notes.append(f"no trial: {names['events']} has no start event")
+    camera = _Camera(bag, names[camera_kind], camera_kind, streams.get("camera_info"), tf, cloud, summary)
+    summary.messages += camera.messages
+    grids = [trial.start_ns + STEP_NS * np.arange(max(0, (trial.end_ns - trial.start_ns) // STEP_NS + 1))
+             for trial in trials]
+    if grids:
+        camera.prepare(np.concatenate(grids))
     joints = _Joints(bag, streams["joints"], summary)
     action = _ActionStream(bag, streams.get("action"), summary)
-    total = sum(max(0, (t.end_ns - t.start_ns) // STEP_NS + 1) for t in trials)
-    bar = tqdm(total=total, desc=f"import {bag.name}", unit="step", disable=not progress, leave=False)
+    bar = tqdm(total=sum(len(g) for g in grids), desc=f"import {bag.name}", unit="step", disable=not progress,
+               leave=False)
     try:
         for index, trial in enumerate(trials):
-            camera = _Camera(bag, streams[camera_kind], camera_kind, streams.get("camera_info"), tf, cloud, summary,
-                             seed=index)
             written = _write_episode(bag, trial, index, out, names, joints, camera, action, streams.get("object"), tf,
                                      state, summary, bar)
             if written is not None:
@@ -330,7 +360,7 @@ def _write_episode(bag, trial: Trial, index: int, out, names, joints: _Joints, c
                 raise AssertionError("a stream lost its sample mid-episode")  # latest-at-or-before only grows
             q, qdot, arm = joints.at(j)
             cam_index, points, n_distinct, tf_stamp = cam
-            cam_stamp = int(camera.stream.stamps[cam_index])
+            cam_stamp = int(camera.stamps[cam_index])
             sample = state.update(points[None], n_distinct=n_distinct)
             values, action_stamp = action.at(t)
             act = np.full(action_dim, np.nan) if values is None else values

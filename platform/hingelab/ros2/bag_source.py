@@ -1,8 +1,9 @@
 """Opening a ROS 2 bag and reading its streams, whole or what is left of a cut-off one.
 
 ``open_bag(path)`` takes a rosbag2 folder (``metadata.yaml`` + MCAP or sqlite3 storage) or a
-standalone ``.mcap`` bag and returns a ``Bag``: its topics and types, time range and the raw
-messages of the topics asked for, each with its stamp. A healthy bag is read with
+standalone ``.mcap`` bag and returns a ``Bag``: its topics, types, counts and time range; its
+messages are read in passes (``Bag.messages``), small topics into memory (``Bag.read``), so the
+camera's large messages are never all held at once. A healthy bag is read with
 ``rosbags.highlevel.AnyReader`` (which registers the message definitions the bag stores). An
 MCAP bag whose end is missing (a recorder killed mid-chunk: AnyReader refuses it, it needs the
 summary at the end) is read record by record with the ``mcap`` library's stream reader until
@@ -18,6 +19,7 @@ decoding the message (the clouds are large); a zero stamp, and messages without 
 from __future__ import annotations
 
 import struct
+from collections.abc import Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -52,14 +54,18 @@ class Stream:
 
 @dataclass
 class Bag:
+    """An open bag: its topics, types, message counts and time range; messages are read per pass
+    (``messages``), so a bag larger than memory is never held whole."""
+
     path: Path
     topics: dict  # topic -> msgtype
+    counts: dict  # topic -> messages
     start_ns: int
     end_ns: int
     typestore: object
-    raw: dict = field(default_factory=dict)  # topic -> [(log_time_ns, payload)] in log-time order
     cut_off: str | None = None  # why part of the bag was lost, if it was
     lost_messages: dict = field(default_factory=dict)  # topic -> messages metadata.yaml promised that were lost
+    mcap_file: Path | None = None  # the file read record by record (a cut-off bag)
 
     @property
     def name(self) -> str:
@@ -72,21 +78,49 @@ class Bag:
             raise DatasetError(f"{self.path}: a {msgtype} message does not decode ({exc}); the bag is corrupt "
                                "or its stored message definition differs from the data") from None
 
-    def stream(self, topic: str) -> Stream:
-        """The topic's messages sorted by stamp (see the module docstring), duplicates of a stamp dropped."""
+    def messages(self, topics) -> Iterator[tuple[str, int, bytes]]:
+        """(topic, log time ns, raw CDR) of ``topics`` in the bag's order; one pass over the file."""
+        topics = set(topics)
+        if self.mcap_file is not None:
+            yield from _stream_messages(self.mcap_file, topics)
+            return
+        from rosbags.highlevel import AnyReader
+
+        with AnyReader([self.path]) as reader:
+            wanted = [c for c in reader.connections if c.topic in topics]
+            if wanted:
+                for connection, t, payload in reader.messages(connections=wanted):
+                    yield connection.topic, t, payload
+
+    def read(self, topics) -> dict:
+        """{topic: [(log time ns, raw)]} of ``topics`` (small topics only: held in memory)."""
+        raw = {t: [] for t in topics if t in self.topics}
+        for topic, t, payload in self.messages(raw):
+            raw[topic].append((t, bytes(payload)))
+        return raw
+
+    def stream(self, topic: str, messages: list) -> Stream:
+        """The topic's messages (``read``'s list) sorted by stamp (see the module docstring), duplicates of
+        a stamp dropped (the later received kept)."""
         msgtype = self.topics[topic]
-        messages = self.raw.get(topic, [])
-        stamps = np.array([_stamp(payload, log, msgtype) for log, payload in messages], dtype=np.int64)
-        order = np.argsort(stamps, kind="stable")
-        reordered = int(np.count_nonzero(np.diff(stamps) < 0)) if len(stamps) > 1 else 0
-        stamps, payloads = stamps[order], [messages[i][1] for i in order]
-        keep = np.ones(len(stamps), bool)
-        keep[:-1] = stamps[:-1] != stamps[1:]  # the later of equal stamps wins
-        duplicates = int(len(stamps) - keep.sum())
-        return Stream(topic, msgtype, stamps[keep], [p for p, k in zip(payloads, keep) if k], reordered, duplicates)
+        stamps = np.array([message_stamp(payload, log, msgtype) for log, payload in messages], dtype=np.int64)
+        order, keep, reordered = sort_stamps(stamps)
+        return Stream(topic, msgtype, stamps[order][keep], [messages[i][1] for i in order[keep]], reordered,
+                      int(len(stamps) - keep.sum()))
 
 
-def _stamp(payload: bytes, log_time_ns: int, msgtype: str) -> int:
+def sort_stamps(stamps: np.ndarray):
+    """(order, keep, reordered): a stable sort by stamp, a mask over the sorted messages that keeps the
+    last received of equal stamps, and how many messages were stamped before the one received before them."""
+    order = np.argsort(stamps, kind="stable")
+    reordered = int(np.count_nonzero(np.diff(stamps) < 0)) if len(stamps) > 1 else 0
+    ordered = stamps[order]
+    keep = np.ones(len(ordered), bool)
+    keep[:-1] = ordered[:-1] != ordered[1:]
+    return order, keep, reordered
+
+
+def message_stamp(payload: bytes, log_time_ns: int, msgtype: str) -> int:
     if msgtype in HEADER_FIRST and len(payload) >= 12:
         little = payload[1] & 1  # CDR encapsulation: 0x0001 little endian, 0x0000 big endian
         sec, nanosec = struct.unpack_from("<iI" if little else ">iI", payload, 4)
@@ -116,8 +150,8 @@ def _promised_counts(path: Path) -> dict:
         return {}
 
 
-def open_bag(path, topics=None) -> Bag:
-    """Read ``path`` (see the module docstring), keeping the raw messages of ``topics`` (None: all)."""
+def open_bag(path) -> Bag:
+    """Open ``path`` (see the module docstring): topics, types, counts, time range; no message is kept."""
     from rosbags.highlevel import AnyReader
 
     path = Path(path)
@@ -125,48 +159,63 @@ def open_bag(path, topics=None) -> Bag:
         raise DatasetError(f"bag {path} does not exist; give a rosbag2 folder (with metadata.yaml) or a .mcap file")
     try:
         with AnyReader([path]) as reader:
-            bag = Bag(path, {c.topic: c.msgtype for c in reader.connections}, reader.start_time, reader.end_time,
-                      reader.typestore)
-            wanted = [c for c in reader.connections if topics is None or c.topic in topics]
-            for topic in {c.topic for c in wanted}:
-                bag.raw[topic] = []
-            if wanted:
-                for connection, t, payload in reader.messages(connections=wanted):
-                    bag.raw[connection.topic].append((t, bytes(payload)))
-            return bag
-    except DatasetError:
-        raise
+            counts = {}
+            for c in reader.connections:
+                counts[c.topic] = counts.get(c.topic, 0) + c.msgcount
+            return Bag(path, {c.topic: c.msgtype for c in reader.connections}, counts, reader.start_time,
+                       reader.end_time, reader.typestore)
     except Exception as exc:  # rosbags' reader errors; an MCAP bag cut off is the case we can still read
         mcap_file = _mcap_file(path)
         if mcap_file is None:
             raise DatasetError(f"bag {path} does not open ({exc}); give a rosbag2 folder (MCAP or sqlite3 "
                                "storage, with metadata.yaml) or a standalone .mcap bag") from None
-        return _read_cut_off(path, mcap_file, topics, str(exc))
+        return _open_cut_off(path, mcap_file, str(exc))
 
 
-def _read_cut_off(path: Path, mcap_file: Path, topics, reason: str) -> Bag:
-    """Every complete record of an MCAP bag up to where it breaks off."""
-    from mcap.records import Channel, Message, Schema
+def _records(mcap_file: Path):
+    """Every complete record of an MCAP file in order, then (None, why) where it breaks off (or (None, None))."""
     from mcap.stream_reader import StreamReader
-    from rosbags.typesys import get_typestore, Stores, get_types_from_idl, get_types_from_msg
 
-    schemas, channels, raw, types = {}, {}, {}, {}
-    first, last, cut = None, None, None
     with open(mcap_file, "rb") as f:
         try:
             for record in StreamReader(f, validate_crcs=True).records:
-                if isinstance(record, Schema):
-                    schemas[record.id] = record
-                elif isinstance(record, Channel):
-                    channels[record.id] = record
-                elif isinstance(record, Message) and record.channel_id in channels:
-                    channel = channels[record.channel_id]
-                    first = record.log_time if first is None else min(first, record.log_time)
-                    last = record.log_time if last is None else max(last, record.log_time)
-                    if topics is None or channel.topic in topics:
-                        raw.setdefault(channel.topic, []).append((record.log_time, bytes(record.data)))
+                yield record, None
         except Exception as exc:  # the cut: a record or chunk that ends early, or fails its CRC
-            cut = f"{type(exc).__name__}: {exc}"
+            yield None, f"{type(exc).__name__}: {exc}".rstrip(": ")
+            return
+    yield None, None
+
+
+def _stream_messages(mcap_file: Path, topics: set):
+    from mcap.records import Channel, Message
+
+    channels = {}
+    for record, _ in _records(mcap_file):
+        if isinstance(record, Channel):
+            channels[record.id] = record.topic
+        elif isinstance(record, Message) and channels.get(record.channel_id) in topics:
+            yield channels[record.channel_id], record.log_time, record.data
+
+
+def _open_cut_off(path: Path, mcap_file: Path, reason: str) -> Bag:
+    """The topics, types and counts of an MCAP bag up to where it breaks off."""
+    from mcap.records import Channel, Message, Schema
+    from rosbags.typesys import Stores, get_types_from_idl, get_types_from_msg, get_typestore
+
+    schemas, channels, counts, types = {}, {}, {}, {}
+    first, last, cut = None, None, None
+    for record, why in _records(mcap_file):
+        if record is None:
+            cut = why
+        elif isinstance(record, Schema):
+            schemas[record.id] = record
+        elif isinstance(record, Channel):
+            channels[record.id] = record
+        elif isinstance(record, Message) and record.channel_id in channels:
+            topic = channels[record.channel_id].topic
+            counts[topic] = counts.get(topic, 0) + 1
+            first = record.log_time if first is None else min(first, record.log_time)
+            last = record.log_time if last is None else max(last, record.log_time)
     if cut is None:  # the stream reader read it all: the problem was elsewhere
         raise DatasetError(f"bag {path} does not open ({reason}); give a rosbag2 folder or a .mcap bag")
     for schema in schemas.values():
@@ -178,16 +227,10 @@ def _read_cut_off(path: Path, mcap_file: Path, topics, reason: str) -> Bag:
     typestore = get_typestore(Stores.EMPTY)
     typestore.register(types)
     topic_types = {c.topic: schemas[c.schema_id].name for c in channels.values() if c.schema_id in schemas}
-    for messages in raw.values():
-        messages.sort(key=lambda m: m[0])
-    promised = _promised_counts(path)
-    counts = {t: len(m) for t, m in raw.items()}
-    lost = {t: n - counts.get(t, 0) for t, n in promised.items() if (topics is None or t in topics)
-            and n > counts.get(t, 0)}
-    bag = Bag(path, topic_types, first or 0, last or 0, typestore, raw,
-              cut_off=f"{mcap_file.name} is cut off ({cut}); kept every complete chunk, up to "
-                      f"{(last or 0) / 1e9:.3f} s", lost_messages=lost)
-    return bag
+    lost = {t: n - counts.get(t, 0) for t, n in _promised_counts(path).items() if n > counts.get(t, 0)}
+    return Bag(path, topic_types, counts, first or 0, last or 0, typestore,
+               cut_off=f"{mcap_file.name} is cut off ({cut or 'it ends early'}); kept every complete chunk, up to "
+                       f"{(last or 0) / 1e9:.3f} s", lost_messages=lost, mcap_file=mcap_file)
 
 
 __all__ = ["Bag", "Stream", "open_bag"]

@@ -58,6 +58,7 @@ class RigBagSpec:
     action: bool = True
     object_pose: bool = True
     non_monotonic_joints: int = 0  # swap this many pairs of consecutive joint stamps
+    blind_frames: tuple = ()  # camera frames (indices) that see only the table: the tool out of view
     seed: int = 0
     topics: dict = field(default_factory=dict)  # kind -> another topic name
 
@@ -168,7 +169,8 @@ def write_rig_bag(path, spec: RigBagSpec = RigBagSpec()) -> dict:
         table = np.column_stack([rng.uniform(0.3, 0.7, spec.scene_points - len(tool)),
                                  rng.uniform(-0.3, 0.3, spec.scene_points - len(tool)),
                                  np.zeros(spec.scene_points - len(tool))])
-        cam = (np.concatenate([world, table]) - cam_pos_w) @ cam_rot_w  # world -> optical frame
+        seen = table if i in spec.blind_frames else np.concatenate([world, table])
+        cam = (seen - cam_pos_w) @ cam_rot_w  # world -> optical frame
         if spec.depth_images:
             info, image = _depth_messages(ts, ns(stamp_s), cam, spec.depth_size)
             add(stamp_s + 0.03, names["camera_info"], info)
