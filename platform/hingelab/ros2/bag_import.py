@@ -8,7 +8,8 @@ never a later one, and the sample's age t_k - stamp is recorded in the step's in
 usable camera cloud) has a sample are left out (the grid stays anchored at ``start``).
 
 The camera: a whole-scene PointCloud2 in the camera frame, or a 32FC1 depth image with its
-camera_info. Each camera message is put into ``hand_base`` with the camera's pose from the TF
+camera_info. Its topic is read in passes (``_Camera``): the stamps first, then only the frames some
+step takes; the other topics are small and read once into memory. Each frame is put into ``hand_base`` with the camera's pose from the TF
 tree at the message's stamp, then through the platform's camera cloud pipeline
 (``perception.camera_cloud``: crop box, statistical outliers, 2 mm voxels, 256 points). A frame
 that gives no tool cloud is dropped (counted by its flag) and the step takes the latest frame
@@ -91,8 +92,9 @@ def _check_topics(bag: Bag, names: dict) -> str:
 
     def missing(kind: str, extra: str = "") -> DatasetError:
         k = KINDS[kind]
+        cut = f" ({bag.cut_off})" if bag.cut_off else ""
         return DatasetError(f"{bag.path}: no topic {names[kind]} ({k.msgtype}, {k.meaning}){extra}; the bag has "
-                            f"{listed}. Name the bag's topic with --topic {kind}=NAME")
+                            f"{listed}{cut}. Name the bag's topic with --topic {kind}=NAME")
 
     for kind, name in names.items():
         if name in bag.topics and bag.topics[name] != KINDS[kind].msgtype:
@@ -121,10 +123,10 @@ class _Camera:
     """
 
     def __init__(self, bag: Bag, topic: str, kind: str, info: Stream | None, tf: TfTree, cloud: ToolCloudConfig,
-                 summary: BagSummary):
+                 summary: BagSummary, progress: bool = False):
         self.bag, self.topic, self.msgtype, self.kind = bag, topic, bag.topics[topic], kind
-        self.info, self.tf, self.config, self.summary = info, tf, cloud, summary
-        raw = np.array([message_stamp(payload[:12], t, self.msgtype) for _, t, payload in bag.messages([topic])],
+        self.info, self.tf, self.config, self.summary, self.progress = info, tf, cloud, summary, progress
+        raw = np.array([message_stamp(payload[:12], t, self.msgtype) for _, t, payload in self._pass("stamps")],
                        dtype=np.int64)
         order, keep, reordered = sort_stamps(raw)
         self.stamps, self.ordinals = raw[order][keep], order[keep]  # sorted position -> position in the bag
@@ -135,11 +137,16 @@ class _Camera:
         summary.drop(f"{topic} messages with a stamp already seen (the later kept)", int(len(raw) - keep.sum()))
         self._result: dict[int, tuple | None] = {}  # sorted position -> (cloud, n_distinct, tf stamp) or None
 
+    def _pass(self, what: str):
+        """One pass over the camera topic (with a progress bar: a rig's camera topic is most of a bag)."""
+        return tqdm(self.bag.messages([self.topic]), total=self.bag.counts.get(self.topic),
+                    desc=f"{self.bag.name} {self.topic}: {what}", unit="msg", disable=not self.progress, leave=False)
+
     def _run(self, positions) -> None:
         todo = {int(self.ordinals[p]): p for p in positions if p not in self._result}
         if not todo:
             return
-        for ordinal, (_, _, payload) in enumerate(self.bag.messages([self.topic])):
+        for ordinal, (_, _, payload) in enumerate(self._pass("tool clouds")):
             if ordinal in todo:
                 self._result[todo[ordinal]] = self._process(bytes(payload), int(self.stamps[todo[ordinal]]))
 
@@ -263,7 +270,7 @@ def import_bag(path, out, names: dict, state, progress: bool = False,
     summary.notes.extend(notes)
     if not trials:
         summary.notes.append(f"no trial: {names['events']} has no start event")
-    camera = _Camera(bag, names[camera_kind], camera_kind, streams.get("camera_info"), tf, cloud, summary)
+    camera = _Camera(bag, names[camera_kind], camera_kind, streams.get("camera_info"), tf, cloud, summary, progress)
     summary.messages += camera.messages
     grids = [trial.start_ns + STEP_NS * np.arange(max(0, (trial.end_ns - trial.start_ns) // STEP_NS + 1))
              for trial in trials]
