@@ -107,10 +107,11 @@ def test_no_step_holds_a_message_stamped_after_it(rig):
             assert np.array_equal(episode.topics["/action"]["values"][k], action_msgs[a].data)
             c = np.searchsorted(cloud_stamps, t, side="right") - 1
             assert step["info.age_cloud_s"][k] == pytest.approx((t - cloud_stamps[c]) / 1e9, abs=1e-9)
-        for name in ("joints", "cloud", "tf", "action", "object"):
+        for name in ("joints", "arm_joints", "cloud", "tf", "action", "object"):
             ages = step[f"info.age_{name}_s"]
             assert (ages >= 0).all(), name  # never a later message
         assert step["info.age_joints_s"].max() < 0.011 and step["info.age_cloud_s"].max() < 1 / 30 + 1e-6
+        assert np.array_equal(step["info.age_arm_joints_s"], step["info.age_joints_s"])  # one driver: one message
         # actions are logged 1 ms after each 20 Hz tick: a step never takes the one about to come
         assert step["info.age_action_s"].min() == pytest.approx(0.049)
 
@@ -280,3 +281,27 @@ def test_frames_without_a_tool_cloud_are_dropped_and_the_steps_take_an_earlier_o
     # those steps hold the last frame that saw the tool: older than one frame period, never a later one
     assert step["info.age_cloud_s"][held] == pytest.approx((times[held] - last_seen) / 1e9, abs=1e-9)
     assert (step["info.age_cloud_s"] >= 0).all() and step["info.age_cloud_s"][~held].max() < 1 / 30 + 1e-6
+
+
+def test_arm_and_hand_from_their_own_drivers_on_one_topic(tmp_path, capsys):
+    """The arm's and the hand's drivers both publish on /joint_states: each part from its own messages."""
+    write_rig_bag(tmp_path / "bag", RigBagSpec(trials=[RigTrial(duration_s=0.5)], gap_s=0.2, split_joint_drivers=True))
+    assert main(["datasets", "import-ros2", str(tmp_path / "bag"), "--out", str(tmp_path / "a"), "--no-progress"]) == 0
+    (episode,) = _episodes(tmp_path / "a")
+    stamps, msgs = _bag_messages(tmp_path / "bag", "/joint_states")
+    hand = np.array([len(m.name) == 9 for m in msgs])
+    step = episode.topics["/step"]
+    times = int(episode.metadata["ros2_trial_start_ns"]) + step["log_time_ns"]
+    for k, t in enumerate(times):
+        h = np.flatnonzero(hand & (stamps <= t))[-1]
+        a = np.flatnonzero(~hand & (stamps <= t))[-1]
+        assert np.array_equal(episode.topics["/hand/joints"]["position"][k], msgs[h].position)
+        assert step["info.arm_joint_6"][k] == msgs[a].position[5]
+        assert step["info.age_joints_s"][k] == pytest.approx((t - stamps[h]) / 1e9, abs=1e-9)
+        assert step["info.age_arm_joints_s"][k] == pytest.approx((t - stamps[a]) / 1e9, abs=1e-9)
+    # a hand driver with other names: one line naming the channels it lacks
+    write_rig_bag(tmp_path / "other", RigBagSpec(trials=[RigTrial(duration_s=0.3)], gap_s=0.2,
+                                                 hand_joint_names=tuple(f"j{i}" for i in range(9))))
+    assert main(["datasets", "import-ros2", str(tmp_path / "other"), "--out", str(tmp_path / "b")]) == 1
+    line = _one_line_error(capsys)
+    assert "/joint_states has no message with the hand's joint(s) svh_thumb_flexion" in line and "HAND_ACTUATORS" in line

@@ -44,7 +44,7 @@ from hingelab.ros2.trials import Trial, split_trials
 STEP_NS = 50_000_000  # 20 Hz
 SOURCE = "real"
 TASK = "real_trial"
-AGE_STREAMS = ("joints", "cloud", "tf", "action", "object")
+AGE_STREAMS = ("joints", "arm_joints", "cloud", "tf", "action", "object")
 NAN3 = np.full(3, np.nan)
 
 
@@ -203,33 +203,47 @@ class _Camera:
 
 
 class _Joints:
+    """The joint states, split by what each message holds: many rigs publish the arm's and the hand's on
+    ``/joint_states`` from two drivers. The hand's 9 channels come from the messages that name all of
+    them, the arm's 6 joints from those that name all of those; a message with neither is dropped."""
+
     def __init__(self, bag: Bag, stream: Stream, summary: BagSummary):
-        self.bag, self.stream, self.summary = bag, stream, summary
-        self._maps: dict[tuple, tuple] = {}
-        self._cache: dict[int, tuple] = {}
-
-    def _map(self, names: tuple):
-        if names not in self._maps:
-            index = {n: i for i, n in enumerate(names)}
-            hand = [next((index[a] for a in aliases if a in index), None) for aliases in hand_joint_aliases()]
-            if None in hand:
-                lost = [aliases[0] for aliases, h in zip(hand_joint_aliases(), hand) if h is None]
-                raise DatasetError(f"{self.bag.path}: {self.stream.topic} has no joint(s) {', '.join(lost)}; the hand's "
-                                   f"9 channels must carry the platform's names (hingelab.sim.names.HAND_ACTUATORS); "
-                                   f"it names {', '.join(names)}")
-            arm = [index.get(a) for a in ARM_JOINT_NAMES]
-            self._maps[names] = (hand, None if None in arm else arm)
-        return self._maps[names]
-
-    def at(self, i: int):
-        """(hand q (9,), hand q-dot (9,) or NaN, arm q (6,) or NaN) of message i."""
-        if i not in self._cache:
-            msg = self.bag.deserialize(self.stream.payloads[i], self.stream.msgtype)
-            hand, arm = self._map(tuple(msg.name))
+        self.topic = stream.topic
+        hand_rows, arm_rows, seen = [], [], set()
+        aliases = hand_joint_aliases()
+        for stamp, payload in zip(stream.stamps, stream.payloads):
+            msg = bag.deserialize(payload, stream.msgtype)
+            index = {n: i for i, n in enumerate(msg.name)}
+            seen.update(msg.name)
             position, velocity = np.asarray(msg.position, float), np.asarray(msg.velocity, float)
-            qdot = velocity[hand] if len(velocity) == len(msg.name) else np.full(9, np.nan)
-            self._cache[i] = (position[hand], qdot, position[arm] if arm else np.full(6, np.nan))
-        return self._cache[i]
+            hand = [next((index[a] for a in names if a in index), None) for names in aliases]
+            arm = [index.get(a) for a in ARM_JOINT_NAMES]
+            if None not in hand and len(position) == len(msg.name):
+                qdot = velocity[hand] if len(velocity) == len(msg.name) else np.full(9, np.nan)
+                hand_rows.append((int(stamp), position[hand], qdot))
+            if None not in arm and len(position) == len(msg.name):
+                arm_rows.append((int(stamp), position[arm]))
+            if None in hand and None in arm:
+                summary.drop(f"{stream.topic} messages with neither the hand's 9 channels nor arm_joint_1..6")
+        if not hand_rows and len(stream):
+            lost = [names[0] for names in aliases if not any(n in seen for n in names)]
+            raise DatasetError(f"{bag.path}: {stream.topic} has no message with the hand's joint(s) {', '.join(lost)}; "
+                               "the hand's 9 channels must carry the platform's names (hingelab.sim.names."
+                               f"HAND_ACTUATORS); its messages name {', '.join(sorted(seen))}")
+        self.hand_stamps = np.array([r[0] for r in hand_rows], np.int64)
+        self.hand = [(r[1], r[2]) for r in hand_rows]
+        self.arm_stamps = np.array([r[0] for r in arm_rows], np.int64)
+        self.arm = [r[1] for r in arm_rows]
+
+    def hand_at(self, t_ns: int):
+        """(q (9,), q-dot (9,), stamp) of the latest hand state at or before t_ns, or None."""
+        i = int(np.searchsorted(self.hand_stamps, t_ns, side="right")) - 1
+        return None if i < 0 else (*self.hand[i], int(self.hand_stamps[i]))
+
+    def arm_at(self, t_ns: int):
+        """(q (6,), stamp) of the latest arm state at or before t_ns, or (NaN, None)."""
+        i = int(np.searchsorted(self.arm_stamps, t_ns, side="right")) - 1
+        return (np.full(6, np.nan), None) if i < 0 else (self.arm[i], int(self.arm_stamps[i]))
 
 
 def import_bag(path, out, names: dict, state, progress: bool = False,
@@ -358,14 +372,15 @@ def _write_episode(bag, trial: Trial, index: int, out, names, joints: _Joints, c
         for k in range(n_grid):
             bar.update(1)
             t = trial.start_ns + k * STEP_NS
-            j = joints.stream.latest_at_or_before(t)
+            hand = joints.hand_at(t)
             cam = camera.latest(t)
-            if j < 0 or cam is None:
+            if hand is None or cam is None:
                 if writer.length == 0:
                     skipped += 1
                     continue
                 raise AssertionError("a stream lost its sample mid-episode")  # latest-at-or-before only grows
-            q, qdot, arm = joints.at(j)
+            q, qdot, hand_stamp = hand
+            arm, arm_stamp = joints.arm_at(t)
             cam_index, points, n_distinct, tf_stamp = cam
             cam_stamp = int(camera.stamps[cam_index])
             sample = state.update(points[None], n_distinct=n_distinct)
@@ -375,7 +390,8 @@ def _write_episode(bag, trial: Trial, index: int, out, names, joints: _Joints, c
             position, rotation = sample.position[0], sample.rotation[0]
             success_now = trial.success_ns is not None and trial.success_ns <= t
             attempt_now = 1 + sum(1 for et, text in trial.events if et <= t and text.strip().lower() == "attempt")
-            info = {"age_joints_s": _age(t, int(joints.stream.stamps[j])), "age_cloud_s": _age(t, cam_stamp),
+            info = {"age_joints_s": _age(t, hand_stamp), "age_arm_joints_s": _age(t, arm_stamp),
+                    "age_cloud_s": _age(t, cam_stamp),
                     "age_tf_s": 0.0 if tf_stamp is None else _age(t, tf_stamp),
                     "age_action_s": _age(t, action_stamp), "age_object_s": _age(t, obj_stamp),
                     "cloud_points": float(n_distinct), "is_success": float(success_now), "attempt": float(attempt_now),

@@ -3,7 +3,8 @@
 ``write_rig_bag(path, RigBagSpec(...))`` writes a rosbag2 folder (MCAP or sqlite3 storage) with
 the rig's topics at the rig's rates, through ``rosbags``' writer:
 
-- ``/joint_states`` (100 Hz): arm_joint_1..6 and the hand's 9 channels (platform names), slow sines;
+- ``/joint_states`` (100 Hz): arm_joint_1..6 and the hand's 9 channels (platform names), slow sines, in
+  one message or (``split_joint_drivers``) one from each driver;
 - ``/camera/depth/points`` (30 Hz), PointCloud2 in ``camera_depth_optical_frame``: the tweezer
   sampled by ``CloudSynthesizer`` at the nominal in-hand pose (its opening swinging), expressed in
   the camera frame, plus a table plane that the crop box removes; or, with ``depth_images``,
@@ -59,6 +60,8 @@ class RigBagSpec:
     object_pose: bool = True
     non_monotonic_joints: int = 0  # swap this many pairs of consecutive joint stamps
     blind_frames: tuple = ()  # camera frames (indices) that see only the table: the tool out of view
+    split_joint_drivers: bool = False  # the arm's and the hand's drivers each publish their own JointState
+    hand_joint_names: tuple = HAND_JOINTS  # the names the hand's driver gives its 9 channels
     seed: int = 0
     topics: dict = field(default_factory=dict)  # kind -> another topic name
 
@@ -150,13 +153,20 @@ def write_rig_bag(path, spec: RigBagSpec = RigBagSpec()) -> dict:
     if spec.non_monotonic_joints:
         for i in rng.choice(np.arange(10, n_joint - 2), spec.non_monotonic_joints, replace=False):
             joint_stamps[[i, i + 1]] = joint_stamps[[i + 1, i]]
-    joint_names = list(ARM_JOINT_NAMES) + list(HAND_JOINTS)
+    joint_names = list(ARM_JOINT_NAMES) + list(spec.hand_joint_names)
     for i, stamp_s in enumerate(joint_stamps):
         phase = 0.3 * np.arange(15)
-        q = 0.2 * np.sin(0.8 * stamp_s + phase)
-        add(i / spec.joint_hz + 0.002, names["joints"], T["sensor_msgs/msg/JointState"](
-            header=_header(ts, ns(stamp_s)), name=joint_names, position=q, velocity=0.16 * np.cos(0.8 * stamp_s + phase),
-            effort=np.zeros(0)))
+        q, qdot = 0.2 * np.sin(0.8 * stamp_s + phase), 0.16 * np.cos(0.8 * stamp_s + phase)
+        parts = [(joint_names, q, qdot, stamp_s)]
+        if spec.split_joint_drivers:  # the hand's driver stamps 3 ms later than the arm's
+            hand_s = stamp_s + 0.003
+            qh = 0.2 * np.sin(0.8 * hand_s + phase)
+            parts = [(joint_names[:6], q[:6], qdot[:6], stamp_s),
+                     (joint_names[6:], qh[6:], 0.16 * np.cos(0.8 * hand_s + phase)[6:], hand_s)]
+        for part_names, position, velocity, part_s in parts:
+            add(i / spec.joint_hz + 0.005, names["joints"], T["sensor_msgs/msg/JointState"](
+                header=_header(ts, ns(part_s)), name=part_names, position=position, velocity=velocity,
+                effort=np.zeros(0)))
         add(i / spec.joint_hz + 0.001, names["tf"], T["tf2_msgs/msg/TFMessage"](
             transforms=[_tf(ts, ns(stamp_s), "arm_base", "flange", *flange_pose(stamp_s))]))
     cam_rot_w, cam_pos_w = CAMERA_IN_WORLD
