@@ -305,3 +305,29 @@ def test_arm_and_hand_from_their_own_drivers_on_one_topic(tmp_path, capsys):
     assert main(["datasets", "import-ros2", str(tmp_path / "other"), "--out", str(tmp_path / "b")]) == 1
     line = _one_line_error(capsys)
     assert "/joint_states has no message with the hand's joint(s) svh_thumb_flexion" in line and "HAND_ACTUATORS" in line
+
+
+def test_a_simulated_episode_exports_as_a_ros2_bag_and_imports_back(random_pick_dataset, tmp_path, capsys):
+    """A ToolPick-v0 recording (RecordingWrapper: a reset record, then one record per step) as a bag."""
+    root = random_pick_dataset("sim_to_ros2", episodes=1, max_episode_steps=5)
+    (original,) = [read_episode(p) for p in Dataset(root).paths()]
+    assert main(["datasets", "export", str(root), "--format", "ros2", "--out", str(tmp_path / "bags")]) == 0
+    (bag,) = (tmp_path / "bags").iterdir()
+    with AnyReader([bag]) as reader:
+        counts = {c.topic: c.msgcount for c in reader.connections}
+        events = [reader.deserialize(raw, c.msgtype).data for c, _, raw in reader.messages(
+            connections=[c for c in reader.connections if c.topic == "/trial/event"])]
+    assert counts["/tool/points"] == len(original.points) and counts["/joint_states"] == len(
+        original.topics["/hand/joints"]["log_time_ns"])
+    assert events[0] == "start" and events[-1] == "end"
+    assert ("success" in events) == original.metadata["success"]
+    assert main(["datasets", "import-ros2", str(bag), "--topic", "points=/tool/points", "--out", str(tmp_path / "back"),
+                 "--no-progress"]) == 0
+    (again,) = _episodes(tmp_path / "back")
+    steps = original.topics["/step"]["log_time_ns"]
+    assert again.metadata["length"] == len(steps) and again.metadata["success"] == original.metadata["success"]
+    joints = original.topics["/hand/joints"]
+    rows = np.searchsorted(joints["log_time_ns"], steps)  # the joint state logged with each step
+    assert np.array_equal(again.topics["/hand/joints"]["position"], joints["position"][rows])
+    assert np.array_equal(again.topics["/action"]["values"], original.topics["/action"]["values"][
+        np.searchsorted(original.topics["/action"]["log_time_ns"], steps)])
