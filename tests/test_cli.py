@@ -61,6 +61,12 @@ def test_demo_runs_and_measures_the_platform(tmp_path):
     assert hierarchy["successes"] == int(hierarchy_index["success"].sum())
     assert reported[Dataset(hierarchy["dataset"]).card.name]["successes"] == hierarchy["successes"]
     assert f"success {hierarchy['successes']}/2 (object within 1 cm of the target)" in result.stdout
+    # the rig's ROS 2 bag: imported as real episodes (reported with the others) and exported back
+    real = json.loads(out_file.read_text())["step_ros2_bags"]
+    assert real["episodes"] == 3 and real["steps"] == 75 and real["dropped"] == 0 and real["exported_bags"] == 3
+    real_index = Dataset(real["dataset"]).index
+    assert (real_index["source"] == "real").all() and int(real_index["success"].sum()) == 2
+    assert reported[Dataset(real["dataset"]).card.name]["successes"] == 2
     # the shipped high-level policy (once shipped): printed = recorded = reported
     learned = json.loads(out_file.read_text())["step_learned_hierarchy"]
     from hingelab.learning.high_level_checkpoint import SHIPPED_HIGH_LEVEL

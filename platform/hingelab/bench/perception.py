@@ -40,7 +40,8 @@ from hingelab.paths import ANALYSIS_DIR
 MEASURES = ("platform/hingelab/perception", "platform/hingelab/sim/names.py", "assets/tweezer",
             "assets/checkpoints/encoder.pt", "platform/hingelab/camera.py", "platform/hingelab/sim/rig_camera.py",
             "platform/hingelab/sim/depth_render.py", "platform/hingelab/sim/depth_noise.py",
-            "platform/hingelab/envs/tool_perception.py")
+            "platform/hingelab/envs/tool_perception.py", "platform/hingelab/envs/__init__.py",
+            "platform/hingelab/sim/core.py")
 
 PLOT_PATH = ANALYSIS_DIR / "perception" / "latent_space.png"
 SEED = 2026  # held-out: datasets and training use small seeds

@@ -1,4 +1,4 @@
-"""``hingelab datasets info|index|verify|recover|export``: look after episode datasets."""
+"""``hingelab datasets info|index|verify|recover|export|import-ros2``: look after episode datasets."""
 
 from __future__ import annotations
 
@@ -14,7 +14,7 @@ from hingelab.paths import DATASETS_DIR
 def add_parser(subparsers) -> None:
     p = subparsers.add_parser(
         "datasets",
-        help="inspect, index, verify, recover and export episode datasets",
+        help="inspect, index, verify, recover, export and import (ROS 2 bags) episode datasets",
         description="Look after episode datasets (folders of MCAP episode files, see datasets/README.md). "
                     f"Dataset folders are usually under {DATASETS_DIR}.",
     )
@@ -45,7 +45,7 @@ def add_parser(subparsers) -> None:
     recover.set_defaults(func=run_recover)
 
     export = verbs.add_parser(
-        "export", help="export a dataset as a Minari dataset or a LeRobotDataset (v3.0)",
+        "export", help="export a dataset as a Minari dataset, a LeRobotDataset (v3.0) or ROS 2 bags",
         formatter_class=argparse.RawDescriptionHelpFormatter,
         description=(
             "Write a dataset in a layout its neighbours' own libraries load (details: datasets/README.md, Exports).\n\n"
@@ -55,20 +55,49 @@ def add_parser(subparsers) -> None:
             "  MINARI_DATASETS_PATH=OUT, minari.load_dataset(ID). Episodes without a final observation\n"
             "  (recovered files) are skipped and counted: Minari needs T+1 observations.\n"
             "--format lerobot: --out is the new LeRobotDataset v3.0 folder (meta/info.json, stats.json,\n"
-            "  tasks.parquet, meta/episodes/, data/chunk-000/file-000.parquet): LeRobotDataset(REPO_ID, root=OUT).\n\n"
+            "  tasks.parquet, meta/episodes/, data/chunk-000/file-000.parquet): LeRobotDataset(REPO_ID, root=OUT).\n"
+            "--format ros2: --out is a new folder of rosbag2 folders (MCAP storage), one per episode: OUT/<episode_id>/\n"
+            "  with /joint_states, /tool/points (PointCloud2, hand_base), /tf, /trial/event, /hingelab/action,\n"
+            "  /object/pose; `ros2 bag info`, rosbags and `hingelab datasets import-ros2` read them.\n\n"
             "Tool clouds are aligned to the observations by log time (Minari: infos/tool_points; LeRobot:\n"
             "observation.points). A failed export leaves nothing behind: it writes a hidden temporary folder\n"
             "and renames it into place at the end."),
     )
     export.add_argument("dir", type=Path, help="dataset folder")
-    export.add_argument("--format", choices=["minari", "lerobot"], required=True, help="target layout")
+    export.add_argument("--format", choices=["minari", "lerobot", "ros2"], required=True, help="target layout")
     export.add_argument("--out", type=Path, required=True,
-                        help="minari: the datasets root (MINARI_DATASETS_PATH); lerobot: the new dataset folder")
+                        help="minari: the datasets root (MINARI_DATASETS_PATH); lerobot: the new dataset folder; "
+                             "ros2: the new folder of bags")
     export.add_argument("--dataset-id", default=None, metavar="NAMESPACE/NAME-vN",
                         help="minari only: the dataset id (default hingelab/<card name>-v0); "
                              "must not exist under --out")
     add_on_corrupt(export)
     export.set_defaults(func=run_export)
+
+    from hingelab.ros2.topics import KINDS
+
+    kinds = "\n".join(f"  {k.kind}={k.default}  ({k.msgtype}{'' if k.required else ', optional'}): {k.meaning}"
+                      for k in KINDS.values())
+    ros2 = verbs.add_parser(
+        "import-ros2", help="import ROS 2 bags recorded on the real rig as episodes (source real)",
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+        description=(
+            "Import rosbag2 folders (MCAP or sqlite3 storage) and standalone .mcap bags, without a ROS install, into\n"
+            "the dataset folder --out (created; reopened if it holds an earlier import with the same topics). Each\n"
+            "start..end of the trial events is one episode (source real): steps at 20 Hz from its start, every\n"
+            "stream sampled at its latest message stamped at or before the step (the ages are recorded), the camera\n"
+            "cloud put into hand_base by TF and through the camera cloud pipeline to the 256-point tool cloud, the\n"
+            "tool pose and latents from the same perception as in simulation. The camera is a PointCloud2 (points)\n"
+            "or a 32FC1 depth image with its camera_info (depth, camera_info). Topics (KIND=default):\n" + kinds
+            + "\nA bag cut off mid-chunk imports what is whole; the summary says what was dropped and why."),
+    )
+    ros2.add_argument("bags", type=Path, nargs="+", metavar="BAG", help="rosbag2 folder or .mcap file")
+    ros2.add_argument("--out", type=Path, required=True, help="the dataset folder to write (source real)")
+    ros2.add_argument("--topic", action="append", default=[], metavar="KIND=NAME",
+                      help="read KIND from the topic NAME instead of its default (repeatable), e.g. "
+                           "--topic points=/k4a/points2")
+    ros2.add_argument("--no-progress", action="store_true", help="no progress bar")
+    ros2.set_defaults(func=run_import_ros2)
 
 
 def _open(root: Path):
@@ -145,10 +174,35 @@ def run_export(args: argparse.Namespace) -> int:
     from hingelab.episodes.export import export_dataset
 
     dataset = _open(args.dir)
-    result = export_dataset(dataset, args.format, args.out, dataset_id=args.dataset_id, progress=True)
+    if args.format == "ros2":
+        from hingelab.errors import ConfigError
+        from hingelab.ros2.bag_export import export_ros2
+
+        if args.dataset_id is not None:
+            raise ConfigError("--dataset-id names a Minari dataset; a ros2 export is one bag folder per episode")
+        result = export_ros2(dataset, args.out, progress=True)
+    else:
+        result = export_dataset(dataset, args.format, args.out, dataset_id=args.dataset_id, progress=True)
     skipped = "".join(f"; skipped {len(files)} ({reason}): {', '.join(files[:3])}{' ...' if len(files) > 3 else ''}"
                       for reason, files in result.skipped.items())
     notes = "".join(f"; {note}" for note in result.notes)
     print(f"Exported {result.episodes} episodes ({result.frames} steps) of {dataset.root} as {args.format} into "
           f"{result.path}{skipped}{notes}. Load it with {result.load}.")
+    return 0
+
+
+def run_import_ros2(args: argparse.Namespace) -> int:
+    from hingelab.ros2.bag_import import import_bags
+    from hingelab.ros2.topics import topic_names
+
+    topic_names(args.topic)  # a malformed --topic is refused before anything is read
+    summaries = import_bags(args.bags, args.out, topics=args.topic, progress=not args.no_progress)
+    for summary in summaries:
+        print(summary.line())
+    episodes = sum(len(s.episodes) for s in summaries)
+    steps = sum(s.steps for s in summaries)
+    dropped = sum(sum(s.dropped.values()) for s in summaries)
+    print(f"Imported {episodes} episodes ({steps} steps at 20 Hz) from {len(summaries)} bag(s) into {args.out} "
+          f"(source real); {dropped} messages dropped (reasons above). Look at them with hingelab view {args.out}, "
+          f"report with hingelab report {args.out} --out analysis/NAME.")
     return 0

@@ -31,7 +31,9 @@ def add_parser(subparsers) -> None:
             "with the privileged hinge command; then records 3 privileged-heuristic episodes of "
             "ToolPick-v0 into datasets/demo_heuristic, runs the shipped low-level policy toward 3 "
             "latent goals on ToolShape-v0 (datasets/demo_low_level), picks the sphere twice with a scripted high level "
-            "over that policy (datasets/demo_scripted_hierarchy), reports on all three (analysis/demo/report.html) "
+            "over that policy (datasets/demo_scripted_hierarchy), imports a rig's ROS 2 bag (datasets/demo_rig_bag) as "
+            "real episodes (datasets/demo_real) and exports them back as ROS 2 bags (datasets/demo_real_ros2), "
+            "reports on the datasets (analysis/demo/report.html) "
             "and saves a Rerun recording (analysis/demo/demo_heuristic.rrd). Prints what it measured."
         ),
     )
@@ -230,13 +232,42 @@ def step_stand_in_trial(seed: int) -> dict:
     return {"dataset": str(DEMO_TRIAL_DATASET), "success": bool(row.success), "steps": int(row.steps)}
 
 
+DEMO_RIG_BAG = DATASETS_DIR / "demo_rig_bag"
+DEMO_REAL_DATASET = DATASETS_DIR / "demo_real"
+DEMO_REAL_EXPORT = DATASETS_DIR / "demo_real_ros2"
+
+
+def step_ros2_bags(seed: int) -> dict:
+    """Issue 29: a rig's ROS 2 bag (synthetic here: what `ros2 bag record` writes on the rig) imported as
+    real episodes (hingelab datasets import-ros2), and those episodes exported back as ROS 2 bags."""
+    from hingelab.episodes.dataset import Dataset
+    from hingelab.ros2.bag_export import export_ros2
+    from hingelab.ros2.bag_import import import_bags
+    from hingelab.ros2.rig_bag import RigBagSpec, write_rig_bag
+
+    for path in (DEMO_RIG_BAG, DEMO_REAL_DATASET, DEMO_REAL_EXPORT):  # the demo's own outputs: remade each run
+        shutil.rmtree(path, ignore_errors=True)
+    started = time.perf_counter()
+    bag = write_rig_bag(DEMO_RIG_BAG, RigBagSpec(seed=seed))
+    (summary,) = import_bags([DEMO_RIG_BAG], DEMO_REAL_DATASET)
+    print(f"  {summary.line()}")
+    exported = export_ros2(Dataset(DEMO_REAL_DATASET), DEMO_REAL_EXPORT)
+    print(f"  {bag['messages']} messages of {DEMO_RIG_BAG} -> {len(summary.episodes)} real episodes "
+          f"({summary.steps} steps) in {DEMO_REAL_DATASET} -> {exported.episodes} ROS 2 bags (MCAP) in "
+          f"{DEMO_REAL_EXPORT}, in {time.perf_counter() - started:.1f} s")
+    return {"bag": str(DEMO_RIG_BAG), "messages": bag["messages"], "dataset": str(DEMO_REAL_DATASET),
+            "episodes": len(summary.episodes), "steps": summary.steps, "dropped": sum(summary.dropped.values()),
+            "exported_bags": exported.episodes}
+
+
 def step_report_and_recording(seed: int) -> dict:
     """Issue 6: a success-rate report and a Rerun recording of the demo dataset."""
     from hingelab.analysis import build_report
     from hingelab.viewers.view import view
 
     datasets = [DEMO_DATASET, DEMO_LOW_LEVEL_DATASET, DEMO_HIERARCHY_DATASET]
-    datasets += [d for d in (DEMO_LEARNED_DATASET, DEMO_TRIAL_DATASET) if (d / "dataset.json").exists()]
+    datasets += [d for d in (DEMO_LEARNED_DATASET, DEMO_TRIAL_DATASET, DEMO_REAL_DATASET)
+                 if (d / "dataset.json").exists()]
     report = build_report(datasets, DEMO_OUT)
     result, _ = view(DEMO_DATASET, save=DEMO_OUT / "demo_heuristic.rrd", progress=False)
     # one line per dataset: the two tasks count different verdicts (the report names each)
@@ -259,6 +290,7 @@ STEPS = [
     ("the shipped high-level policy over the shipped low-level policy on ToolPick-v0 (the 2 cm sphere)",
      step_learned_hierarchy),
     ("a trial on the MuJoCo stand-in of the rig, seen by its depth camera (hingelab trial)", step_stand_in_trial),
+    ("a real-rig ROS 2 bag imported as episodes and exported back as ROS 2 bags", step_ros2_bags),
     ("report and Rerun recording of the demo datasets", step_report_and_recording),
 ]
 

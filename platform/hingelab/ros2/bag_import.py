@@ -1,0 +1,424 @@
+"""A ROS 2 bag recorded on the rig -> episodes of a ``real`` dataset.
+
+Per trial (``trials.py``: ``/trial/event`` start..end) one episode: steps at the platform's
+20 Hz from the trial's ``start`` (t_k = start + k * 50 ms, while t_k <= end). At each step every
+stream is sampled at its **latest message stamped at or before t_k** (``Stream.latest_at_or_before``),
+never a later one, and the sample's age t_k - stamp is recorded in the step's infos
+(``age_<stream>_s``; see datasets/README.md). Steps before every required stream (joints, a
+usable camera cloud) has a sample are left out (the grid stays anchored at ``start``).
+
+The camera: a whole-scene PointCloud2 in the camera frame, or a 32FC1 depth image with its
+camera_info. Its topic is read in passes (``_Camera``): the stamps first, then only the frames some
+step takes; the other topics are small and read once into memory. Each frame is put into ``hand_base`` with the camera's pose from the TF
+tree at the message's stamp, then through the platform's camera cloud pipeline
+(``perception.camera_cloud``: crop box, statistical outliers, 2 mm voxels, 256 points). A frame
+that gives no tool cloud is dropped (counted by its flag) and the step takes the latest frame
+that did. The 256-point clouds go through ``ToolState`` (registration, encoder, EMA) as in
+simulation: tool pose, latents z and z_bar.
+
+Each episode keeps the bag's name, path, topics and time range in its metadata (``ros2_*``
+keys); the summary of a bag (``BagSummary``) counts episodes, steps and the messages dropped
+and why.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+from tqdm.auto import tqdm
+
+from hingelab.camera import CameraFrame
+from hingelab.episodes import schemas as S
+from hingelab.episodes.card import create_dataset
+from hingelab.episodes.errors import DatasetError
+from hingelab.episodes.writer import EpisodeWriter
+from hingelab.perception.camera_cloud import ToolCloudConfig, tool_cloud_from_frame, tool_cloud_from_points, transform
+from hingelab.ros2 import ros_messages as M
+from hingelab.ros2.bag_source import Bag, Stream, message_stamp, open_bag, sort_stamps
+from hingelab.ros2.tf_tree import TfTree
+from hingelab.ros2.topics import ARM_JOINT_NAMES, KINDS, hand_joint_aliases, topic_names
+from hingelab.ros2.trials import Trial, split_trials
+
+STEP_NS = 50_000_000  # 20 Hz
+SOURCE = "real"
+TASK = "real_trial"
+AGE_STREAMS = ("joints", "arm_joints", "cloud", "tf", "action", "object")
+NAN3 = np.full(3, np.nan)
+
+
+@dataclass
+class BagSummary:
+    bag: str
+    episodes: list = field(default_factory=list)  # paths
+    steps: int = 0
+    messages: int = 0  # messages read from the topics used
+    dropped: dict = field(default_factory=dict)  # "why" -> count
+    notes: list = field(default_factory=list)
+
+    def drop(self, why: str, n: int = 1) -> None:
+        if n:
+            self.dropped[why] = self.dropped.get(why, 0) + int(n)
+
+    def line(self) -> str:
+        dropped = "; ".join(f"{n} {why}" for why, n in self.dropped.items()) or "none"
+        notes = "".join(f" Note: {n}." for n in self.notes)
+        return (f"{self.bag}: {len(self.episodes)} episodes, {self.steps} steps from {self.messages} messages; "
+                f"dropped: {dropped}.{notes}")
+
+
+def import_config(names: dict, cloud: ToolCloudConfig) -> dict:
+    """The dataset card's config: the topics and the cloud pipeline's settings."""
+    return {"importer": "ros2", "topics": dict(sorted(names.items())), "tool_cloud": cloud.to_json()}
+
+
+def import_bags(bags, out, topics=(), progress: bool = False, encoder=None,
+                cloud: ToolCloudConfig = ToolCloudConfig()) -> list[BagSummary]:
+    """Import every bag of ``bags`` into the dataset folder ``out`` (created, or reopened with the same topics)."""
+    from hingelab.perception.encoder import load_encoder
+
+    names = topic_names(topics)
+    out = Path(out)
+    from hingelab.perception.tool_state import ToolState
+
+    state = ToolState(encoder=encoder or load_encoder(), n_tools=1, dt=STEP_NS / 1e9)  # reset per episode
+    return [import_bag(bag, out, names, state, progress=progress, cloud=cloud) for bag in bags]
+
+
+def _check_topics(bag: Bag, names: dict) -> str:
+    """Refuse a bag without the needed topics or with other types; returns the camera kind used."""
+    listed = ", ".join(sorted(bag.topics)) or "none"
+
+    def missing(kind: str, extra: str = "") -> DatasetError:
+        k = KINDS[kind]
+        cut = f" ({bag.cut_off})" if bag.cut_off else ""
+        return DatasetError(f"{bag.path}: no topic {names[kind]} ({k.msgtype}, {k.meaning}){extra}; the bag has "
+                            f"{listed}{cut}. Name the bag's topic with --topic {kind}=NAME")
+
+    for kind, name in names.items():
+        if name in bag.topics and bag.topics[name] != KINDS[kind].msgtype:
+            raise DatasetError(f"{bag.path}: topic {name} is {bag.topics[name]}, but the import reads {kind} as "
+                               f"{KINDS[kind].msgtype}; point --topic {kind}=NAME at a {KINDS[kind].msgtype} topic")
+    for kind in ("joints", "events"):
+        if names[kind] not in bag.topics:
+            raise missing(kind)
+    if names["points"] in bag.topics:
+        return "points"
+    if names["depth"] in bag.topics:
+        if names["camera_info"] not in bag.topics:
+            raise missing("camera_info", " for the depth image " + names["depth"])
+        return "depth"
+    raise missing("points", f" nor a depth image {names['depth']} (--topic depth=NAME)")
+
+
+class _Camera:
+    """Tool clouds from the camera topic, read in passes so that its large messages are never held at once.
+
+    The first pass reads every message's stamp (from the CDR header) and sorts them; ``prepare(times)``
+    then runs the pipeline on the frames that are the latest at or before some step (and, where one
+    gives no tool cloud, on earlier ones until one does), one more pass over the topic each time;
+    only the 256-point results are kept. The pipeline's random draw is seeded by the frame's stamp,
+    so a frame gives the same cloud whichever steps or bags ask for it.
+    """
+
+    def __init__(self, bag: Bag, topic: str, kind: str, info: Stream | None, tf: TfTree, cloud: ToolCloudConfig,
+                 summary: BagSummary, progress: bool = False):
+        self.bag, self.topic, self.msgtype, self.kind = bag, topic, bag.topics[topic], kind
+        self.info, self.tf, self.config, self.summary, self.progress = info, tf, cloud, summary, progress
+        raw = np.array([message_stamp(payload[:12], t, self.msgtype) for _, t, payload in self._pass("stamps")],
+                       dtype=np.int64)
+        order, keep, reordered = sort_stamps(raw)
+        self.stamps, self.ordinals = raw[order][keep], order[keep]  # sorted position -> position in the bag
+        self.messages = len(raw)
+        if reordered:
+            summary.notes.append(f"{reordered} messages on {topic} were stamped earlier than the one before them "
+                                 "(non-monotonic stamps); re-ordered by stamp")
+        summary.drop(f"{topic} messages with a stamp already seen (the later kept)", int(len(raw) - keep.sum()))
+        self._result: dict[int, tuple | None] = {}  # sorted position -> (cloud, n_distinct, tf stamp) or None
+
+    def _pass(self, what: str):
+        """One pass over the camera topic (with a progress bar: a rig's camera topic is most of a bag)."""
+        return tqdm(self.bag.messages([self.topic]), total=self.bag.counts.get(self.topic),
+                    desc=f"{self.bag.name} {self.topic}: {what}", unit="msg", disable=not self.progress, leave=False)
+
+    def _run(self, positions) -> None:
+        todo = {int(self.ordinals[p]): p for p in positions if p not in self._result}
+        if not todo:
+            return
+        for ordinal, (_, _, payload) in enumerate(self._pass("tool clouds")):
+            if ordinal in todo:
+                self._result[todo[ordinal]] = self._process(bytes(payload), int(self.stamps[todo[ordinal]]))
+
+    def prepare(self, times_ns: np.ndarray) -> None:
+        """Process the frames the steps at ``times_ns`` take (see the class docstring)."""
+        needed = {int(p) for p in np.searchsorted(self.stamps, times_ns, side="right") - 1 if p >= 0}
+        self._run(needed)
+        while True:
+            want = set()
+            for p in needed:
+                while p >= 0 and p in self._result and self._result[p] is None:
+                    p -= 1
+                if p >= 0 and p not in self._result:
+                    want.update(range(max(0, p - 7), p + 1))  # a run of frames without a cloud: 8 at a time
+            if not want:
+                return
+            self._run(want)
+
+    def _process(self, payload: bytes, stamp: int):
+        msg = self.bag.deserialize(payload, self.msgtype)
+        where = f"{self.bag.path}: {self.topic} at {stamp / 1e9:.3f} s"
+        pose = self.tf.lookup("hand_base", msg.header.frame_id, stamp)
+        if isinstance(pose, str):
+            self.summary.drop(f"camera frames without the camera's pose in hand_base ({pose})")
+            return None
+        rot, pos, tf_stamp = pose
+        rng = np.random.default_rng(stamp)
+        if self.kind == "points":
+            result = tool_cloud_from_points(transform(M.cloud_xyz(msg, where), rot, pos), self.config, rng)
+        else:
+            j = self.info.latest_at_or_before(stamp)
+            if j < 0:
+                self.summary.drop("depth images without a camera_info stamped at or before them")
+                return None
+            intrinsics = M.intrinsics_from_camera_info(self.bag.deserialize(self.info.payloads[j], self.info.msgtype))
+            depth = M.depth_image_m(msg, where)
+            if depth.shape != (intrinsics.height, intrinsics.width):
+                self.summary.drop("depth images whose size differs from their camera_info")
+                return None
+            frame = CameraFrame(depth, intrinsics, rot, pos, stamp_s=stamp / 1e9)
+            result = tool_cloud_from_frame(frame, self.config, rng, mask=np.ones(depth.shape, bool))
+        if result.points is None:
+            self.summary.drop(f"camera frames without a tool cloud in the crop box ({result.flag})")
+            return None
+        return result.points, result.n_distinct, tf_stamp
+
+    def latest(self, t_ns: int):
+        """(sorted position, cloud, n_distinct, tf stamp) of the latest usable frame stamped at or before t_ns,
+        or None (after ``prepare`` for t_ns)."""
+        p = int(np.searchsorted(self.stamps, t_ns, side="right")) - 1
+        while p >= 0 and self._result.get(p) is None:
+            p -= 1
+        return None if p < 0 else (p, *self._result[p])
+
+
+class _Joints:
+    """The joint states, split by what each message holds: many rigs publish the arm's and the hand's on
+    ``/joint_states`` from two drivers. The hand's 9 channels come from the messages that name all of
+    them, the arm's 6 joints from those that name all of those; a message with neither is dropped."""
+
+    def __init__(self, bag: Bag, stream: Stream, summary: BagSummary):
+        self.topic = stream.topic
+        hand_rows, arm_rows, seen = [], [], set()
+        aliases = hand_joint_aliases()
+        for stamp, payload in zip(stream.stamps, stream.payloads):
+            msg = bag.deserialize(payload, stream.msgtype)
+            index = {n: i for i, n in enumerate(msg.name)}
+            seen.update(msg.name)
+            position, velocity = np.asarray(msg.position, float), np.asarray(msg.velocity, float)
+            hand = [next((index[a] for a in names if a in index), None) for names in aliases]
+            arm = [index.get(a) for a in ARM_JOINT_NAMES]
+            if None not in hand and len(position) == len(msg.name):
+                qdot = velocity[hand] if len(velocity) == len(msg.name) else np.full(9, np.nan)
+                hand_rows.append((int(stamp), position[hand], qdot))
+            if None not in arm and len(position) == len(msg.name):
+                arm_rows.append((int(stamp), position[arm]))
+            if None in hand and None in arm:
+                summary.drop(f"{stream.topic} messages with neither the hand's 9 channels nor arm_joint_1..6")
+        if not hand_rows and len(stream):
+            lost = [names[0] for names in aliases if not any(n in seen for n in names)]
+            raise DatasetError(f"{bag.path}: {stream.topic} has no message with the hand's joint(s) {', '.join(lost)}; "
+                               "the hand's 9 channels must carry the platform's names (hingelab.sim.names."
+                               f"HAND_ACTUATORS); its messages name {', '.join(sorted(seen))}")
+        self.hand_stamps = np.array([r[0] for r in hand_rows], np.int64)
+        self.hand = [(r[1], r[2]) for r in hand_rows]
+        self.arm_stamps = np.array([r[0] for r in arm_rows], np.int64)
+        self.arm = [r[1] for r in arm_rows]
+
+    def hand_at(self, t_ns: int):
+        """(q (9,), q-dot (9,), stamp) of the latest hand state at or before t_ns, or None."""
+        i = int(np.searchsorted(self.hand_stamps, t_ns, side="right")) - 1
+        return None if i < 0 else (*self.hand[i], int(self.hand_stamps[i]))
+
+    def arm_at(self, t_ns: int):
+        """(q (6,), stamp) of the latest arm state at or before t_ns, or (NaN, None)."""
+        i = int(np.searchsorted(self.arm_stamps, t_ns, side="right")) - 1
+        return (np.full(6, np.nan), None) if i < 0 else (self.arm[i], int(self.arm_stamps[i]))
+
+
+def import_bag(path, out, names: dict, state, progress: bool = False,
+               cloud: ToolCloudConfig = ToolCloudConfig()) -> BagSummary:
+    """One bag into the dataset ``out`` (created if needed); see the module docstring. ``state``: a ``ToolState``
+    (n_tools 1, 20 Hz), reset at every episode."""
+    path = Path(path)
+    bag = open_bag(path)
+    camera_kind = _check_topics(bag, names)
+    # the dataset is made once the first bag is known to fit: a refused bag leaves no empty dataset behind
+    create_dataset(out, name=Path(out).name, source=SOURCE, config=import_config(names, cloud),
+                   description="real-rig trials imported from ROS 2 bags (hingelab datasets import-ros2)")
+    summary = BagSummary(bag.name)
+    if bag.cut_off:
+        summary.notes.append(bag.cut_off)
+        for topic, n in bag.lost_messages.items():
+            summary.drop(f"{topic} messages lost in the cut-off end of the bag", n)
+    small = [k for k in ("joints", "action", "object", "events", "tf", "tf_static")
+             + (("camera_info",) if camera_kind == "depth" else ()) if names[k] in bag.topics]
+    raw = bag.read({names[k] for k in small})
+    summary.messages = sum(len(m) for m in raw.values())
+    streams = {}
+    for kind in ("joints", "action", "object", "camera_info"):
+        if kind in small:
+            stream = streams[kind] = bag.stream(names[kind], raw[names[kind]])
+            if stream.reordered:
+                summary.notes.append(f"{stream.reordered} messages on {stream.topic} were stamped earlier than the "
+                                     "one before them (non-monotonic stamps); re-ordered by stamp")
+            summary.drop(f"{stream.topic} messages with a stamp already seen (the later kept)", stream.duplicates)
+    tf = TfTree()
+    for kind, static in (("tf_static", True), ("tf", False)):
+        for _, payload in raw.get(names[kind], []):
+            tf.add(bag.deserialize(payload, bag.topics[names[kind]]), static)
+    tf.finish()
+    summary.drop("transforms naming a second parent for a frame", tf.reparented)
+    events = [(t, bag.deserialize(p, bag.topics[names["events"]]).data) for t, p in raw[names["events"]]]
+    trials, notes = split_trials(events, bag.end_ns)
+    summary.notes.extend(notes)
+    if not trials:
+        summary.notes.append(f"no trial: {names['events']} has no start event")
+    camera = _Camera(bag, names[camera_kind], camera_kind, streams.get("camera_info"), tf, cloud, summary, progress)
+    summary.messages += camera.messages
+    grids = [trial.start_ns + STEP_NS * np.arange(max(0, (trial.end_ns - trial.start_ns) // STEP_NS + 1))
+             for trial in trials]
+    if grids:
+        camera.prepare(np.concatenate(grids))
+    joints = _Joints(bag, streams["joints"], summary)
+    action = _ActionStream(bag, streams.get("action"), summary)
+    bar = tqdm(total=sum(len(g) for g in grids), desc=f"import {bag.name}", unit="step", disable=not progress,
+               leave=False)
+    try:
+        for index, trial in enumerate(trials):
+            written = _write_episode(bag, trial, index, out, names, joints, camera, action, streams.get("object"), tf,
+                                     state, summary, bar)
+            if written is not None:
+                summary.episodes.append(written)
+    finally:
+        bar.close()
+    return summary
+
+
+class _ActionStream:
+    """The action topic's values; messages whose length differs from the first one's are dropped."""
+
+    def __init__(self, bag: Bag, stream: Stream | None, summary: BagSummary):
+        self.stream, self.values, self.valid = stream, [], None
+        if stream is None:
+            return
+        self.values = [np.asarray(bag.deserialize(p, stream.msgtype).data, float) for p in stream.payloads]
+        self.dim = len(self.values[0]) if self.values else 0
+        self.valid = np.array([len(v) == self.dim for v in self.values], bool)
+        summary.drop(f"{stream.topic} messages whose length differs from the first one's ({self.dim})",
+                     int((~self.valid).sum()))
+        self.stamps = stream.stamps[self.valid]
+        self.values = [v for v, ok in zip(self.values, self.valid) if ok]
+
+    def at(self, t_ns: int):
+        """(values, stamp) of the latest action at or before t_ns; (None, None) without a topic or before the first."""
+        if self.stream is None or not len(self.values):
+            return None, None
+        i = int(np.searchsorted(self.stamps, t_ns, side="right")) - 1
+        return (None, None) if i < 0 else (self.values[i], int(self.stamps[i]))
+
+
+def _object_position(bag: Bag, stream: Stream | None, tf: TfTree, t_ns: int):
+    """(position (3,) in hand_base, stamp) of the latest object pose at or before t_ns, or (NaN, None)."""
+    if stream is None:
+        return NAN3, None
+    i = stream.latest_at_or_before(t_ns)
+    if i < 0:
+        return NAN3, None
+    msg = bag.deserialize(stream.payloads[i], stream.msgtype)
+    stamp = int(stream.stamps[i])
+    pose = tf.lookup("hand_base", msg.header.frame_id, stamp)
+    if isinstance(pose, str):
+        return NAN3, None
+    rot, pos, _ = pose
+    return rot @ M.pose_pose(msg.pose)[1] + pos, stamp
+
+
+def _age(t_ns: int, stamp) -> float:
+    return np.nan if stamp is None else (t_ns - stamp) / 1e9
+
+
+def _write_episode(bag, trial: Trial, index: int, out, names, joints: _Joints, camera: _Camera, action: _ActionStream,
+                   objects: Stream | None, tf: TfTree, state, summary: BagSummary, bar):
+    n_grid = (trial.end_ns - trial.start_ns) // STEP_NS + 1
+    if n_grid < 1:
+        summary.notes.append(f"trial {index} ends before it starts; skipped")
+        return None
+    state.reset()
+    action_dim = action.dim if action.stream is not None else 5
+    has_action = action.stream is not None
+    writer = EpisodeWriter(out, source=SOURCE, task=TASK, object="", seed=index, attempt=trial.attempts,
+                           action_level="high" if action_dim == 5 else ("low" if action_dim == 9 else ""),
+                           extra_metadata={
+                               "ros2_bag": bag.name, "ros2_bag_path": str(bag.path.resolve()),
+                               "ros2_bag_topics": sorted(bag.topics), "ros2_bag_start_ns": int(bag.start_ns),
+                               "ros2_bag_end_ns": int(bag.end_ns), "ros2_trial_index": index,
+                               "ros2_trial_start_ns": int(trial.start_ns), "ros2_trial_end_ns": int(trial.end_ns),
+                               "ros2_trial_closed_by": trial.closed_by,
+                               "ros2_topics_used": [f"{k}={v}" for k, v in sorted(names.items()) if v in bag.topics],
+                           })
+    skipped = 0
+    with writer:
+        for k in range(n_grid):
+            bar.update(1)
+            t = trial.start_ns + k * STEP_NS
+            hand = joints.hand_at(t)
+            cam = camera.latest(t)
+            if hand is None or cam is None:
+                if writer.length == 0:
+                    skipped += 1
+                    continue
+                raise AssertionError("a stream lost its sample mid-episode")  # latest-at-or-before only grows
+            q, qdot, hand_stamp = hand
+            arm, arm_stamp = joints.arm_at(t)
+            cam_index, points, n_distinct, tf_stamp = cam
+            cam_stamp = int(camera.stamps[cam_index])
+            sample = state.update(points[None], n_distinct=n_distinct)
+            values, action_stamp = action.at(t)
+            act = np.full(action_dim, np.nan) if values is None else values
+            obj, obj_stamp = _object_position(bag, objects, tf, t)
+            position, rotation = sample.position[0], sample.rotation[0]
+            success_now = trial.success_ns is not None and trial.success_ns <= t
+            attempt_now = 1 + sum(1 for et, text in trial.events if et <= t and text.strip().lower() == "attempt")
+            info = {"age_joints_s": _age(t, hand_stamp), "age_arm_joints_s": _age(t, arm_stamp),
+                    "age_cloud_s": _age(t, cam_stamp),
+                    "age_tf_s": 0.0 if tf_stamp is None else _age(t, tf_stamp),
+                    "age_action_s": _age(t, action_stamp), "age_object_s": _age(t, obj_stamp),
+                    "cloud_points": float(n_distinct), "is_success": float(success_now), "attempt": float(attempt_now),
+                    **{name: float(v) for name, v in zip(ARM_JOINT_NAMES, arm)}}
+            last = k == n_grid - 1
+            observation = np.concatenate([position, sample.euler_xyz[0], sample.z_smoothed[0], obj, NAN3])
+            writer.write_step(
+                (t - trial.start_ns) / 1e9, points_hand=points, tool_pose_hand=(position, M.quaternion_xyzw(rotation)),
+                joint_position=q, joint_velocity=qdot, latent_z=sample.z[0], latent_z_smoothed=sample.z_smoothed[0],
+                action=act if has_action else None, object_position_hand=obj if objects is not None else None,
+                transition=dict(observation=observation, action=act, reward=np.nan,
+                                terminated=last and trial.closed_by == "end",
+                                truncated=last and trial.closed_by != "end", info=info))
+        if writer.length == 0:
+            writer.abort()
+            summary.notes.append(f"trial {index} ({trial.start_ns / 1e9:.3f} s) has no step with joints and a tool "
+                                 "cloud at or before it; no episode")
+            return None
+        failure = None if trial.success else (trial.failure_reason or
+                                              ("no_end_event" if trial.closed_by != "end" else "no_success_event"))
+        writer.set_outcome(trial.success, failure_reason=failure, attempt=trial.attempts,
+                           first_attempt_success=trial.first_attempt_success)
+    if skipped:
+        summary.notes.append(f"trial {index}: its first {skipped} steps had no joint state or tool cloud stamped at "
+                             "or before them; the episode starts at the first step that has both")
+    summary.steps += writer.length
+    return writer.path
+
+
+__all__ = ["BagSummary", "import_bags", "import_bag", "STEP_NS", "AGE_STREAMS", "SOURCE", "TASK"]

@@ -1,0 +1,89 @@
+"""ROS messages <-> numpy: PointCloud2, depth images, camera info, transforms, joint states.
+
+Frames: a pose is (R (3, 3), t (3,)) with ``p_parent = R @ p_child + t``; quaternions are
+ROS's (x, y, z, w). Clouds are float32 metres.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from scipy.spatial.transform import Rotation
+
+from hingelab.camera import DepthIntrinsics
+from hingelab.episodes.errors import DatasetError
+
+POINTFIELD_DTYPES = {1: "i1", 2: "u1", 3: "i2", 4: "u2", 5: "i4", 6: "u4", 7: "f4", 8: "f8"}
+FLOAT32 = 7
+
+
+def stamp_ns(stamp) -> int:
+    return int(stamp.sec) * 1_000_000_000 + int(stamp.nanosec)
+
+
+def frame_name(frame_id: str) -> str:
+    """tf2 frame ids carry no leading slash (ROS 1 habits do)."""
+    return frame_id.lstrip("/")
+
+
+def cloud_xyz(msg, where: str) -> np.ndarray:
+    """(N, 3) float64 points of a PointCloud2 (x, y, z fields); points with a NaN or inf coordinate dropped."""
+    fields = {f.name: f for f in msg.fields}
+    missing = [n for n in "xyz" if n not in fields]
+    if missing:
+        raise DatasetError(f"{where}: PointCloud2 without the field(s) {', '.join(missing)}; the import needs x, y, z")
+    endian = ">" if msg.is_bigendian else "<"
+    dtype = np.dtype({"names": list("xyz"),
+                      "formats": [endian + POINTFIELD_DTYPES[fields[n].datatype] for n in "xyz"],
+                      "offsets": [fields[n].offset for n in "xyz"], "itemsize": msg.point_step})
+    n = int(msg.width) * int(msg.height)
+    data = np.asarray(msg.data, dtype=np.uint8)
+    if msg.height > 1 and msg.row_step != msg.width * msg.point_step:  # padded rows
+        data = data.reshape(msg.height, msg.row_step)[:, :msg.width * msg.point_step].reshape(-1)
+    if len(data) < n * msg.point_step:
+        raise DatasetError(f"{where}: PointCloud2 holds {len(data)} bytes, fewer than its {n} points of "
+                           f"{msg.point_step} bytes")
+    rec = np.frombuffer(data.tobytes()[:n * msg.point_step], dtype=dtype, count=n)
+    points = np.stack([rec["x"], rec["y"], rec["z"]], axis=1).astype(np.float64)
+    return points[np.isfinite(points).all(axis=1)]
+
+
+def depth_image_m(msg, where: str) -> np.ndarray:
+    """(H, W) float32 metres from a 32FC1 (metres) or 16UC1 (millimetres) image; no return = 0."""
+    encoding = msg.encoding.upper()
+    if encoding not in ("32FC1", "16UC1", "MONO16"):
+        raise DatasetError(f"{where}: depth image encoding {msg.encoding!r}; the import reads 32FC1 metres "
+                           "(or 16UC1 millimetres)")
+    itemsize = 4 if encoding == "32FC1" else 2
+    dtype = np.dtype((">" if msg.is_bigendian else "<") + ("f4" if itemsize == 4 else "u2"))
+    data = np.asarray(msg.data, dtype=np.uint8).reshape(msg.height, msg.step)[:, :msg.width * itemsize]
+    image = np.frombuffer(data.tobytes(), dtype=dtype).reshape(msg.height, msg.width).astype(np.float32)
+    if itemsize == 2:
+        image = image / 1000.0
+    image[~np.isfinite(image)] = 0.0
+    return image
+
+
+def intrinsics_from_camera_info(msg) -> DepthIntrinsics:
+    k = np.asarray(msg.k, float)
+    return DepthIntrinsics("ros2_camera_info", int(msg.width), int(msg.height), float(k[0]), float(k[4]),
+                           float(k[2]), float(k[5]), 0.0, 100.0)
+
+
+def transform_pose(transform) -> tuple[np.ndarray, np.ndarray]:
+    """(R, t) of a geometry_msgs/Transform."""
+    q, p = transform.rotation, transform.translation
+    return Rotation.from_quat([q.x, q.y, q.z, q.w]).as_matrix(), np.array([p.x, p.y, p.z], float)
+
+
+def pose_pose(pose) -> tuple[np.ndarray, np.ndarray]:
+    """(R, t) of a geometry_msgs/Pose."""
+    q, p = pose.orientation, pose.position
+    return Rotation.from_quat([q.x, q.y, q.z, q.w]).as_matrix(), np.array([p.x, p.y, p.z], float)
+
+
+def quaternion_xyzw(rotation: np.ndarray) -> np.ndarray:
+    return Rotation.from_matrix(np.asarray(rotation, float)).as_quat()
+
+
+__all__ = ["cloud_xyz", "depth_image_m", "intrinsics_from_camera_info", "transform_pose", "pose_pose",
+           "quaternion_xyzw", "stamp_ns", "frame_name"]
