@@ -77,9 +77,9 @@ def test_each_trial_is_an_episode_with_its_outcome_and_the_bags_facts(rig):
         assert np.isfinite(episode.topics["/tool/latent"]["z_smoothed"]).all()
         assert episode.topics["/hand/joints"]["position"].shape == (expected, 9)
     first, failed, second = (e.metadata for e in episodes)
-    assert first["success"] is True and first["attempt"] == 1 and first["first_attempt_success"] == "true"
+    assert first["success"] is True and first["attempt"] == 1 and first["first_attempt_success"] is True
     assert failed["success"] is False and failed["failure_reason"] == "slip" and failed["attempt"] == 1
-    assert second["success"] is True and second["attempt"] == 2 and second["first_attempt_success"] == "false"
+    assert second["success"] is True and second["attempt"] == 2 and second["first_attempt_success"] is False
     assert "failure_reason" not in second
     step = episodes[2].topics["/step"]
     assert step["info.attempt"][0] == 1 and step["info.attempt"][-1] == 2  # the attempt event mid-trial
