@@ -7,6 +7,7 @@
   small summary.
 * ``sweep_file``: the ``SWEEP.toml`` format of ``hingelab sweep``, checked against the training
   command's own parser before anything starts.
+* ``trial_task``: one trial, the training command in a child process of a Ray task.
 * ``sweep``: a grid of training runs, one Ray task per trial, ``DIR/sweep.csv``, resume.
 
 Storage: every node must see the dataset and sweep folders at the same path (NFS or another
