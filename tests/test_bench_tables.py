@@ -84,6 +84,18 @@ def test_a_commit_that_changes_the_measured_code_makes_it_stale_and_is_named(rep
     assert second[:7] in reason and f"`{COMMAND}`" in reason
 
 
+def test_pins_added_to_the_lock_keep_the_table_current_and_a_changed_pin_makes_it_stale(repo):
+    root, first = repo
+    measured = (*MEASURED, "constraints.txt")
+    base = _commit(root, {"constraints.txt": "# header\nnumpy==2.0.0\n"}, "the lock")
+    _table(root, base)
+    _commit(root, {"constraints.txt": "# header, reworded\nnumpy==2.0.0\nray==2.60.0\n"}, "ray added")
+    assert stale_reason(root / "analysis/bench/fake.json", measured, root, COMMAND) is None
+    changed = _commit(root, {"constraints.txt": "# header, reworded\nnumpy==2.1.0\nray==2.60.0\n"}, "upgrade")
+    reason = stale_reason(root / "analysis/bench/fake.json", measured, root, COMMAND)
+    assert reason is not None and "in 1 commit (" in reason and changed[:7] in reason
+
+
 def test_many_commits_are_counted_and_the_first_few_named(repo):
     root, first = repo
     changes = [_commit(root, {"assets/scene.xml": f"<m{i}/>\n"}, f"change {i}") for i in range(7)]

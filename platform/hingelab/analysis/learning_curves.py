@@ -9,6 +9,10 @@ The run-folder metrics format (what ``hingelab train`` writes, one row per evalu
         return        float  mean evaluation return
     RUNDIR/run.json             optional: {"name": "..."}; the curve's label (default: RUNDIR's name)
 
+A sweep folder (``hingelab sweep --out DIR``: ``DIR/sweep.csv`` and one run folder per trial, each
+labelled with its condition) given as a run folder stands for its trials (``expand_sweeps``), so
+its curves are grouped by condition, one seed per trial.
+
 A run trained with several seeds either writes all of them into one ``metrics.csv``
 (the ``seed`` column tells them apart) or one subfolder per seed, each with its own
 ``metrics.csv`` (``RUNDIR/*/metrics.csv``; a missing ``seed`` column is then taken from
@@ -124,6 +128,54 @@ def load_seed_curves(run_dirs) -> pd.DataFrame:
     return metrics[columns].sort_values(["run", "seed", "env_steps"]).reset_index(drop=True)
 
 
+SWEEP_CSV = "sweep.csv"  # hingelab.cluster.sweep's table of trials (not imported: analysis needs no Ray)
+
+
+def expand_sweeps(run_dirs) -> list[Path]:
+    """``run_dirs`` with every sweep folder (a ``sweep.csv``, no ``metrics.csv`` of its own) replaced by
+    its trials' run folders that have evaluations, in the sweep's order."""
+    import csv
+
+    out = []
+    for run_dir in map(Path, run_dirs or []):
+        if (run_dir / SWEEP_CSV).exists() and not (run_dir / METRICS_FILE).exists():
+            with open(run_dir / SWEEP_CSV, newline="") as f:
+                trials = [run_dir / row["trial"] for row in csv.DictReader(f)]
+            found = [t for t in trials if (t / METRICS_FILE).exists()]
+            if not found:
+                raise ReportInputError(f"the sweep {run_dir} has no trial with {METRICS_FILE} yet")
+            out += found
+        else:
+            out.append(run_dir)
+    return out
+
+
+def final_success(seeds: pd.DataFrame, confidence: float = 0.95) -> pd.DataFrame:
+    """Per run label (a sweep's condition): the last evaluation's success over its seeds: mean, std and a
+    Student-t ``confidence`` interval across seeds (the seeds are the samples; clipped to [0, 1]; NaN with
+    one seed), and the same for first-attempt success where recorded. ``seeds``: ``seed_summary``'s table."""
+    import numpy as np
+    from scipy import stats
+
+    rows = []
+    for run, part in seeds.groupby("run", sort=True):
+        row = {"run": run, "seeds": int(len(part)), "last_env_steps_min": int(part["last_env_steps"].min())}
+        for column, name in (("last_success_rate", "success_rate"),
+                             ("last_first_attempt_success_rate", "first_attempt_success_rate")):
+            if column not in part.columns or part[column].isna().all():
+                continue
+            values = part[column].dropna().to_numpy(float)
+            n, mean = len(values), float(values.mean())
+            std = float(values.std(ddof=1)) if n > 1 else float("nan")
+            half = float(stats.t.ppf(0.5 + confidence / 2, n - 1) * std / np.sqrt(n)) if n > 1 else float("nan")
+            row |= {f"{name}_mean": mean, f"{name}_std": std, f"{name}_ci_low": max(0.0, mean - half),
+                    f"{name}_ci_high": min(1.0, mean + half)}
+            if n < 2:
+                row[f"{name}_ci_low"] = row[f"{name}_ci_high"] = float("nan")
+        rows.append(row)
+    return pd.DataFrame(rows)
+
+
 REACH_LEVEL = 0.5  # the success rate whose first crossing the seed table reports (the paper's speed-up claim)
 
 
@@ -152,4 +204,4 @@ def load_learning_curves(run_dirs) -> pd.DataFrame:
     return learning_curves(pd.concat([load_run_metrics(d) for d in run_dirs], ignore_index=True))
 
 
-__all__ = ["REACH_LEVEL", "seed_summary", "SEED_CURVE_METRICS", "load_seed_curves", "OPTIONAL_CURVE_METRICS", "OLD_TRAIN_LOW_COLUMNS", "old_metrics_renames", "upgrade_metrics", "load_run_metrics", "learning_curves", "load_learning_curves", "METRICS_FILE", "REQUIRED_COLUMNS"]
+__all__ = ["expand_sweeps", "final_success", "SWEEP_CSV", "REACH_LEVEL", "seed_summary", "SEED_CURVE_METRICS", "load_seed_curves", "OPTIONAL_CURVE_METRICS", "OLD_TRAIN_LOW_COLUMNS", "old_metrics_renames", "upgrade_metrics", "load_run_metrics", "learning_curves", "load_learning_curves", "METRICS_FILE", "REQUIRED_COLUMNS"]

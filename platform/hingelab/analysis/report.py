@@ -33,8 +33,8 @@ import pandas as pd
 from hingelab.analysis import plots
 from hingelab.analysis.documents import Section, write_documents
 from hingelab.analysis.episode_table import load_episode_table
-from hingelab.analysis.learning_curves import (METRICS_FILE, REACH_LEVEL, load_learning_curves, load_seed_curves,
-                                               seed_summary)
+from hingelab.analysis.learning_curves import (METRICS_FILE, REACH_LEVEL, expand_sweeps, final_success,
+                                               load_learning_curves, load_seed_curves, seed_summary)
 from hingelab.analysis.success_tables import (
     attempt_rates, failure_reasons, length_return_stats, overall_success, success_rates,
 )
@@ -77,6 +77,7 @@ def compute_tables(episodes: pd.DataFrame, curves: pd.DataFrame, attempts_k=(1, 
     if seed_curves is not None and len(seed_curves):
         tables["learning_curves_by_seed"] = seed_curves
         tables["seeds"] = seed_summary(seed_curves)
+        tables["final_success"] = final_success(tables["seeds"])
     return tables
 
 
@@ -126,7 +127,14 @@ def _sections(tables: dict[str, pd.DataFrame], plot_files: dict[str, str]) -> li
             "the runs of one label (run.json) are its seeds. The table: per run and seed, the first evaluation "
             f"whose success rate reached {REACH_LEVEL:g} (empty: none did) and the last evaluation.",
             tables["seeds"], "seeds.csv", [plot_files["learning_curves_by_seed"]]))
+        sections.append(Section(*FINAL_SUCCESS_SECTION, tables["final_success"], "final_success.csv"))
     return sections
+
+
+FINAL_SUCCESS_SECTION = (
+    "Success at the end, across seeds", "Per run label (a sweep's condition): the last evaluation's success "
+    "rate of each seed, their mean and std, and a Student-t 95% interval across seeds (the seeds are the "
+    "samples; none with one seed); first-attempt success likewise where the runs record it.")
 
 
 def _plots(out: Path, episodes: pd.DataFrame, tables: dict[str, pd.DataFrame]) -> dict[str, str]:
@@ -162,7 +170,7 @@ def verdict_line(episodes: pd.DataFrame) -> str:
 def build_report(datasets, out, runs=(), title: str | None = None, attempts_k=(1, 2, 3)) -> Report:
     """Count the datasets (and run folders), write the report into ``out``; see the module docstring."""
     datasets = [Path(d) for d in datasets]
-    runs = [Path(r) for r in runs or ()]
+    runs = expand_sweeps(runs)  # a sweep folder: its trials, labelled by condition
     episodes = load_episode_table(datasets)
     curves = load_learning_curves(runs)
     tables = compute_tables(episodes, curves, attempts_k, seed_curves=load_seed_curves(runs))
@@ -201,4 +209,4 @@ def build_report(datasets, out, runs=(), title: str | None = None, attempts_k=(1
     return Report(out=out, episodes=episodes, tables=tables, files=files)
 
 
-__all__ = ["build_report", "compute_tables", "verdict_line", "Report"]
+__all__ = ["FINAL_SUCCESS_SECTION", "build_report", "compute_tables", "verdict_line", "Report"]

@@ -18,6 +18,7 @@ BENCHMARKS = {
     "envs": "hingelab.bench.envs",
     "train": "hingelab.bench.train",
     "sac": "hingelab.bench.sac",
+    "cluster": "hingelab.bench.cluster",
 }
 
 # measured by every benchmark: the locked package versions (torch, MuJoCo, numba, SB3, ...)

@@ -5,6 +5,11 @@ current when that is a plain commit (not ``+dirty``) of this branch's history an
 since has changed the paths the benchmark measures (``hingelab.bench.measured_paths``).
 Uncommitted changes do not count here: a table can only be made from committed code, so a
 change makes the table stale once it is committed.
+
+The lock file (``constraints.txt``, measured by every benchmark) is compared pin by pin: a commit
+that only adds pins (a new package for code the benchmark does not run, e.g. Ray for the sweeps)
+leaves every package the table was measured with as it was, so it does not make the table stale;
+a commit that changes or removes a pin does.
 """
 
 from __future__ import annotations
@@ -62,9 +67,28 @@ def stale_reason(json_path: Path, measured: tuple[str, ...], repo: Path, command
     if missing:  # a renamed or mistyped path would otherwise never make the table stale
         return f"{where}: the measured paths {missing} do not exist; fix the benchmark's MEASURES"
     log = _git(repo, "log", "--format=%h", f"{recorded}..HEAD", "--", *measured).stdout.split()
+    log = [commit for commit in log if _changes_what_it_measures(repo, commit, measured)]
     if not log:
         return None
     named = ", ".join(log[:MAX_COMMITS_NAMED]) + (f" and {len(log) - MAX_COMMITS_NAMED} more"
                                                    if len(log) > MAX_COMMITS_NAMED else "")
     return (f"{where}: the code it measures changed since in {len(log)} commit{'s' * (len(log) > 1)} "
             f"({named}); run `{command}`")
+
+
+LOCK_FILE = "constraints.txt"
+
+
+def _changes_what_it_measures(repo: Path, commit: str, measured: tuple[str, ...]) -> bool:
+    """Whether ``commit`` changes a measured path other than by adding pins to the lock file."""
+    others = [p for p in measured if p != LOCK_FILE]
+    if others and _git(repo, "diff", "--name-only", f"{commit}^", commit, "--", *others,
+                       check=False).stdout.strip():
+        return True
+    if LOCK_FILE not in measured:
+        return False
+    diff = _git(repo, "diff", "--unified=0", f"{commit}^", commit, "--", LOCK_FILE, check=False)
+    if diff.returncode != 0:
+        return True  # a root commit or an unreadable diff: count it
+    removed = [line[1:] for line in diff.stdout.splitlines() if line.startswith("-") and not line.startswith("---")]
+    return any(line.split("#")[0].strip() for line in removed)  # a pin changed or went (headers do not count)

@@ -22,6 +22,8 @@ import json
 from contextlib import contextmanager
 from pathlib import Path
 
+from hingelab.cli.options import add_ray_argument
+
 
 def add_parser(subparsers) -> None:
     p = subparsers.add_parser("eval", help="evaluate a trained policy into a dataset",
@@ -52,6 +54,7 @@ def add_parser(subparsers) -> None:
     low.add_argument("--resume", action="store_true",
                       help="continue a stopped evaluation (a full disk, a kill) in --out: its finished episodes are "
                            "kept, the rest run with their own seeds; the other settings must be the same")
+    add_ray_argument(low)
     low.set_defaults(func=run_low)
     high = what.add_parser(
         "high", help="a high-level policy (or a baseline) on ToolPick-v0",
@@ -86,6 +89,7 @@ def add_parser(subparsers) -> None:
     high.add_argument("--resume", action="store_true",
                       help="continue a stopped evaluation (a full disk, a kill) in --out: its finished episodes are "
                            "kept, the rest run with their own seeds; the other settings must be the same")
+    add_ray_argument(high)
     high.set_defaults(func=run_high)
     from hingelab.cli import eval_perception
 
@@ -124,12 +128,20 @@ def run_low(args: argparse.Namespace) -> int:
     if not args.resume:
         create_dataset(args.out, name=name, source="low_level_evaluation", config={**config, "seed": args.seed},
                        seed=args.seed, description="hingelab eval low: a low-level policy toward reachable goals")
-    env = make_eval_env(env_args, record_dir=args.out)
+    env = make_eval_env(env_args, record_dir=None if args.ray else args.out)  # --ray: the tasks record
     unwrapped = env.unwrapped
     policy = reference_policy(args.baseline, env) if args.baseline else model
     with stop_cleanly_on_a_full_disk(args, journal):
-        episodes = evaluate_sampled_goals(policy, env, args.episodes, args.seed, progress=not args.no_progress,
-                                          journal=journal)
+        if args.ray:
+            from hingelab.learning.eval_on_ray import evaluate_low_on_ray
+            from hingelab.learning.low_level_eval import sampled_goals
+
+            goals = sampled_goals(unwrapped.calibration, unwrapped.reachable_range, args.episodes, args.seed)
+            episodes = evaluate_low_on_ray(goals, env_args, args.out, args.checkpoint, args.baseline, journal,
+                                           args.ray, progress=not args.no_progress)
+        else:
+            episodes = evaluate_sampled_goals(policy, env, args.episodes, args.seed, progress=not args.no_progress,
+                                              journal=journal)
     env.close()
     from hingelab.analysis.documents import markdown_table
 
@@ -221,15 +233,23 @@ def run_high(args: argparse.Namespace) -> int:
         create_dataset(args.out, name=name, source="high_level_evaluation", config={**config, "seed": args.seed},
                        seed=args.seed, description=f"hingelab eval high: {label} on ToolPick-v0, {args.object} "
                                                    f"{args.size * 100:g} cm")
-    env = H.make_eval_env(args.object, args.size, low_level, record_dir=args.out, observe_extent=observe_extent,
-                          extra_metadata={"policy": label, "low_level": low_level, "perception": args.perception},
-                          perception=args.perception)
-    try:
+    env_options = {"object": args.object, "size": args.size, "low_level": low_level, "observe_extent": observe_extent,
+                   "extra_metadata": {"policy": label, "low_level": low_level, "perception": args.perception},
+                   "perception": args.perception}
+    if args.ray:
+        from hingelab.learning.eval_on_ray import evaluate_high_on_ray
+
         with stop_cleanly_on_a_full_disk(args, journal):
-            episodes = H.evaluate(policy, env, args.episodes, args.seed, progress=not args.no_progress,
-                                  label=f"eval high {label}", journal=journal)
-    finally:
-        env.close()
+            episodes = evaluate_high_on_ray(args.episodes, args.seed, env_options, args.out, args.checkpoint,
+                                            args.baseline, journal, args.ray, progress=not args.no_progress)
+    else:
+        env = H.make_eval_env(record_dir=args.out, **env_options)
+        try:
+            with stop_cleanly_on_a_full_disk(args, journal):
+                episodes = H.evaluate(policy, env, args.episodes, args.seed, progress=not args.no_progress,
+                                      label=f"eval high {label}", journal=journal)
+        finally:
+            env.close()
     table = H.success_table(episodes, args.object, args.size)
     episodes.to_csv(args.out / "episodes.csv", index=False)
     journal.finish()

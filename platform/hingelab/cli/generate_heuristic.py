@@ -5,6 +5,7 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
+from hingelab.cli.options import add_ray_argument
 from hingelab.paths import DATASETS_DIR
 
 
@@ -33,6 +34,7 @@ def add_heuristic_parser(sources) -> None:
                    help=f"dataset folder to create (for example {DATASETS_DIR / 'heuristic_sphere'})")
     p.add_argument("--workers", type=int, default=d.workers, help="parallel worker processes (default 1)")
     p.add_argument("--seed", type=int, default=d.seed, help=f"base seed (default {d.seed})")
+    add_ray_argument(p)
     p.add_argument("--no-randomize", action="store_true", help="turn domain randomization off")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
     p.add_argument("--resume", action="store_true",
@@ -47,7 +49,7 @@ def run_heuristic(args: argparse.Namespace) -> int:
     config = HeuristicRunConfig(episodes=args.episodes, object=args.object, size=args.size, mass=args.mass,
                                 seed=args.seed, workers=args.workers, randomize=not args.no_randomize)
     summaries, seconds = timed(generate_heuristic_dataset, args.out, config, progress=not args.no_progress,
-                               resume=args.resume)
+                               resume=args.resume, ray_address=args.ray)
     if not summaries:
         print(f"{args.out} already holds the {config.episodes} episodes; nothing to do.")
         return 0

@@ -20,6 +20,7 @@ VERB_MODULES = [
     "hingelab.cli.demo",
     "hingelab.cli.generate",
     "hingelab.cli.train",
+    "hingelab.cli.sweep",
     "hingelab.cli.eval",
     "hingelab.cli.trial",
     "hingelab.cli.compose",

@@ -9,3 +9,12 @@ def add_on_corrupt(p) -> None:
     p.add_argument("--on-corrupt", choices=("stop", "skip"), default="stop",
                    help="episode files that cannot be read (corrupt, cut off): stop (the default) names them all "
                         "and ends; skip leaves them out and says how many")
+
+
+def add_ray_argument(p) -> None:
+    """``--ray [ADDR]``: episodes as Ray tasks, on a local one-node Ray or the cluster at ADDR."""
+    p.add_argument("--ray", nargs="?", const="local", default=None, metavar="ADDR",
+                   help="run the episodes as Ray tasks that write into --out (shared storage on a cluster): "
+                        "on a local one-node Ray (no ADDR; --workers CPUs if given, else every core) or on the "
+                        "running cluster at ADDR (`ray start --head` prints it); same seed, same episodes as "
+                        "local workers")

@@ -122,6 +122,23 @@ def run_picks(args: argparse.Namespace) -> int:
     return 0
 
 
+def run_runs(args: argparse.Namespace) -> int:
+    """Training runs alone: curves grouped by run label (a sweep's condition), success at the end across seeds."""
+    from hingelab.analysis.run_report import build_run_report
+    from hingelab.provenance import require_clean_for
+
+    require_clean_for(args.out, args.allow_dirty, "hingelab report --runs")
+    command = "hingelab report --runs " + " ".join(map(str, args.runs)) + f" --out {args.out}"
+    report = build_run_report(args.runs, args.out, title=args.title, command=command)
+    final = report.tables["final_success"]
+    lines = [f"{r.run}: {r.success_rate_mean:.2f}" + (f" [{r.success_rate_ci_low:.2f}, {r.success_rate_ci_high:.2f}]"
+                                                    if r.seeds > 1 else "") + f" over {r.seeds} seed(s)"
+             for r in final.itertuples()]
+    print(f"Success at the last evaluation (Student-t 95% across seeds): {'; '.join(lines)}. Wrote "
+          f"{len(report.files)} files to {report.out}: report.md, report.html, final_success.csv, the curves.")
+    return 0
+
+
 def run(args: argparse.Namespace) -> int:
     from hingelab.analysis import build_report
     from hingelab.errors import ConfigError
@@ -133,8 +150,11 @@ def run(args: argparse.Namespace) -> int:
         return run_pool(args)
     if args.pool_name or args.bands is not None:
         raise ConfigError("--pool-name and --bands go with --pool DIR...")
+    if not args.datasets and args.runs:
+        return run_runs(args)
     if not args.datasets:
-        raise ConfigError("give at least one DATASET folder to count (or --pool DIR... to pool evaluation folders)")
+        raise ConfigError("give at least one DATASET folder to count, --runs RUNDIR... (training runs or a sweep "
+                          "folder) or --pool DIR... to pool evaluation folders")
     require_clean_for(args.out, args.allow_dirty, "hingelab report")
     if any(k < 1 for k in args.attempts):
         raise ConfigError(f"--attempts must be positive integers, not {args.attempts}")

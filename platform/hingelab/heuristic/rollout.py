@@ -3,7 +3,9 @@
 ``generate_heuristic_dataset`` is what ``hingelab generate heuristic`` runs. Episode k of a
 dataset made with seed S is reset with seed ``S * 100_003 + k``, so the same seed gives the
 same episodes whatever the number of worker processes (each worker writes its episodes
-into the one dataset folder; the writer's unique names and atomic renames make that safe).
+into the one dataset folder; the writer's unique names and atomic renames make that safe), and
+whether they run in local worker processes or as Ray tasks (``ray_address``: one task per episode,
+``hingelab.cluster.fan_out``).
 """
 
 from __future__ import annotations
@@ -108,6 +110,27 @@ def _run_in_worker(seed: int) -> EpisodeSummary:
     return run_episode(_WORKER["env"], seed)
 
 
+class HeuristicEpisodes:
+    """The episode runner of a Ray task (``hingelab.cluster.fan_out``): its env is built on the first
+    episode, in the worker process, and kept for the next ones."""
+
+    def __init__(self, config: HeuristicRunConfig, dataset_dir: str):
+        self.config, self.dataset_dir, self.env = config, dataset_dir, None
+
+    def __call__(self, seed: int) -> EpisodeSummary:
+        if self.env is None:
+            import torch
+
+            torch.set_num_threads(1)  # one core per task
+            self.env = make_env(self.config, Path(self.dataset_dir))
+        return run_episode(self.env, seed)
+
+    def close(self) -> None:
+        if self.env is not None:
+            self.env.close()
+            self.env = None
+
+
 RESUMABLE = ("episodes", "workers")  # what --resume may change; any other setting must match the card's
 
 
@@ -138,10 +161,13 @@ def _seeds_to_run(out: Path, config: HeuristicRunConfig, resume: bool) -> list[i
 
 
 def generate_heuristic_dataset(out: Path, config: HeuristicRunConfig, progress: bool = True,
-                               name: str | None = None, resume: bool = False) -> list[EpisodeSummary]:
+                               name: str | None = None, resume: bool = False,
+                               ray_address: str | None = None) -> list[EpisodeSummary]:
     """Write ``config.episodes`` heuristic episodes into a new dataset at ``out``; ``resume``: only the
     episodes (seeds) a stopped run into ``out`` did not finish, so the folder ends as one
-    uninterrupted run's would. A full disk stops with ``DiskFullError`` (the finished episodes kept)."""
+    uninterrupted run's would. A full disk stops with ``DiskFullError`` (the finished episodes kept).
+    ``ray_address``: episodes as Ray tasks on that cluster (``"local"``: a local Ray of
+    ``config.workers`` CPUs, or of every core when ``config.workers`` is 1)."""
     from hingelab.disk_full import disk_full_error, is_disk_full
 
     if config.episodes < 1:
@@ -156,6 +182,8 @@ def generate_heuristic_dataset(out: Path, config: HeuristicRunConfig, progress: 
                        description=f"privileged heuristic demos on ToolPick-v0, {object_label(config.object)} "
                                    f"{config.size * 100:g} cm")
     try:
+        if ray_address is not None:
+            return _generate_on_ray(out, config, seeds, progress, ray_address)
         return _generate(out, config, seeds, progress)
     except OSError as exc:
         if not is_disk_full(exc):
@@ -190,6 +218,18 @@ def _generate(out: Path, config: HeuristicRunConfig, seeds: list[int], progress:
                 bar.update()
                 bar.set_postfix(success=f"{np.mean([s.success for s in summaries]):.0%}")
     bar.close()
+    return sorted(summaries, key=lambda s: s.seed)
+
+
+def _generate_on_ray(out: Path, config: HeuristicRunConfig, seeds: list[int], progress: bool,
+                     address: str) -> list[EpisodeSummary]:
+    import functools
+
+    from hingelab.cluster.fan_out import fan_out
+
+    summaries = fan_out(functools.partial(HeuristicEpisodes, config, str(out)), seeds, address=address,
+                        num_cpus=config.workers if config.workers > 1 else None, progress=progress,
+                        desc=f"heuristic {object_label(config.object)}")
     return sorted(summaries, key=lambda s: s.seed)
 
 
