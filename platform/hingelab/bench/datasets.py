@@ -272,7 +272,12 @@ def ros2_import_rows(work: Path, quick: bool, repeats: int, real_size: bool = Fa
         return import_bags([bag], out, encoder=encoder)
 
     bare_s, read = _best_time(bare, repeats)
-    ours_s, (summary,) = _best_time(ours, repeats)
+    timed = []
+    for _ in range(repeats):  # the best run's own summary: its camera time is a share of its time
+        start = time.perf_counter()
+        (summary,) = ours()
+        timed.append((time.perf_counter() - start, summary))
+    ours_s, summary = min(timed, key=lambda t: t[0])
     if read != info["messages"] or summary.messages != info["messages"]:
         raise AssertionError(f"the bag has {info['messages']} messages; read {read}, imported {summary.messages}")
     rows = [{"format": f"ROS 2 bag, {label} -> episodes (hingelab datasets import-ros2)", BAG_COLUMN: read / ours_s},
