@@ -331,3 +331,41 @@ def test_a_simulated_episode_exports_as_a_ros2_bag_and_imports_back(random_pick_
     assert np.array_equal(again.topics["/hand/joints"]["position"], joints["position"][rows])
     assert np.array_equal(again.topics["/action"]["values"], original.topics["/action"]["values"][
         np.searchsorted(original.topics["/action"]["log_time_ns"], steps)])
+
+
+def test_real_size_clouds_are_cropped_before_the_transform_and_read_as_before():
+    """A real camera's whole-scene cloud: dropping the points outside the crop box's sphere in the camera frame
+    keeps exactly the points the pipeline's crop in hand_base keeps; the float32 view of the bytes reads the
+    same points as the general (structured) decoding, padded points (x y z + rgb, 16 bytes) too."""
+    from hingelab.perception.camera_cloud import crop, transform
+    from hingelab.ros2 import ros_messages as M
+    from hingelab.ros2.bag_import import near_crop_box
+    from hingelab.ros2.rig_bag import camera_in_hand
+
+    config = ToolCloudConfig()
+    rot, pos = camera_in_hand(0.3)
+    rng = np.random.default_rng(0)
+    inside_hand = rng.uniform(config.crop_low, config.crop_high, (5_000, 3))  # the box, and the scene around it
+    scene_cam = np.concatenate([(inside_hand - pos) @ rot, rng.uniform(-1.5, 1.5, (200_000, 3))])
+    kept = near_crop_box(scene_cam, rot, pos, config)
+    assert len(kept) < 0.1 * len(scene_cam)
+    expected = crop(transform(scene_cam, rot, pos), config.crop_low, config.crop_high)
+    got = crop(transform(kept, rot, pos), config.crop_low, config.crop_high)
+    assert len(got) == len(expected) >= 5_000
+    np.testing.assert_allclose(got, expected, atol=1e-12)
+    ts = get_typestore(Stores.ROS2_HUMBLE)
+    T = ts.types
+    xyz = rng.normal(size=(1000, 3)).astype("<f4")
+    xyz[7, 1] = np.nan
+    padded = np.zeros((1000, 4), "<f4")
+    padded[:, :3] = xyz
+    for big_endian in (False, True):
+        data = padded.astype(">f4" if big_endian else "<f4")
+        fields = [T["sensor_msgs/msg/PointField"](name=n, offset=4 * i, datatype=7, count=1)
+                  for i, n in enumerate("xyzr")]
+        msg = T["sensor_msgs/msg/PointCloud2"](
+            header=T["std_msgs/msg/Header"](stamp=T["builtin_interfaces/msg/Time"](sec=0, nanosec=0), frame_id="c"),
+            height=1, width=1000, fields=fields, is_bigendian=big_endian, point_step=16, row_step=16000,
+            data=data.view(np.uint8).ravel(), is_dense=False)
+        points = M.cloud_xyz(msg, "test")
+        np.testing.assert_array_equal(points, np.delete(xyz, 7, axis=0).astype(np.float64))

@@ -70,9 +70,14 @@ def run_high(args: argparse.Namespace) -> int:
     s = train_high(config, out, resume=args.resume, progress=not args.no_progress, name=args.name)
     last, best = s["last_evaluation"], s["best"]
     prior = s["prior"]
-    prior_text = (f" The privileged prior: {prior['transitions']} transitions of {prior['episodes']} heuristic "
-                  f"episodes ({', '.join(prior['datasets'])}), demo share {config.demo_share:g}, BC weight "
-                  f"{config.demo_bc_weight:g}." if prior else " No privileged prior.")
+    if prior:
+        sources = ", ".join(f"{d['path']} ({d['source']}, {d['episodes']} episodes"
+                            + (f", {len(d['skipped'])} left out" if d["skipped"] else "") + ")"
+                            for d in prior["filled_from"])
+        prior_text = (f" The privileged prior: {prior['transitions']} transitions of {prior['episodes']} episodes from "
+                      f"{sources}, demo share {config.demo_share:g}, BC weight {config.demo_bc_weight:g}.")
+    else:
+        prior_text = " No privileged prior."
     what = "flat baseline" if config.kind == "flat" else "high-level policy"
     print(f"Trained the {what} to {s['env_steps']} env steps ({s['updates']} updates) in "
           f"{s['wall_time_s'] / 60:.1f} min.{prior_text} Last evaluation on {s['eval_episodes']} held-out "

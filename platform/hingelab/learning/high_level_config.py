@@ -64,8 +64,9 @@ class HighLevelTrainConfig(SACTrainConfig):
     demo_share: float = option(0.5, "share of every batch drawn from the demos, kept apart from the ring buffer "
                                     "(RLPD's 50/50); 0: the paper's plain pre-fill of the ring buffer")
     demo_actions: str = option("auto", "demo action: reached (the latent the tool reached, the paper's), "
-                                       "recorded (the recorded command), or auto (recorded for scripted demos, "
-                                       "reached for the heuristic's)", choices=DEMO_ACTIONS)
+                                       "recorded (the recorded command), or auto (recorded for scripted demos and "
+                                       "real episodes that logged /hingelab/action, reached for the heuristic's)",
+                             choices=DEMO_ACTIONS)
     demo_lookahead: int = option(1, "the reached latent this many steps after the step (1: the step's own, the "
                                     "paper's)")
     demo_offline_updates: int = option(0, "SAC updates on the demos alone before the first env step: the critic "

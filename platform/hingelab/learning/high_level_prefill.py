@@ -70,6 +70,7 @@ from hingelab.episodes.dataset import Dataset
 from hingelab.episodes.errors import DatasetError
 from hingelab.episodes.transitions import Transitions, concat_transitions, episode_transitions, fill_replay_buffer
 from hingelab.errors import ConfigError
+from hingelab.learning import real_prefill
 
 OBSERVATION_DIM = observation_dim()  # 14
 OBSERVATION_DIMS = (observation_dim(False), observation_dim(True))  # without and with observe_extent
@@ -178,7 +179,8 @@ def _episode(episode, index: int, config: HighLevelRewardConfig, recorded: HighL
 
 def high_level_transitions(datasets, reward_config: HighLevelRewardConfig | None = None,
                            recorded_reward: HighLevelRewardConfig | None = None, actions: str = "reached",
-                           progress: bool = False, observation_dim: int = OBSERVATION_DIM) -> Transitions:
+                           progress: bool = False, observation_dim: int = OBSERVATION_DIM,
+                           skipped: list | None = None, encoder_path=None) -> Transitions:
     """The transitions of every episode of ``datasets`` (dataset folders) for ToolPick-v0's
     14-D (``observation_dim``: 17 with ``observe_extent``) / 5-D spaces, rewards relabelled with
     ``reward_config`` (default: the env's default).
@@ -188,6 +190,13 @@ def high_level_transitions(datasets, reward_config: HighLevelRewardConfig | None
     paper's: the reached latent / 3 clipped, and the recorded hand velocity) or "recorded".
     Each transition's infos add ``tool_object_distance`` (m). A dataset or episode that is
     not a ToolPick-v0 high-level recording is a one-line DatasetError naming its file.
+
+    Real episodes (source ``real``, ``hingelab datasets import-ros2``) go through
+    ``real_prefill.real_episode_transitions``: rewards rebuilt from perception and the arm's
+    kinematics, the opening read with the calibration of the encoder at ``encoder_path`` (default:
+    the shipped one, which the import uses too). One that lacks what it needs raises its one-line
+    error, or, with a list as ``skipped``, is left out and appended to it as (path, reason); a
+    dataset none of whose real episodes can be used raises the first one's error all the same.
     """
     config = reward_config or HighLevelRewardConfig()
     recorded = recorded_reward or HighLevelRewardConfig()
@@ -198,7 +207,7 @@ def high_level_transitions(datasets, reward_config: HighLevelRewardConfig | None
                           "would change where the recorded episodes end; relabelling cannot change that")
     if isinstance(datasets, (str, Path)):
         datasets = [datasets]
-    parts, index = [], 0
+    parts, index, calibration = [], 0, None
     for root in datasets:
         root = Path(root)
         if not root.exists():
@@ -207,11 +216,41 @@ def high_level_transitions(datasets, reward_config: HighLevelRewardConfig | None
         dataset = Dataset(root)
         if len(dataset) == 0:
             raise DatasetError(f"dataset {root} has no finished episodes to learn from")
-        for episode in dataset.iter_episodes(topics=TOPICS, progress=progress):
-            parts.append(_episode(episode, index, config, recorded, actions, observation_dim))
-            index += 1
+        left_out, n_real = [], 0
+        for episode in dataset.iter_episodes(topics=TOPICS + real_prefill.TOPICS, progress=progress):
+            if not real_prefill.is_real(episode):
+                parts.append(_episode(episode, index, config, recorded, actions, observation_dim))
+                index += 1
+                continue
+            n_real += 1
+            if calibration is None:
+                from hingelab.perception.encoder import load_encoder
+
+                calibration = load_encoder(encoder_path).calibration
+            try:
+                parts.append(real_prefill.real_episode_transitions(episode, index, config, calibration, actions,
+                                                                   observation_dim))
+                index += 1
+            except real_prefill.RealEpisodeError as exc:
+                if skipped is None:
+                    raise
+                left_out.append((str(episode.path), str(exc)))
+        if left_out and len(left_out) == n_real:
+            raise DatasetError(f"dataset {root}: none of its {len(left_out)} real episodes can be used; "
+                               f"the first: {left_out[0][1]}")
+        if skipped is not None:
+            skipped.extend(left_out)
     if not parts:
         raise ConfigError("no datasets given to pre-fill from")
+    return concat_demos(parts)
+
+
+def concat_demos(parts: list) -> Transitions:
+    """``concat_transitions`` of demos of several sources, keeping the infos all of them have (a rig's
+    steps carry none of the env's, the env's none of the import's)."""
+    common = set.intersection(*(set(p.infos) for p in parts))
+    for part in parts:
+        part.infos = {k: v for k, v in part.infos.items() if k in common}
     return concat_transitions(parts)
 
 
@@ -295,5 +334,5 @@ class DemoShareReplayBuffer(ReplayBuffer):
         return ReplayBufferSamples(*(None if a is None else torch.cat([a, b]) for a, b in zip(demo, own)))
 
 
-__all__ = ["high_level_transitions", "look_ahead", "fill_high_level_buffer", "relabel_rewards",
+__all__ = ["high_level_transitions", "concat_demos", "look_ahead", "fill_high_level_buffer", "relabel_rewards",
            "DemoShareReplayBuffer"]

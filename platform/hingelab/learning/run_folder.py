@@ -2,7 +2,8 @@
 
 ::
 
-    RUNDIR/config.json      the resolved config, seed, env id, code version, creation time
+    RUNDIR/config.json      the resolved config, seed, env id, code version, creation time (and, for
+                            train high, ``prior``: the datasets and sources that filled the buffer)
     RUNDIR/run.json         the curve label for ``hingelab report``
     RUNDIR/metrics.csv      one row per evaluation (``MetricsLog``)
     RUNDIR/dataset/         every training rollout, one MCAP episode each
@@ -144,6 +145,16 @@ class RunFolder:
                **(extra or {}), **code_version(), "created": time.strftime("%Y-%m-%dT%H:%M:%S%z")}
         (self.path / CONFIG_FILE).write_text(json.dumps(doc, indent=2))
         (self.path / RUN_FILE).write_text(json.dumps({"name": self.name}))
+
+    def record_run_fact(self, key: str, value) -> None:
+        """Add ``key`` to config.json (JSON), e.g. the datasets that filled the replay buffer, known only
+        once they are read; the config itself is not touched (``--resume`` reads only it)."""
+        path = self.path / CONFIG_FILE
+        doc = json.loads(path.read_text())
+        doc[key] = value
+        tmp = path.with_name(path.name + ".tmp")
+        tmp.write_text(json.dumps(doc, indent=2))
+        tmp.replace(path)
 
     def dataset(self, description: str) -> Path | None:
         """The rollouts' dataset folder (created with its card for a new run; a resumed run keeps its

@@ -46,6 +46,19 @@ def summarize_pick(episodes) -> dict:
             "final_object_target_distance_m": float(episodes["object_target_distance_m"].median())}
 
 
+def prior_dataset_record(root, transitions, mode: str, skipped: list) -> dict:
+    """What one --from dataset gave the demos: its source, episodes, transitions, actions, left-out episodes."""
+    from hingelab.episodes.dataset import Dataset
+
+    card = Dataset(root).card
+    record = {"path": str(root), "source": card.source, "name": card.name, "transitions": len(transitions),
+              "episodes": int(len(np.unique(transitions.episode_index))), "demo_actions": mode,
+              "skipped": [{"episode": path, "reason": reason} for path, reason in skipped]}
+    if "demo_action_recorded" in transitions.infos:  # real episodes: the rig's command or the reached action
+        record["transitions_with_recorded_action"] = int(transitions.infos["demo_action_recorded"].sum())
+    return record
+
+
 class HighLevelRun(SACRun):
     label = "train high"
     dataset_description = "every training rollout of a hingelab train high run"
@@ -59,7 +72,8 @@ class HighLevelRun(SACRun):
         for root in self.config.from_datasets:
             if not Path(root).exists():
                 raise ConfigError(f"--from {root} does not exist; give a heuristic dataset "
-                                  "(hingelab generate heuristic) or drop --from to generate one")
+                                  "(hingelab generate heuristic), a ToolPick-v0 recording or real episodes "
+                                  "(hingelab datasets import-ros2), or drop --from to generate one")
 
     def prior_datasets(self) -> list[str]:
         """The demos' datasets: --from, or the prior the run generates (once; a resumed run reuses it)."""
@@ -79,7 +93,10 @@ class HighLevelRun(SACRun):
             return self.config.demo_actions
         from hingelab.episodes.dataset import Dataset
 
-        policy = (Dataset(root).card.config or {}).get("policy")
+        card = Dataset(root).card
+        if card.source == "real":  # the rig's own command where it recorded one (real_prefill)
+            return "recorded"
+        policy = (card.config or {}).get("policy")
         return "recorded" if policy in ("scripted", "scripted-feedback") else "reached"
 
     def prepare_data(self) -> None:
@@ -87,24 +104,31 @@ class HighLevelRun(SACRun):
         if not self.config.prior:
             return
         from hingelab.envs.tool_pick import observation_dim
-        from hingelab.learning.high_level_prefill import high_level_transitions, look_ahead
-
-        from hingelab.episodes.transitions import concat_transitions
+        from hingelab.learning.high_level_prefill import concat_demos, high_level_transitions, look_ahead
 
         started = time.perf_counter()
         datasets = self.prior_datasets()
         self.demo_modes = [self.demo_action_mode(root) for root in datasets]
-        parts, offset = [], 0
+        parts, offset, filled = [], 0, []
         for root, mode in zip(datasets, self.demo_modes):
+            skipped = []  # real episodes that lack what the relabelling needs: left out, named below
             part = high_level_transitions([root], self.config.reward, actions=mode, observation_dim=observation_dim(
-                bool(self.config.env_kwargs.get("observe_extent", False))))
+                bool(self.config.env_kwargs.get("observe_extent", False))), skipped=skipped,
+                encoder_path=self.config.env_kwargs.get("encoder_path"))
             part.episode_index = part.episode_index + offset  # one numbering over the datasets (look_ahead)
             offset = int(part.episode_index.max()) + 1
             parts.append(part)
-        self.demos = look_ahead(concat_transitions(parts) if len(parts) > 1 else parts[0], self.config.demo_lookahead)
+            filled.append(prior_dataset_record(root, part, mode, skipped))
+            if skipped:
+                print(f"--from {root}: left out {len(skipped)} real episode(s) that cannot be relabelled "
+                      f"(listed in {self.run_dir}/config.json under prior); the first: {skipped[0][1]}")
+        self.demos = look_ahead(concat_demos(parts) if len(parts) > 1 else parts[0], self.config.demo_lookahead)
         self.demo_info = {"datasets": datasets, "demo_actions": self.demo_modes, "transitions": len(self.demos),
                           "episodes": int(len(np.unique(self.demos.episode_index))),
+                          "sources": sorted({d["source"] for d in filled}), "filled_from": filled,
                           "seconds": round(time.perf_counter() - started, 2)}
+        if not self.resume:  # config.json says which datasets (and sources) filled the buffer
+            self.folder.record_run_fact("prior", self.demo_info)
 
     def build_model(self, env):
         kwargs = sac_arguments(self.config)

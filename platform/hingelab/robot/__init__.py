@@ -2,5 +2,7 @@
 
 ``interface``: what the hierarchical controller reads and commands (``Robot``, ``RobotReadings``);
 ``stand_in``: the MuJoCo stand-in (``StandInRobot``); ``controller``: the hierarchical policy acting
-on readings (``HierarchicalController``); ``trial``: ``hingelab trial``'s loop and recording.
+on readings (``HierarchicalController``); ``trial``: ``hingelab trial``'s loop and recording;
+``arm_kinematics``: the hand's pose in the world from the arm's joint angles (MuJoCo's kinematics of
+the Zu 7), for logs of a real arm that record joints only.
 """

@@ -23,6 +23,7 @@ and why.
 
 from __future__ import annotations
 
+import time
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -56,6 +57,8 @@ class BagSummary:
     messages: int = 0  # messages read from the topics used
     dropped: dict = field(default_factory=dict)  # "why" -> count
     notes: list = field(default_factory=list)
+    camera_s: float = 0.0  # seconds in the camera frames' decoding, TF and cloud pipeline (not the bag reads)
+    camera_frames: int = 0  # camera frames that went through it (those some step takes)
 
     def drop(self, why: str, n: int = 1) -> None:
         if n:
@@ -148,7 +151,10 @@ class _Camera:
             return
         for ordinal, (_, _, payload) in enumerate(self._pass("tool clouds")):
             if ordinal in todo:
+                started = time.perf_counter()
                 self._result[todo[ordinal]] = self._process(bytes(payload), int(self.stamps[todo[ordinal]]))
+                self.summary.camera_s += time.perf_counter() - started
+                self.summary.camera_frames += 1
 
     def prepare(self, times_ns: np.ndarray) -> None:
         """Process the frames the steps at ``times_ns`` take (see the class docstring)."""
@@ -175,7 +181,11 @@ class _Camera:
         rot, pos, tf_stamp = pose
         rng = np.random.default_rng(stamp)
         if self.kind == "points":
-            result = tool_cloud_from_points(transform(M.cloud_xyz(msg, where), rot, pos), self.config, rng)
+            scene = M.cloud_xyz(msg, where)
+            points = near_crop_box(scene, rot, pos, self.config)
+            # the scene's size counts as the frame's points: a frame of table alone is "too_few_points", as before
+            result = tool_cloud_from_points(transform(points, rot, pos), self.config, rng,
+                                            counts={"tool_pixels": len(scene)})
         else:
             j = self.info.latest_at_or_before(stamp)
             if j < 0:
@@ -200,6 +210,18 @@ class _Camera:
         while p >= 0 and self._result.get(p) is None:
             p -= 1
         return None if p < 0 else (p, *self._result[p])
+
+
+def near_crop_box(points: np.ndarray, rot: np.ndarray, pos: np.ndarray, cloud: ToolCloudConfig) -> np.ndarray:
+    """The camera-frame points (N, 3) within the sphere around the pipeline's crop box (a box in hand_base,
+    the camera there at (rot, pos)): cropping before the transform, since a whole-scene cloud of a real
+    camera (~100-250k points) has only a few thousand in the box. Every point of the box is kept (its
+    sphere holds it, with a margin for rounding); the pipeline's exact crop follows in hand_base."""
+    low, high = np.asarray(cloud.crop_low, float), np.asarray(cloud.crop_high, float)
+    centre = rot.T @ (0.5 * (low + high) - pos)  # the box's centre in the camera frame
+    radius = 0.5 * float(np.linalg.norm(high - low)) + 1e-6
+    offset = points - centre
+    return points[np.einsum("ij,ij->i", offset, offset) <= radius * radius]
 
 
 class _Joints:
@@ -421,4 +443,4 @@ def _write_episode(bag, trial: Trial, index: int, out, names, joints: _Joints, c
     return writer.path
 
 
-__all__ = ["BagSummary", "import_bags", "import_bag", "STEP_NS", "AGE_STREAMS", "SOURCE", "TASK"]
+__all__ = ["BagSummary", "import_bags", "import_bag", "near_crop_box", "STEP_NS", "AGE_STREAMS", "SOURCE", "TASK"]

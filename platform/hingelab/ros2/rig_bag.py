@@ -54,6 +54,7 @@ class RigBagSpec:
     depth_images: bool = False
     depth_size: tuple = (320, 288)  # (width, height) of the depth images
     scene_points: int = 1500
+    tool_points: int | None = None  # of the scene's points on the tweezer (None: half of them); the rest table
     joint_hz: float = 100.0
     camera_hz: float = 30.0
     action: bool = True
@@ -123,7 +124,8 @@ def write_rig_bag(path, spec: RigBagSpec = RigBagSpec()) -> dict:
     T = ts.types
     rng = np.random.default_rng(spec.seed)
     synth = CloudSynthesizer(realism=CloudRealism(noise_std_m=0.0005, removal_fraction=0.0, max_angle_rad=0.0,
-                                                  max_offset_m=0.0), seed=spec.seed, n_points=max(16, spec.scene_points // 2))
+                                                  max_offset_m=0.0), seed=spec.seed,
+                             n_points=max(16, spec.tool_points or spec.scene_points // 2))
     synth.new_episode(spec.seed)
     tool_rot, tool_pos = nominal_tool_pose()
     names = {"joints": "/joint_states", "points": "/camera/depth/points", "depth": "/camera/depth/image_raw",

@@ -42,7 +42,14 @@ def cloud_xyz(msg, where: str) -> np.ndarray:
     if len(data) < n * msg.point_step:
         raise DatasetError(f"{where}: PointCloud2 holds {len(data)} bytes, fewer than its {n} points of "
                            f"{msg.point_step} bytes")
-    rec = np.frombuffer(data.tobytes()[:n * msg.point_step], dtype=dtype, count=n)
+    data = np.ascontiguousarray(data[:n * msg.point_step])
+    packed = all(fields[n_].datatype == FLOAT32 and fields[n_].offset == 4 * i for i, n_ in enumerate("xyz"))
+    if packed and not msg.is_bigendian and msg.point_step % 4 == 0:
+        # the usual layout (x y z float32 first, e.g. the Azure Kinect driver's, padded or with rgb after):
+        # a view of the bytes, filtered before the float64 copy (a real-size cloud is ~200k points)
+        xyz = data.view("<f4").reshape(n, msg.point_step // 4)[:, :3]
+        return xyz[np.isfinite(xyz).all(axis=1)].astype(np.float64)
+    rec = np.frombuffer(data, dtype=dtype, count=n)
     points = np.stack([rec["x"], rec["y"], rec["z"]], axis=1).astype(np.float64)
     return points[np.isfinite(points).all(axis=1)]
 
