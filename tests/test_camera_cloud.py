@@ -185,3 +185,22 @@ def test_no_gl_backend_is_one_line_naming_mujoco_gl():
                          capture_output=True, text=True, env={**env, "MUJOCO_GL": "no-such-backend"}, timeout=120)
     assert out.returncode == 1 and "Traceback" not in out.stderr
     assert out.stderr.strip().count("\n") == 0 and "MUJOCO_GL=no-such-backend" in out.stderr
+
+
+def test_a_headless_shell_renders_without_setting_mujoco_gl():
+    """A fresh shell has no MUJOCO_GL: hingelab picks EGL before mujoco is imported (the demo's trial step)."""
+    import os
+
+    code = ("import hingelab.cli.main, os\n"  # the CLI's imports first, as `hingelab demo` runs them
+            "from hingelab.sim.core import SimCore\n"
+            "from hingelab.camera import AZURE_KINECT_NFOV_UNBINNED as K\n"
+            "from hingelab.sim.depth_render import DepthRenderer\n"
+            "sim = SimCore('tool_pick', camera=K)\nsim.reset(seed=0)\n"
+            "frame = DepthRenderer(sim.model, K).render(sim.data)\n"
+            "print('GL', os.environ['MUJOCO_GL'], int((frame.depth > 0).sum()))\n")
+    env = {k: v for k, v in os.environ.items() if k not in ("DISPLAY", "MUJOCO_GL")}
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, env=env, timeout=120)
+    line = [x for x in out.stdout.splitlines() if x.startswith("GL")]
+    assert line, out.stderr[-2000:]
+    _, backend, valid = line[0].split()
+    assert backend == "egl" and int(valid) > 1000

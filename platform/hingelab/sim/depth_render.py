@@ -3,7 +3,8 @@
 MuJoCo renders through OpenGL; which library provides the context is chosen by the
 ``MUJOCO_GL`` environment variable, read once per process when the first renderer is made:
 ``egl`` (headless: a GPU's EGL or Mesa's software EGL; what the tests use and the default
-here when ``MUJOCO_GL`` is unset and there is no display), ``osmesa`` (Mesa's software
+here when ``MUJOCO_GL`` is unset and there is no display: ``import hingelab`` sets it then,
+before anything imports mujoco, which reads it once), ``osmesa`` (Mesa's software
 renderer, where installed) or ``glfw`` (a window system, needs a display). A machine with
 none of them gets one ``ConfigError`` naming ``MUJOCO_GL``.
 """
