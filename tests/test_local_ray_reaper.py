@@ -76,7 +76,7 @@ def test_a_ray_command_that_ends_normally_leaves_no_ray_process(tmp_path):
         session_dir = ray._private.worker.global_worker.node.get_session_dir_path()
         assert session_processes(session_dir)  # the running Ray is found by its session folder
     assert session_processes(session_dir) == []  # shut down, and the reaper swept what shutdown left
-    reapers = [p for p in psutil.process_iter(["cmdline"]) if "hingelab.cluster.local_ray_reaper" in
+    reapers = [p for p in psutil.process_iter(["cmdline"]) if "local_ray_reaper.py" in
                " ".join(p.info["cmdline"] or []) and str(os.getpid()) in (p.info["cmdline"] or [])]
     assert reapers == []
 

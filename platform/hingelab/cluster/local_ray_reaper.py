@@ -28,7 +28,7 @@ cleaning up on the next start alone leaves the processes (and an episode being w
 then. What is left: a driver killed during ``ray.init`` itself (before it knows the session folder, 2-5 s)
 leaves what Ray had started to Ray's own fate-sharing.
 
-Run as ``python -m hingelab.cluster.local_ray_reaper DRIVER_PID``; ``LocalRayReaper`` starts it.
+Run as ``python .../hingelab/cluster/local_ray_reaper.py DRIVER_PID``; ``LocalRayReaper`` starts it.
 """
 
 from __future__ import annotations
@@ -96,8 +96,9 @@ class LocalRayReaper:
     def start(cls) -> "LocalRayReaper | None":
         if not sys.platform.startswith("linux"):
             return None  # the pipe's EOF works elsewhere too, but the session scan is only tested on Linux
+        # the file itself, not ``-m``: the reaper needs psutil alone, not hingelab's imports (gymnasium, ...)
         process = subprocess.Popen(
-            [sys.executable, "-m", "hingelab.cluster.local_ray_reaper", str(os.getpid())],
+            [sys.executable, "-P", os.path.abspath(__file__), str(os.getpid())],  # -P: not its folder on sys.path
             stdin=subprocess.PIPE, stdout=subprocess.DEVNULL, text=True, start_new_session=True,
             close_fds=True)
         return cls(process)
