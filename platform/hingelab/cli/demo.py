@@ -34,7 +34,8 @@ def add_parser(subparsers) -> None:
             "over that policy (datasets/demo_scripted_hierarchy), imports a rig's ROS 2 bag (datasets/demo_rig_bag) as "
             "real episodes (datasets/demo_real) and exports them back as ROS 2 bags (datasets/demo_real_ros2), "
             "runs a tiny sweep of `train low` (effort reward on and off, 1 seed) on a local one-node Ray "
-            "(analysis/demo/sweep, its table sweep.csv), reports on the datasets and the sweep (analysis/demo/report.html) "
+            "(analysis/demo/sweep, its table sweep.csv), reports on the datasets and the sweep "
+            "(analysis/demo/report.html) "
             "and saves a Rerun recording (analysis/demo/demo_heuristic.rrd). Prints what it measured."
         ),
     )

@@ -2,13 +2,13 @@
 
 ``ray.init()`` without an address starts a one-node Ray (GCS, raylet, agents, workers) owned by the
 driver. On Linux, Ray 2.60 binds the processes it spawns itself (GCS, raylet, log monitor) to the
-driver with ``PR_SET_PDEATHSIG``, so they die with it; but what the raylet spawns (the dashboard and
-runtime-env agents) is bound to the raylet's thread, not to the driver: after a ``kill -9`` of
-``hingelab sweep`` or ``generate --ray`` they were measured living on for about two minutes, re-parented
-to init, and a worker that was running an episode finished it and wrote it before it noticed. Ray's own
-reaper (``ray_process_reaper.py``: a child that kills its process group on EOF of its stdin) is off
-when fate-sharing is available, and it would make the driver a process-group leader, which a command
-run from a terminal must not do.
+driver with ``PR_SET_PDEATHSIG``, so they die with it; the raylet's dashboard and runtime-env agents
+notice the raylet's death within a second, but then report it to the GCS, which is dead too, and hang
+in its retries: after a ``kill -9`` of ``hingelab generate --ray`` they were measured living on for one
+to two minutes, re-parented to init, and a worker that was running an episode finished it and wrote it
+before it noticed. Ray's own reaper (``ray_process_reaper.py``: a child that kills its process group on
+EOF of its stdin) is off when fate-sharing is available, and it would make the driver a process-group
+leader, which a command run from a terminal must not do.
 
 So hingelab starts its own reaper: a small process in a session of its own (a terminal's Ctrl-C or a
 ``kill -9`` of the job's process group does not reach it), holding the read end of a pipe whose write
@@ -16,19 +16,22 @@ end only the driver has (pipes are not inherited by Ray's processes: close-on-ex
 the session folder once ``ray.init`` returned it; when the driver dies by any signal the kernel closes
 the pipe, the reaper reads EOF and stops every process of that session: a process belongs to the
 session when its command line or an open file (Ray's processes log into ``SESSION/logs``) lies in the
-session folder (the driver itself excepted), and its descendants go with it (a sweep trial's training process logs to the sweep
-folder instead, and also dies with its worker by ``PR_SET_PDEATHSIG``). SIGTERM first, SIGKILL after
-a grace period. The session folder is unique per ``ray.init``, so another user's or another command's
-Ray on the same machine is never touched. On a normal exit the driver says ``released`` before closing
-the pipe (after ``ray.shutdown``) and the reaper only sweeps up what shutdown left, quietly.
+session folder (the driver itself excepted), and its descendants go with it (a sweep trial's training
+process logs to the sweep folder instead; it also dies with its worker by ``PR_SET_PDEATHSIG``).
+SIGTERM first, SIGKILL after a grace period. The session folder is unique per ``ray.init``, so another
+user's or another command's Ray on the same machine is never touched. On a normal exit the driver says
+``released`` before closing the pipe (after ``ray.shutdown``) and the reaper only sweeps up what
+shutdown left, quietly.
 
-Why not the alternatives: ``_system_config`` has no switch that binds the agents to the driver; a
-watchdog polling the driver's PID has a PID-reuse race and a polling delay that the pipe's EOF has not;
-cleaning up on the next start alone leaves the processes (and an episode being written) running until
-then. What is left: a driver killed during ``ray.init`` itself (before it knows the session folder, 2-5 s)
-leaves what Ray had started to Ray's own fate-sharing.
+Why not the alternatives: no ``_system_config`` or ``RAY_*`` setting of Ray 2.60 was found that binds
+the agents to the driver (``RAY_enable_pipe_based_agent_to_parent_health_check`` only changes how they
+notice the raylet's death, which they already do; the hang comes after); a watchdog polling the
+driver's PID has a PID-reuse race and a polling delay that the pipe's EOF has not; cleaning up on the
+next start alone leaves the processes (and an episode being written) running until then. What is
+left: a driver killed during ``ray.init`` itself (before it knows the session folder, 2-5 s) leaves what
+Ray had started to Ray's own fate-sharing.
 
-Run as ``python .../hingelab/cluster/local_ray_reaper.py DRIVER_PID``; ``LocalRayReaper`` starts it.
+Run as ``python -P .../hingelab/cluster/local_ray_reaper.py DRIVER_PID``; ``LocalRayReaper`` starts it.
 """
 
 from __future__ import annotations
