@@ -5,6 +5,7 @@ from __future__ import annotations
 import json
 import subprocess
 import sys
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -67,6 +68,25 @@ def test_demo_runs_and_measures_the_platform(tmp_path):
     real_index = Dataset(real["dataset"]).index
     assert (real_index["source"] == "real").all() and int(real_index["success"].sum()) == 2
     assert reported[Dataset(real["dataset"]).card.name]["successes"] == 2
+    # the sweep on a local one-node Ray: 2 conditions x 1 seed, each a finished run folder, in the report
+    import pandas as pd
+
+    sweep = json.loads(out_file.read_text())["step_sweep"]
+    table = pd.read_csv(sweep["sweep_csv"]).set_index("trial")
+    assert sorted(table.index) == ["effort_seed0", "no_effort_seed0"]
+    assert (table["state"] == "finished").all() and (table["env_steps"] == 40).all()
+    for trial, row in table.iterrows():
+        assert sweep["trials"][trial]["final_success_rate"] == pytest.approx(row["final_success_rate"])
+        metrics = pd.read_csv(f"{sweep['sweep']}/{trial}/metrics.csv")
+        assert list(metrics["env_steps"]) == [0, 20, 40]
+        assert row["final_success_rate"] == pytest.approx(metrics["success_rate"].iloc[-1])
+    assert "sweep.csv:" in result.stdout and "2 of 2 trials of `hingelab train low` finished" in result.stdout
+    report_dir = Path(json.loads(out_file.read_text())["step_report_and_recording"]["report"]).parent
+    final = pd.read_csv(report_dir / "final_success.csv").set_index("run")
+    assert sorted(final.index) == ["effort", "no_effort"] and (final["seeds"] == 1).all()
+    for condition in ("effort", "no_effort"):
+        assert final.loc[condition, "success_rate_mean"] == pytest.approx(
+            table.loc[f"{condition}_seed0", "final_success_rate"])
     # the shipped high-level policy (once shipped): printed = recorded = reported
     learned = json.loads(out_file.read_text())["step_learned_hierarchy"]
     from hingelab.learning.high_level_checkpoint import SHIPPED_HIGH_LEVEL

@@ -33,7 +33,9 @@ def add_parser(subparsers) -> None:
             "latent goals on ToolShape-v0 (datasets/demo_low_level), picks the sphere twice with a scripted high level "
             "over that policy (datasets/demo_scripted_hierarchy), imports a rig's ROS 2 bag (datasets/demo_rig_bag) as "
             "real episodes (datasets/demo_real) and exports them back as ROS 2 bags (datasets/demo_real_ros2), "
-            "reports on the datasets (analysis/demo/report.html) "
+            "runs a tiny sweep of `train low` (effort reward on and off, 1 seed) on a local one-node Ray "
+            "(analysis/demo/sweep, its table sweep.csv), reports on the datasets and the sweep "
+            "(analysis/demo/report.html) "
             "and saves a Rerun recording (analysis/demo/demo_heuristic.rrd). Prints what it measured."
         ),
     )
@@ -260,6 +262,59 @@ def step_ros2_bags(seed: int) -> dict:
             "exported_bags": exported.episodes}
 
 
+DEMO_SWEEP = DEMO_OUT / "sweep"
+DEMO_SWEEP_FILE = DEMO_OUT / "demo_sweep.toml"
+# a toy budget: the sweep's machinery end to end (Ray tasks, run folders, sweep.csv, the report by
+# condition) in well under a minute; far too few steps for a policy to learn anything
+DEMO_SWEEP_ARGS = ["--steps", "40", "--max-episode-steps", "10", "--learning-starts", "20", "--batch-size", "16",
+                   "--buffer-size", "1000", "--net-arch", "32", "32", "--eval-every", "20", "--eval-goals", "1",
+                   "--checkpoint-every", "40"]
+
+
+def step_sweep(seed: int) -> dict:
+    """Issue 30: `hingelab sweep`, a grid of 2 conditions (effort reward on and off) x 1 seed of a tiny
+    `train low`, as Ray tasks on a local one-node Ray with this machine's cores."""
+    import os
+
+    from hingelab.cluster.sweep import SWEEP_CSV, run_sweep, summary
+    from hingelab.cluster.sweep_file import load_sweep
+
+    shutil.rmtree(DEMO_SWEEP, ignore_errors=True)  # the demo's own output: remade each run
+    try:
+        import ray  # noqa: F401  (the test extra installs it)
+    except ModuleNotFoundError:
+        print('  Ray is not installed (pip install -c constraints.txt -e ".[test]"): step skipped')
+        return {"skipped": True}
+    DEMO_OUT.mkdir(parents=True, exist_ok=True)
+    DEMO_SWEEP_FILE.write_text(
+        "# hingelab demo: the effort-reward ablation at a toy budget (hingelab sweep)\n"
+        "[sweep]\n"
+        'command = "train low"\n'
+        f"seeds = [{seed}]\n"
+        f"args = {json.dumps(DEMO_SWEEP_ARGS)}\n"
+        "cpus_per_trial = 1\n\n"
+        "[conditions]\n"
+        "effort = []\n"
+        'no_effort = ["--no-effort"]\n')
+    spec = load_sweep(DEMO_SWEEP_FILE)
+    cpus = os.cpu_count() or 1
+    started = time.perf_counter()
+    records = run_sweep(spec, DEMO_SWEEP, num_cpus=cpus, progress=False)
+    seconds = time.perf_counter() - started
+    import pandas as pd
+
+    table = pd.read_csv(DEMO_SWEEP / SWEEP_CSV)  # what the sweep wrote, shown as a user would read it
+    print(f"  {DEMO_SWEEP / SWEEP_CSV}:")
+    shown = table[["trial", "condition", "seed", "state", "env_steps", "wall_time_s", "final_success_rate"]]
+    print("    " + shown.to_string(index=False).replace("\n", "\n    "))
+    print(f"  {summary(spec, DEMO_SWEEP, records, seconds, None)}")
+    return {"sweep": str(DEMO_SWEEP), "sweep_csv": str(DEMO_SWEEP / SWEEP_CSV), "cpus": cpus,
+            "trials": {row.trial: {"condition": row.condition, "seed": int(row.seed), "state": row.state,
+                                   "env_steps": int(row.env_steps), "final_success_rate": float(row.final_success_rate)}
+                       for row in table.itertuples()},
+            "wall_time_s": seconds}
+
+
 def step_report_and_recording(seed: int) -> dict:
     """Issue 6: a success-rate report and a Rerun recording of the demo dataset."""
     from hingelab.analysis import build_report
@@ -268,14 +323,20 @@ def step_report_and_recording(seed: int) -> dict:
     datasets = [DEMO_DATASET, DEMO_LOW_LEVEL_DATASET, DEMO_HIERARCHY_DATASET]
     datasets += [d for d in (DEMO_LEARNED_DATASET, DEMO_TRIAL_DATASET, DEMO_REAL_DATASET)
                  if (d / "dataset.json").exists()]
-    report = build_report(datasets, DEMO_OUT)
+    runs = [DEMO_SWEEP] if (DEMO_SWEEP / "sweep.csv").exists() else []  # its trials, grouped by condition
+    report = build_report(datasets, DEMO_OUT, runs=runs)
     result, _ = view(DEMO_DATASET, save=DEMO_OUT / "demo_heuristic.rrd", progress=False)
     # one line per dataset: the two tasks count different verdicts (the report names each)
     by_dataset = report.tables["success_by_dataset"]
     figures = "; ".join(f"{r.dataset} {r.successes}/{r.episodes} ({r.verdict})"
                         for r in by_dataset.itertuples())
     print(f"  report {report.html}: success {figures}; Rerun recording {result.saved_to} ({result.seconds:.1f} s)")
-    return {"report": str(report.html), "rrd": str(result.saved_to),
+    if runs:
+        final = report.tables["final_success"]
+        print(f"  the sweep's learning curves by condition in the same report ({len(final)} conditions); success at "
+              "the last evaluation: " + "; ".join(f"{r.run} {r.success_rate_mean:.2f} over {r.seeds} seed(s)"
+                                                  for r in final.itertuples()))
+    return {"report": str(report.html), "rrd": str(result.saved_to), "runs": [str(r) for r in runs],
             "by_dataset": {r.dataset: {"episodes": int(r.episodes), "successes": int(r.successes),
                                        "success_rate": float(r.success_rate), "verdict": r.verdict}
                            for r in by_dataset.itertuples()}}
@@ -291,6 +352,8 @@ STEPS = [
      step_learned_hierarchy),
     ("a trial on the MuJoCo stand-in of the rig, seen by its depth camera (hingelab trial)", step_stand_in_trial),
     ("a real-rig ROS 2 bag imported as episodes and exported back as ROS 2 bags", step_ros2_bags),
+    ("a sweep of training runs on a local one-node Ray: effort reward on and off, a toy budget (hingelab sweep)",
+     step_sweep),
     ("report and Rerun recording of the demo datasets", step_report_and_recording),
 ]
 

@@ -2,6 +2,8 @@
 
 * ``ray_runtime``: joining a Ray cluster (``--address``) or starting a local one-node Ray, quietly
   (no usage reports, no dashboard), and always leaving it again.
+* ``local_ray_reaper``: a local Ray dies with its driver, even a SIGKILLed one (a reaper process
+  stops the processes of the driver's Ray session).
 * ``fan_out``: rollout episodes as Ray tasks (``--ray`` on ``generate heuristic``, ``eval low``,
   ``eval high``): each task writes its MCAP episode straight into the dataset folder and returns a
   small summary.

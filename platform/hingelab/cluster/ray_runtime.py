@@ -3,8 +3,10 @@
 ``ray_session(address, num_cpus)`` starts a local Ray with ``num_cpus`` CPUs (default: the
 machine's cores) when ``address`` is None or ``"local"``, and joins the cluster at ``address``
 otherwise (``ray start --head`` prints it, e.g. ``10.0.0.5:6379``; ``auto`` finds one started on
-this machine). It shuts Ray down on the way out, so a local Ray leaves no process behind. A Ray
-that the caller already initialized (a test's fixture) is used as it is and left running.
+this machine). It shuts Ray down on the way out, so a local Ray leaves no process behind; a local Ray
+is also watched by a reaper (``local_ray_reaper``) that stops it when the driver dies without shutting
+it down (a SIGKILL, an out-of-memory kill). A Ray that the caller already initialized (a test's
+fixture) is used as it is and left running.
 
 Nothing phones home: usage statistics are off (``RAY_USAGE_STATS_ENABLED=0``) and the dashboard is
 not started.
@@ -17,6 +19,7 @@ import signal
 import threading
 from contextlib import contextmanager
 
+from hingelab.cluster.local_ray_reaper import LocalRayReaper
 from hingelab.errors import ConfigError
 
 LOCAL = "local"
@@ -52,11 +55,20 @@ def ray_session(address: str | None = None, num_cpus: int | None = None):
         yield ray
         return
     common = {"include_dashboard": False, "log_to_driver": False, "logging_level": "WARNING"}
+    reaper = None
     if address in (None, LOCAL):
         cpus = int(num_cpus or os.cpu_count() or 1)
         if cpus < 1:
             raise ConfigError(f"a local Ray needs at least 1 CPU, not {cpus}")
-        ray.init(num_cpus=cpus, object_store_memory=LOCAL_OBJECT_STORE_BYTES, **common)
+        reaper = LocalRayReaper.start()
+        try:
+            context = ray.init(num_cpus=cpus, object_store_memory=LOCAL_OBJECT_STORE_BYTES, **common)
+        except BaseException:
+            if reaper is not None:
+                reaper.release()
+            raise
+        if reaper is not None:
+            reaper.watch(context.address_info["session_dir"])
     else:
         _require_reachable(address)
         try:
@@ -71,6 +83,8 @@ def ray_session(address: str | None = None, num_cpus: int | None = None):
         yield ray
     finally:
         ray.shutdown()
+        if reaper is not None:
+            reaper.release()
         if previous is not None:
             signal.signal(signal.SIGTERM, previous)
 
