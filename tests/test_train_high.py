@@ -252,3 +252,23 @@ def test_prior_over_all_pick_sets(tmp_path):
     cards = [Dataset(tmp_path / "all" / "prior" / f).card for f in folders]
     assert {c.config["policy"] for c in cards} == {"scripted-feedback"}
     assert sorted((c.config["object"], c.config["size"]) for c in cards)[0] == ("cube", 0.015)
+
+
+def test_a_start_that_failed_before_its_first_step_runs_again(tmp_path, capsys):
+    """A bad --from fails after config.json is written; the same command again gives the same one-line
+    error, not 'already holds a run' (a --resume would fail alike), and a started run is still refused."""
+    from hingelab.cli.main import main
+    from hingelab.learning.run_folder import has_started
+
+    typo = tmp_path / "demos_typo"
+    typo.mkdir()
+    out = tmp_path / "run"
+    args = ["train", "high", "--from", str(typo), "--steps", "60", "--out", str(out), "--no-progress"]
+    for _ in range(2):
+        assert main(args) != 0
+        err = capsys.readouterr().err.strip()
+        assert "not a hingelab dataset" in err and "already holds a run" not in err and "\n" not in err
+    assert (out / "config.json").exists() and not has_started(out)
+    (out / "metrics.csv").write_text("env_steps\n0\n")  # it evaluated once: a started run
+    assert has_started(out)
+    assert main(args) != 0 and "already holds a run" in capsys.readouterr().err

@@ -10,8 +10,8 @@
     RUNDIR/checkpoints/     resumable checkpoints (``hingelab.learning.checkpoints``)
     RUNDIR/model.zip        the last policy;  RUNDIR/best_model.zip  the best evaluated one
 
-``RunFolder.open`` starts a new run (refusing a folder that already holds one) or resumes
-one (its saved config is kept; only the step budget may grow).
+``RunFolder`` starts a new run (refusing a folder that holds one that started: ``has_started``) or
+resumes one (its saved config is kept; only the step budget may grow).
 """
 
 from __future__ import annotations
@@ -110,6 +110,16 @@ def resumed_config(run_dir: Path, config, given: set[str]):
     return replace(saved, **{name: getattr(config, name) for name in RESUME_SETTINGS if name in given})
 
 
+def has_started(path: Path) -> bool:
+    """Whether the run in ``path`` got as far as its first step: an evaluation, a checkpoint, a saved
+    policy or a recorded rollout (its config.json, run.json and a generated prior alone do not count)."""
+    path = Path(path)
+    checkpoints = path / "checkpoints"
+    return ((path / METRICS_FILE).exists() or (path / "model.zip").exists()
+            or (checkpoints.is_dir() and any(checkpoints.iterdir()))
+            or any((path / DATASET_DIR / "episodes").glob("*.mcap")))
+
+
 class RunFolder:
     """The files of one run; ``config`` is the run's config (the saved one when resuming)."""
 
@@ -125,8 +135,10 @@ class RunFolder:
             given = {name: getattr(config, name) for name in RESUME_SETTINGS}
             self.config = replace(saved, **{**given, "steps": max(config.steps, saved.steps)})
         else:
-            if config_path.exists():
+            if config_path.exists() and has_started(self.path):
                 raise ConfigError(f"{self.path} already holds a run; continue it with --resume or pass another --out")
+            # a start that failed before its first step (a bad --from, a crash while setting up) left only its
+            # config: the same command starts it afresh instead of asking for a --resume that would fail alike
             self.config = config
         run_file = self.path / RUN_FILE
         if resume and run_file.exists():  # the dataset card carries the name it was made with
@@ -175,4 +187,4 @@ class RunFolder:
         return root
 
 
-__all__ = ["RunFolder", "MetricsLog", "CONFIG_FILE", "METRICS_FILE", "DATASET_DIR", "RUN_FILE"]
+__all__ = ["RunFolder", "has_started", "MetricsLog", "CONFIG_FILE", "METRICS_FILE", "DATASET_DIR", "RUN_FILE"]
