@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import os
 import subprocess
 import sys
 
@@ -204,3 +205,19 @@ def test_a_headless_shell_renders_without_setting_mujoco_gl():
     assert line, out.stderr[-2000:]
     _, backend, valid = line[0].split()
     assert backend == "egl" and int(valid) > 1000
+
+
+def test_the_egl_default_is_linux_only(monkeypatch):
+    """macOS and Windows have no DISPLAY either, and there mujoco's import refuses MUJOCO_GL=egl."""
+    import hingelab
+
+    for platform, expected in (("darwin", None), ("win32", None), ("linux", "egl")):
+        monkeypatch.delenv("MUJOCO_GL", raising=False)
+        monkeypatch.delenv("DISPLAY", raising=False)
+        monkeypatch.setattr(sys, "platform", platform)
+        hingelab._default_gl_backend()
+        assert os.environ.get("MUJOCO_GL") == expected, platform
+    monkeypatch.setenv("DISPLAY", ":0")
+    monkeypatch.delenv("MUJOCO_GL")
+    hingelab._default_gl_backend()
+    assert "MUJOCO_GL" not in os.environ  # a display: mujoco's own default (glfw)

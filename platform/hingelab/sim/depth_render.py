@@ -3,7 +3,7 @@
 MuJoCo renders through OpenGL; which library provides the context is chosen by the
 ``MUJOCO_GL`` environment variable, read once per process when the first renderer is made:
 ``egl`` (headless: a GPU's EGL or Mesa's software EGL; what the tests use and the default
-here when ``MUJOCO_GL`` is unset and there is no display: ``import hingelab`` sets it then,
+here when ``MUJOCO_GL`` is unset on Linux without a display: ``import hingelab`` sets it then,
 before anything imports mujoco, which reads it once), ``osmesa`` (Mesa's software
 renderer, where installed) or ``glfw`` (a window system, needs a display). A machine with
 none of them gets one ``ConfigError`` naming ``MUJOCO_GL``.
@@ -26,9 +26,8 @@ GL_HINT = ("set MUJOCO_GL to a backend this machine has: egl (headless, GPU or M
 
 
 def choose_gl_backend() -> str:
-    """The GL backend in use: ``MUJOCO_GL``, or egl when unset on a machine without a display."""
-    if "MUJOCO_GL" not in os.environ and not os.environ.get("DISPLAY"):
-        os.environ["MUJOCO_GL"] = "egl"
+    """The GL backend in use: ``MUJOCO_GL`` (``import hingelab`` sets egl when it is unset on a Linux
+    machine without a display; mujoco's own default is glfw)."""
     return os.environ.get("MUJOCO_GL", "glfw")
 
 
