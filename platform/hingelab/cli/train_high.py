@@ -21,7 +21,8 @@ def _add(learners, name: str, config_class, help_text: str, description: str, de
 
 # the demonstrations' flags: the heuristic's demos are not in the flat action space
 FLAT_SKIPS = ("from_datasets", "demo_bc_weight", "bc_pretrain_updates", "demo_q_filter", "prior_episodes",
-              "prior_source", "demo_share", "demo_actions", "demo_lookahead")
+              "prior_source", "demo_share", "demo_actions", "demo_lookahead", "learner", "clone_updates",
+              "clone_batch_size", "clone_learning_rate")
 
 
 def add_high_parser(learners) -> None:
@@ -78,6 +79,15 @@ def run_high(args: argparse.Namespace) -> int:
                       f"{sources}, demo share {config.demo_share:g}, BC weight {config.demo_bc_weight:g}.")
     else:
         prior_text = " No privileged prior."
+    if "fit" in s:  # the phase clone
+        fit = s["fit"]
+        print(f"Cloned the high-level policy with phase memory in {s['wall_time_s'] / 60:.1f} min ({fit['updates']} "
+              f"updates on {fit['demo_steps']} demo steps, phase accuracy {fit['phase_accuracy']:.3f}, on the "
+              f"demonstrator's phase changes {fit['phase_change_accuracy']:.3f}).{prior_text} Evaluation on "
+              f"{s['eval_episodes']} held-out episodes: success {float(last.get('success_rate', 0)):.2f}, at the first "
+              f"attempt {float(last.get('first_attempt_success_rate', 0)):.2f}. Policy: {out}/model.zip "
+              f"(hingelab eval high {out}/model.zip).")
+        return 0
     what = "flat baseline" if config.kind == "flat" else "high-level policy"
     print(f"Trained the {what} to {s['env_steps']} env steps ({s['updates']} updates) in "
           f"{s['wall_time_s'] / 60:.1f} min.{prior_text} Last evaluation on {s['eval_episodes']} held-out "

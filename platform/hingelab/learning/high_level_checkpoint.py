@@ -1,4 +1,5 @@
-"""Loading a high-level policy checkpoint (a stable-baselines3 SAC zip trained on ToolPick-v0), checked.
+"""Loading a high-level policy checkpoint (a stable-baselines3 SAC zip trained on ToolPick-v0, or a phase
+clone: ``hingelab.learning.phase_clone``), checked.
 
 The pattern of ``hingelab.learning.low_level_checkpoint``: a missing file, a file that is not
 an SB3 SAC zip, or a SAC zip of another env (for example the low-level policy
@@ -82,8 +83,10 @@ def observes_extent(model) -> bool:
 
 
 def load_high_level_checkpoint(path, low_level: str | None = None):
-    """A SAC zip trained on ToolPick-v0 (14-D observation, 17-D with ``observe_extent``; 5-D action),
-    loaded on the CPU; with ``low_level``, checked against the low level and encoder it learned beside."""
+    """A SAC zip trained on ToolPick-v0 (14-D observation, 17-D with ``observe_extent``; 5-D action), or a
+    phase clone (``phase_clone.PhaseClone``, a policy with memory: drive it with ``state``, as
+    ``high_level_eval.ModelPolicy`` does), loaded on the CPU; with ``low_level``, checked against the
+    low level and encoder it learned beside."""
     import gymnasium as gym
     import numpy as np
 
@@ -92,6 +95,19 @@ def load_high_level_checkpoint(path, low_level: str | None = None):
     from hingelab.learning.safe_sb3 import read_plain_data
 
     path = resolve_checkpoint(path)
+    from hingelab.learning.phase_clone import PhaseClone, is_phase_clone
+
+    if is_phase_clone(path):  # the phase clone (train high --learner phase-clone): a policy with memory
+        model = PhaseClone.load(path)
+        env_kwargs = model.hingelab_provenance.get("env_kwargs") or {}
+        expected = observation_dim(bool(env_kwargs.get("observe_extent", False)))
+        if model.observation_dim != expected:
+            raise ConfigError(f"{path} takes {model.observation_dim}-D observations, but the env arguments it "
+                              f"records give ToolPick-v0 {expected}-D ones; give a checkpoint trained on "
+                              "hingelab/ToolPick-v0")
+        if low_level is not None:
+            check_context(model, path, low_level)
+        return model
     plain, described = read_plain_data(path)
     env_kwargs = (plain.get("hingelab_provenance") or {}).get("env_kwargs") or {}
     expected = (observation_dim(bool(env_kwargs.get("observe_extent", False))),)

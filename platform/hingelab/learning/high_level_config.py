@@ -25,6 +25,7 @@ from hingelab.learning.sac_config import SACTrainConfig
 HIGH_ENV_ID = "hingelab/ToolPick-v0"
 FLAT_ENV_ID = "hingelab/ToolPickFlat-v0"
 DEMO_ACTIONS = ("auto", "reached", "recorded")
+HIGH_LEARNERS = ("sac", "phase-clone")
 _REWARD = HighLevelRewardConfig()
 
 
@@ -83,6 +84,14 @@ class HighLevelTrainConfig(SACTrainConfig):
                                         "where the critic prefers the demonstrated action", flag="--bc-no-q-filter",
                                  negate=True)
     eval_episodes: int = option(10, "held-out episodes per evaluation")
+    # the learner
+    learner: str = option("sac", "sac: SAC with the privileged prior (the paper's recipe, the flags above); "
+                                 "phase-clone: behaviour cloning of the scripted demos with the demonstrator's phase "
+                                 "as the policy's own memory (learning/phase_clone.py: the shipped policy's recipe; no "
+                                 "SAC, no env steps of its own)", choices=HIGH_LEARNERS)
+    clone_updates: int = option(30_000, "phase-clone: Adam updates of the clone", metavar="UPDATES")
+    clone_batch_size: int = option(512, "phase-clone: demo steps per update")
+    clone_learning_rate: float = option(1e-3, "phase-clone: Adam's learning rate (cosine decay to 0)")
 
     kind = "high-level"
     env_id = HIGH_ENV_ID
@@ -96,7 +105,15 @@ class HighLevelTrainConfig(SACTrainConfig):
                     "demo_actions": self.demo_actions in DEMO_ACTIONS,
                     "prior_source": self.prior_source in PRIOR_SOURCES, "demo_lookahead": self.demo_lookahead >= 1,
                     "demo_offline_updates": self.demo_offline_updates >= 0,
-                    "eval_episodes": self.eval_episodes >= 1, "placement_half_width": self.placement_half_width >= 0})
+                    "eval_episodes": self.eval_episodes >= 1, "placement_half_width": self.placement_half_width >= 0,
+                    "learner": self.learner in HIGH_LEARNERS, "clone_updates": self.clone_updates >= 1,
+                    "clone_batch_size": self.clone_batch_size >= 1, "clone_learning_rate": self.clone_learning_rate > 0})
+        if self.learner == "phase-clone":
+            if not self.prior:
+                raise ConfigError("--learner phase-clone learns from the privileged prior's demos: drop --no-prior")
+            if self.prior_source == "heuristic" and not self.from_datasets:
+                raise ConfigError("--learner phase-clone needs demos that record the demonstrator's phases: "
+                                  "--prior-source scripted (or scripted-feedback), not heuristic")
         if not self.prior:
             if self.from_datasets:
                 raise ConfigError("--no-prior trains without demonstrations: drop --from")

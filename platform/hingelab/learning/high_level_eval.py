@@ -20,8 +20,8 @@ episode); ``missed_grasp`` (the object was never held, though the tweezer's grip
 The env's own reason stays in ``episodes.csv`` as ``env_failure_reason``.
 
 Baselines: ``heuristic`` (the privileged heuristic, ``hingelab.heuristic``: hinge commanded
-directly through ``command_privileged``); ``scripted`` (the heuristic's arm motion, its hinge
-command turned into a latent goal, ``calibration.z_for_opening(opening) / Z_SCALE`` clipped to
+directly through ``command_privileged``); ``scripted`` (the heuristic's arm motion, closing for 20
+steps instead of its 12 (``ScriptedPolicy.close_steps``), its hinge command turned into a latent goal, ``calibration.z_for_opening(opening) / Z_SCALE`` clipped to
 [-1, 1], and its world velocity into the hand frame / MAX_SPEED, acting through the env's normal
 5-D action over the low level); ``scripted-observed`` (``scripted`` reading the object's position from
 the policy's observation, noise and delay included, instead of the simulator); ``scripted-feedback`` (the same without the object's size:
@@ -114,16 +114,18 @@ class RandomPolicy:
 
 
 class ModelPolicy:
-    """A stable-baselines3 model (deterministic actions)."""
+    """A stable-baselines3 model or a ``PhaseClone`` (deterministic actions); a policy with memory gets
+    its state back each step and a fresh one each episode, as SB3's recurrent policies do."""
 
     def __init__(self, model):
         self.model = model
+        self.state = None
 
     def reset(self, env, seed: int) -> None:
-        pass
+        self.state = None  # None: the episode's start (SAC ignores it, the phase clone starts in "open")
 
     def act(self, env, obs) -> np.ndarray:
-        action, _ = self.model.predict(obs, deterministic=True)
+        action, self.state = self.model.predict(obs, state=self.state, deterministic=True)
         return np.asarray(action, np.float32)
 
 
@@ -131,13 +133,15 @@ class HeuristicPolicy:
     """The privileged heuristic: each step commands the arm and the hinge directly (``command_privileged``)."""
 
     privileged = True
+    close_steps = None  # the heuristic's own (HeuristicConfig.close_steps)
 
     def reset(self, env, seed: int) -> None:
-        from hingelab.heuristic.controller import PrivilegedHeuristic
+        from hingelab.heuristic.controller import HeuristicConfig, PrivilegedHeuristic
         from hingelab.sim.finger_synergy import FingerSynergy
 
         pick = env.unwrapped
-        self.heuristic = PrivilegedHeuristic(pick.sim, FingerSynergy.load(), pick.object)
+        config = HeuristicConfig() if self.close_steps is None else HeuristicConfig(close_steps=self.close_steps)
+        self.heuristic = PrivilegedHeuristic(pick.sim, FingerSynergy.load(), pick.object, config)
         self.heuristic.reset(pick.state, pick.target)
 
     def act(self, env, obs) -> np.ndarray:
@@ -151,20 +155,45 @@ class ScriptedPolicy(HeuristicPolicy):
     """The heuristic's arm motion and hinge command as ToolPick-v0's 5-D action over the low level."""
 
     privileged = False
+    # over a low level the hinge follows the command with a lag: the heuristic's 12 steps of closing lifted
+    # the 2.5 cm sphere before the tips held it (eval high --seed 6000, 30 episodes: 0.87 with 12, 0.97 with
+    # 20; all 12 sets, 20 episodes each: 235 / 240 with 12, 237 / 240 with 20); since 2026-12-05, before 12
+    close_steps = 20
 
     def act(self, env, obs) -> np.ndarray:
         return self._action(env, env.unwrapped.state)
 
     def _action(self, env, state) -> np.ndarray:
         from hingelab.envs.tool_pick import MAX_SPEED, Z_SCALE
+        from hingelab.learning.phase_clone import phase_index
 
         pick = env.unwrapped
-        command = self.heuristic.act(state)
+        heuristic = self.heuristic
+        phase, steps = phase_index(heuristic.phase), heuristic.phase_steps
+        command = heuristic.act(state)
+        # the demonstrator's memory around this decision: what the phase clone learns to keep itself
+        self.labels = {"demo_phase": phase, "demo_phase_steps": steps, "demo_next_phase": phase_index(heuristic.phase)}
         opening = command.hinge_target if command.hinge_target is not None else pick.state.hinge_angle
         z_goal = np.asarray(pick.perception.calibration.z_for_opening(opening), float)
         rot_hand = pick.sim.data.xmat[pick.sim.reader.hand_body].reshape(3, 3)
         velocity_hand = rot_hand.T @ np.asarray(command.arm_velocity, float)
         return np.clip(np.concatenate([z_goal / Z_SCALE, velocity_hand / MAX_SPEED]), -1, 1).astype(np.float32)
+
+
+class DemonstratorLabels(gym.Wrapper):
+    """Puts the driving policy's ``labels`` of the step (``ScriptedPolicy``: the demonstrator's phase
+    before and after its decision) into the step's info, which ``RecordingWrapper`` records."""
+
+    def __init__(self, env, policy):
+        super().__init__(env)
+        self.policy = policy
+
+    def step(self, action):
+        labels = getattr(self.policy, "labels", None)
+        obs, reward, terminated, truncated, info = self.env.step(action)
+        if labels:
+            info = {**info, **labels}
+        return obs, reward, terminated, truncated, info
 
 
 class ObservedScriptedPolicy(ScriptedPolicy):

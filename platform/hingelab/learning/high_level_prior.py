@@ -76,7 +76,7 @@ def _generate(root: Path, config, seed: int, name: str, progress: bool) -> Path:
 
     from hingelab.episodes import create_dataset
     from hingelab.envs.recording import RecordingWrapper
-    from hingelab.learning.high_level_eval import FailureReasonWrapper, baseline_policy, evaluate
+    from hingelab.learning.high_level_eval import DemonstratorLabels, FailureReasonWrapper, baseline_policy, evaluate
     from hingelab.sim.mesh_objects import object_label
 
     arguments = config.env_arguments()
@@ -85,12 +85,14 @@ def _generate(root: Path, config, seed: int, name: str, progress: bool) -> Path:
                    config={"policy": policy, "episodes": config.prior_episodes, **arguments},
                    description=f"the privileged heuristic ({policy}) as high-level actions over "
                                f"the low level {config.low_level} (hingelab train high's prior)")
-    env = FailureReasonWrapper(gym.make(config.env_id, **arguments))
+    demonstrator = baseline_policy(policy)
+    # the demonstrator's phases go into every step's info (the phase clone learns them)
+    env = DemonstratorLabels(FailureReasonWrapper(gym.make(config.env_id, **arguments)), demonstrator)
     env = RecordingWrapper(env, root, source="heuristic", object_name=object_label(config.object), action_level="high",
                            extra_metadata={"object_size": config.size, "policy": policy,
                                            "low_level": config.low_level})
     try:
-        evaluate(baseline_policy(policy), env, config.prior_episodes, seed, progress=progress,
+        evaluate(demonstrator, env, config.prior_episodes, seed, progress=progress,
                  label=f"prior ({policy}, {object_label(config.object)} {100 * config.size:g} cm)")
     finally:
         env.close()

@@ -230,6 +230,11 @@ class FlatRun(HighLevelRun):
 
 def train_high(config: HighLevelTrainConfig, run_dir, resume: bool = False, progress: bool = True,
                name: str | None = None) -> dict:
-    """Train (or resume) a high-level run (or, with a ``FlatTrainConfig``, a flat one); a summary dict."""
+    """Train (or resume) a high-level run (SAC, or the phase clone with ``learner="phase-clone"``; with a
+    ``FlatTrainConfig``, a flat one); a summary dict."""
     cls = FlatRun if isinstance(config, FlatTrainConfig) else HighLevelRun
+    if cls is HighLevelRun and config.learner == "phase-clone":
+        from hingelab.learning.phase_clone_run import PhaseCloneRun
+
+        cls = PhaseCloneRun
     return cls(config, Path(run_dir), resume=resume, progress=progress, name=name).setup().train()

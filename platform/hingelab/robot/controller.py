@@ -45,7 +45,7 @@ class Step:
 
 
 class CheckpointHighLevel:
-    """A high-level SAC checkpoint (``hingelab train high``), checked against the low level it learned over."""
+    """A high-level checkpoint (``hingelab train high``: SAC or the phase clone), checked against the low level it learned over."""
 
     def __init__(self, path: str | Path, low_level: str | None = None):
         from hingelab.errors import ConfigError
@@ -62,10 +62,10 @@ class CheckpointHighLevel:
         self.observe_extent = observes_extent(self.model)
 
     def reset(self, seed: int) -> None:
-        pass
+        self.state = None  # a policy with memory (the phase clone) starts its episode afresh
 
     def act(self, observation: np.ndarray) -> np.ndarray:
-        action, _ = self.model.predict(observation[None], deterministic=True)
+        action, self.state = self.model.predict(observation[None], state=self.state, deterministic=True)
         return np.asarray(action, float)[0]
 
 

@@ -1,0 +1,229 @@
+"""The phase clone: a high-level policy cloned from the scripted demonstrator, with its phase as memory.
+
+Why: a Markov network cloned from the scripted high level picked 0.46-0.78 of the pick table's
+episodes, while the scripted high level picks 0.965 (``analysis/high-level/README.md``). The
+scripted decisions depend on the demonstrator's phase and the steps spent in it (it lines up 3 cm
+over the grip point before it descends, it closes for 12 steps before it lifts), which its
+observation does not hold: the Markov clone averages the phases where they meet (it descends while
+still centimetres off to the side, it never closes all the way). The phase clone is a network of
+the observation and its own memory, the phase it is in (one of ``PHASES``, the heuristic's, its
+"hold" folded into "carry") and the steps it has spent there; it outputs the action and the next
+phase, trained on the demonstrator's phases (recorded with the demos: ``DemonstratorLabels``). At
+run time its memory is what it predicted, not the demonstrator's: nothing privileged is read.
+
+``PhaseClone.predict(observation, state, episode_start, deterministic)`` returns ``(action,
+state)`` as stable-baselines3's recurrent policies do (``state``: ``(n, 2)`` int, phase and steps;
+``None`` or ``episode_start`` starts a new episode in "open"), so ``high_level_eval.ModelPolicy``
+drives it and a SAC zip alike. A checkpoint is a zip of ``phase_clone.json`` (layout, observation
+standardization, provenance) and ``weights.npz`` (plain arrays: loading unpickles nothing).
+"""
+
+from __future__ import annotations
+
+import io
+import json
+import time
+import zipfile
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import torch
+from torch import nn
+
+from hingelab.errors import ConfigError
+
+PHASES = ("open", "above", "descend", "close", "carry")  # the heuristic's (hingelab.heuristic.controller)
+MAX_PHASE_STEPS = 60  # the steps input saturates here (the heuristic's longest phase timeout)
+ACTION_DIM = 5
+META_FILE, WEIGHTS_FILE = "phase_clone.json", "weights.npz"
+FORMAT = "hingelab phase clone 1"
+LABELS = ("demo_phase", "demo_phase_steps", "demo_next_phase")  # the demos' step infos (DemonstratorLabels)
+
+
+def phase_index(name: str) -> int:
+    """The index in ``PHASES`` of one of the heuristic's phase names ("hold" counts as "carry")."""
+    return PHASES.index("carry" if name == "hold" else name)
+
+
+def next_memory(phase: np.ndarray, steps: np.ndarray, next_phase: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The memory after a step: the predicted phase, and its steps (0 on entering a phase)."""
+    return next_phase, np.where(next_phase == phase, steps + 1, 0)
+
+
+class PhaseCloneNet(nn.Module):
+    """MLP(standardized observation, phase one-hot, steps / MAX_PHASE_STEPS) -> (action in (-1, 1),
+    next-phase logits)."""
+
+    def __init__(self, observation_dim: int, hidden: tuple[int, ...], mean: np.ndarray, std: np.ndarray):
+        super().__init__()
+        self.observation_dim, self.hidden = int(observation_dim), tuple(int(h) for h in hidden)
+        self.register_buffer("mean", torch.as_tensor(np.asarray(mean, np.float32)))
+        self.register_buffer("std", torch.as_tensor(np.asarray(std, np.float32)))
+        layers, width = [], self.observation_dim + len(PHASES) + 1
+        for h in self.hidden:
+            layers += [nn.Linear(width, h), nn.ReLU()]
+            width = h
+        self.trunk = nn.Sequential(*layers)
+        self.action_head = nn.Linear(width, ACTION_DIM)
+        self.phase_head = nn.Linear(width, len(PHASES))
+
+    def forward(self, observation, phase, steps):
+        x = torch.cat([(observation - self.mean) / self.std, nn.functional.one_hot(phase, len(PHASES)).float(),
+                       (steps.float().clamp(max=MAX_PHASE_STEPS) / MAX_PHASE_STEPS)[:, None]], dim=1)
+        h = self.trunk(x)
+        return torch.tanh(self.action_head(h)), self.phase_head(h)
+
+
+class PhaseClone:
+    """A high-level policy with phase memory (module doc); ``hingelab_provenance`` as a SAC zip's."""
+
+    def __init__(self, net: PhaseCloneNet, provenance: dict | None = None):
+        self.net = net.eval()
+        self.hingelab_provenance = provenance or {}
+
+    @property
+    def observation_dim(self) -> int:
+        return self.net.observation_dim
+
+    def predict(self, observation, state=None, episode_start=None, deterministic: bool = True):
+        """(action, state) for one observation ``(D,)`` or a batch ``(n, D)``; see the module doc."""
+        obs = np.asarray(observation, np.float32)
+        single = obs.ndim == 1
+        obs = obs.reshape(-1, self.observation_dim)
+        n = len(obs)
+        memory = np.zeros((n, 2), np.int64) if state is None else np.array(state, np.int64).reshape(n, 2)
+        if episode_start is not None:
+            memory[np.asarray(episode_start, bool).reshape(n)] = 0
+        with torch.no_grad():
+            action, logits = self.net(torch.as_tensor(obs), torch.as_tensor(memory[:, 0]),
+                                      torch.as_tensor(memory[:, 1]))
+        phase, steps = next_memory(memory[:, 0], memory[:, 1], logits.argmax(1).numpy())
+        action = action.numpy().astype(np.float32)
+        return (action[0] if single else action), np.stack([phase, steps], axis=1)
+
+    # ------------------------------------------------------------------ files
+    def save(self, path) -> None:
+        path = Path(path)
+        weights = io.BytesIO()
+        np.savez(weights, **{k: v.detach().cpu().numpy() for k, v in self.net.state_dict().items()})
+        meta = {"format": FORMAT, "observation_dim": self.observation_dim, "hidden": list(self.net.hidden),
+                "phases": list(PHASES), "max_phase_steps": MAX_PHASE_STEPS, "hingelab_provenance": self.hingelab_provenance}
+        tmp = path.with_name(path.name + ".tmp")
+        with zipfile.ZipFile(tmp, "w", zipfile.ZIP_DEFLATED) as archive:
+            archive.writestr(META_FILE, json.dumps(meta, indent=1, default=str))
+            archive.writestr(WEIGHTS_FILE, weights.getvalue())
+        tmp.replace(path)  # a crash mid-write leaves the previous file
+
+    @classmethod
+    def load(cls, path) -> "PhaseClone":
+        path = Path(path)
+        try:
+            with zipfile.ZipFile(path) as archive:
+                meta = json.loads(archive.read(META_FILE))
+                if meta.get("format") != FORMAT or tuple(meta.get("phases", ())) != PHASES:
+                    raise ConfigError(f"{path} is a phase clone of another layout ({meta.get('format')}, phases "
+                                      f"{meta.get('phases')}); this hingelab reads {FORMAT!r} with phases {PHASES}")
+                arrays = np.load(io.BytesIO(archive.read(WEIGHTS_FILE)), allow_pickle=False)
+                state = {k: torch.as_tensor(arrays[k]) for k in arrays.files}
+        except (OSError, KeyError, ValueError, EOFError, zipfile.BadZipFile) as exc:
+            raise ConfigError(f"{path} is not a readable phase-clone checkpoint ({type(exc).__name__}: {exc}); "
+                              "train one with `hingelab train high --learner phase-clone`") from exc
+        net = PhaseCloneNet(meta["observation_dim"], tuple(meta["hidden"]), state["mean"].numpy(),
+                            state["std"].numpy())
+        try:
+            net.load_state_dict(state)
+        except RuntimeError as exc:
+            raise ConfigError(f"{path}: its weights do not fit its own layout ({exc})") from exc
+        return cls(net, meta.get("hingelab_provenance") or {})
+
+
+def is_phase_clone(path) -> bool:
+    """Whether ``path`` is a phase-clone zip (not a stable-baselines3 one)."""
+    try:
+        with zipfile.ZipFile(path) as archive:
+            return META_FILE in archive.namelist()
+    except (OSError, zipfile.BadZipFile):
+        return False
+
+
+# ------------------------------------------------------------------ fitting
+@dataclass
+class PhaseDemos:
+    """Demo steps: observation (N, D), action (N, 5) in [-1, 1], the demonstrator's phase and steps
+    before the step, its phase after (N,) int."""
+
+    observations: np.ndarray
+    actions: np.ndarray
+    phases: np.ndarray
+    steps: np.ndarray
+    next_phases: np.ndarray
+
+    @classmethod
+    def from_transitions(cls, transitions, where: str = "the demos") -> "PhaseDemos":
+        """The demos' phases from their step infos (recorded by ``DemonstratorLabels``)."""
+        missing = [k for k in LABELS if k not in transitions.infos]
+        if missing:
+            raise ConfigError(f"{where} do not record the demonstrator's phases ({', '.join(missing)}); the phase "
+                              "clone needs scripted demos recorded by this hingelab: drop --from to generate them "
+                              "(--prior-source scripted)")
+        infos = transitions.infos
+        return cls(np.asarray(transitions.observations, np.float32), np.asarray(transitions.actions, np.float32),
+                   infos["demo_phase"].astype(np.int64), infos["demo_phase_steps"].astype(np.int64),
+                   infos["demo_next_phase"].astype(np.int64))
+
+    def __len__(self) -> int:
+        return len(self.actions)
+
+    @staticmethod
+    def concat(parts: list["PhaseDemos"]) -> "PhaseDemos":
+        return PhaseDemos(*(np.concatenate([getattr(p, f) for p in parts]) for f in
+                            ("observations", "actions", "phases", "steps", "next_phases")))
+
+
+def fit_phase_clone(demos: PhaseDemos, hidden: tuple[int, ...], updates: int, batch_size: int,
+                    learning_rate: float, seed: int, progress: bool = False, on_progress=None) -> tuple[PhaseCloneNet, dict]:
+    """Fit a ``PhaseCloneNet``: squared action error + cross-entropy of the next phase, Adam with a
+    cosine decay. Returns the net and its fit (final losses on all demos, phase accuracy overall and on
+    the demonstrator's phase changes). ``on_progress(update)`` is called every 1,000 updates."""
+    from tqdm import tqdm
+
+    if len(demos) == 0:
+        raise ConfigError("no demo steps to clone")
+    torch.manual_seed(seed)
+    generator = torch.Generator().manual_seed(seed)
+    std = demos.observations.std(0) + 1e-6
+    net = PhaseCloneNet(demos.observations.shape[1], hidden, demos.observations.mean(0), std)
+    tensors = [torch.as_tensor(a) for a in (demos.observations, np.clip(demos.actions, -1, 1), demos.phases,
+                                            demos.steps, demos.next_phases)]
+    optimizer = torch.optim.Adam(net.parameters(), lr=learning_rate)
+    schedule = torch.optim.lr_scheduler.CosineAnnealingLR(optimizer, max(updates, 1))
+    started = time.perf_counter()
+    net.train()
+    for update in tqdm(range(updates), desc="phase clone", unit="update", disable=not progress, mininterval=2):
+        index = torch.randint(len(demos), (batch_size,), generator=generator)
+        obs, action, phase, steps, next_phase = (t[index] for t in tensors)
+        predicted, logits = net(obs, phase, steps)
+        loss = ((predicted - action) ** 2).sum(1).mean() + nn.functional.cross_entropy(logits, next_phase)
+        optimizer.zero_grad()
+        loss.backward()
+        optimizer.step()
+        schedule.step()
+        if on_progress is not None and (update + 1) % 1000 == 0:
+            on_progress(update + 1)
+    net.eval()
+    with torch.no_grad():
+        predicted, logits = net(tensors[0], tensors[2], tensors[3])
+        guessed = logits.argmax(1)
+        changes = tensors[4] != tensors[2]
+        fit = {"updates": updates, "demo_steps": len(demos),
+               "action_squared_error": float(((predicted - tensors[1]) ** 2).sum(1).mean()),
+               "phase_accuracy": float((guessed == tensors[4]).float().mean()),
+               "phase_change_accuracy": float((guessed[changes] == tensors[4][changes]).float().mean())
+               if bool(changes.any()) else 1.0,
+               "seconds": round(time.perf_counter() - started, 1)}
+    return net, fit
+
+
+__all__ = ["PHASES", "PhaseClone", "PhaseCloneNet", "PhaseDemos", "fit_phase_clone", "is_phase_clone",
+           "next_memory", "phase_index"]

@@ -1,0 +1,145 @@
+"""The phase clone (``train high --learner phase-clone``): a policy whose memory is the phase it predicts.
+
+On synthetic demos it learns a phase switch the observation alone cannot tell (a count of steps) and
+keeps its own memory; its zip round-trips without unpickling; a tiny run through the command line
+generates scripted demos that record the demonstrator's phases, clones them, evaluates, and
+``eval high`` drives the result; bad input gets one-line errors."""
+
+from __future__ import annotations
+
+import json
+import zipfile
+
+import numpy as np
+import pandas as pd
+import pytest
+
+from hingelab.errors import ConfigError
+from hingelab.learning.phase_clone import PHASES, PhaseClone, PhaseDemos, fit_phase_clone, is_phase_clone
+
+
+def _timer_demos(episodes: int = 40, seed: int = 0) -> PhaseDemos:
+    """The same observation throughout; phase "open" for 5 steps, then "above": action +0.5 then -0.5.
+    Only a policy that counts its steps in the phase can act right."""
+    rng = np.random.default_rng(seed)
+    rows = []
+    for _ in range(episodes):
+        obs = rng.normal(0, 1, 4).astype(np.float32)
+        phase, steps = 0, 0
+        for _ in range(10):
+            next_phase = 1 if (phase == 1 or steps >= 4) else 0
+            action = np.full(5, 0.5 if phase == 0 else -0.5, np.float32)
+            rows.append((obs, action, phase, steps, next_phase))
+            steps = steps + 1 if next_phase == phase else 0
+            phase = next_phase
+    obs, actions, phases, steps, nxt = zip(*rows)
+    return PhaseDemos(np.array(obs), np.array(actions), np.array(phases), np.array(steps), np.array(nxt))
+
+
+@pytest.fixture(scope="module")
+def timer_clone():
+    net, fit = fit_phase_clone(_timer_demos(), (32, 32), 1000, 64, 1e-2, seed=0)
+    return PhaseClone(net, {"env_kwargs": {}}), fit
+
+
+def test_the_clone_keeps_its_own_phase_memory(timer_clone):
+    clone, fit = timer_clone
+    assert fit["phase_accuracy"] > 0.99 and fit["phase_change_accuracy"] > 0.9
+    obs = np.random.default_rng(5).normal(0, 1, 4)
+    state, actions, phases = None, [], []
+    for _ in range(10):
+        action, state = clone.predict(obs, state=state)
+        actions.append(float(action[0]))
+        phases.append(PHASES[int(state[0, 0])])
+    # the same observation ten times: the switch comes from the memory alone, after 5 steps in "open"
+    assert phases == ["open"] * 4 + ["above"] * 6
+    assert all(a > 0.3 for a in actions[:5]) and all(a < -0.3 for a in actions[5:])
+    # a new episode starts in "open" again
+    action, state = clone.predict(obs, state=state, episode_start=np.array([True]))
+    assert action[0] > 0.3 and int(state[0, 0]) == 0
+
+
+def test_a_batch_steps_each_memory_apart(timer_clone):
+    clone, _ = timer_clone
+    obs = np.zeros((2, 4))
+    state = np.array([[0, 0], [1, 3]])
+    actions, state = clone.predict(obs, state=state)
+    assert actions.shape == (2, 5) and actions[0, 0] > 0.3 and actions[1, 0] < -0.3
+    assert state.tolist() == [[0, 1], [1, 4]]
+
+
+def test_the_zip_round_trips_without_pickles(timer_clone, tmp_path):
+    clone, _ = timer_clone
+    clone.save(tmp_path / "clone.zip")
+    assert is_phase_clone(tmp_path / "clone.zip")
+    with zipfile.ZipFile(tmp_path / "clone.zip") as archive:
+        assert sorted(archive.namelist()) == ["phase_clone.json", "weights.npz"]
+        np.load(__import__("io").BytesIO(archive.read("weights.npz")), allow_pickle=False)  # plain arrays
+    loaded = PhaseClone.load(tmp_path / "clone.zip")
+    obs = np.random.default_rng(1).normal(0, 1, (3, 4))
+    state = np.array([[0, 2], [1, 0], [0, 4]])
+    a1, s1 = clone.predict(obs, state=state)
+    a2, s2 = loaded.predict(obs, state=state)
+    np.testing.assert_array_equal(a1, a2)
+    np.testing.assert_array_equal(s1, s2)
+    (tmp_path / "bad.zip").write_bytes(b"not a zip")
+    assert not is_phase_clone(tmp_path / "bad.zip")
+    with zipfile.ZipFile(tmp_path / "other.zip", "w") as archive:
+        archive.writestr("phase_clone.json", json.dumps({"format": "something else"}))
+        archive.writestr("weights.npz", b"")
+    with pytest.raises(ConfigError, match="another layout"):
+        PhaseClone.load(tmp_path / "other.zip")
+
+
+def test_demos_without_phases_are_refused():
+    from hingelab.episodes.transitions import Transitions
+
+    transitions = Transitions(observations=np.zeros((2, 4)), actions=np.zeros((2, 5)), rewards=np.zeros(2),
+                              next_observations=np.zeros((2, 4)), terminated=np.zeros(2, bool),
+                              truncated=np.zeros(2, bool), infos={}, episode_index=np.zeros(2, int))
+    with pytest.raises(ConfigError, match="do not record the demonstrator's phases"):
+        PhaseDemos.from_transitions(transitions, where="datasets/x")
+
+
+def test_train_high_phase_clone_and_eval_high(tmp_path, capsys):
+    """A tiny run as a user runs it: demos with phases, the clone, its evaluation; then eval high on it."""
+    from hingelab.cli.main import main
+    from hingelab.episodes.dataset import Dataset
+    from hingelab.learning.high_level_prefill import high_level_transitions
+
+    run = tmp_path / "clone"
+    assert main(["train", "high", "--learner", "phase-clone", "--prior-episodes", "2", "--clone-updates", "50",
+                 "--net-arch", "16", "16", "--max-episode-steps", "40", "--eval-episodes", "1",
+                 "--low-level", "privileged", "--no-randomize", "--out", str(run), "--no-progress"]) == 0
+    out = capsys.readouterr().out
+    assert "Cloned the high-level policy with phase memory" in out and "50 updates" in out
+    demos = high_level_transitions([run / "prior"], actions="recorded")
+    assert {"demo_phase", "demo_phase_steps", "demo_next_phase"} <= set(demos.infos)
+    phases = demos.infos["demo_phase"].astype(int)
+    assert phases[0] == 0 and {0, 1, 2} <= set(phases.tolist())  # open, above, descend at least
+    assert is_phase_clone(run / "model.zip") and is_phase_clone(run / "best_model.zip")
+    record = PhaseClone.load(run / "model.zip").hingelab_provenance
+    assert record["low_level"] == "privileged" and record["fit"]["updates"] == 50
+    assert record["evaluation"]["env_steps"] == 0 and "git_commit" in record and record["env_kwargs"]["max_episode_steps"] == 40
+    metrics = pd.read_csv(run / "metrics.csv")
+    assert len(metrics) == 1 and {"success_rate", "first_attempt_success_rate", "updates"} <= set(metrics.columns)
+
+    evaluation = tmp_path / "eval"
+    assert main(["eval", "high", str(run / "model.zip"), "--low-level", "privileged", "--episodes", "1",
+                 "--out", str(evaluation), "--no-progress"]) == 0
+    assert "model.zip" in capsys.readouterr().out
+    assert len(Dataset(evaluation)) == 1
+
+
+def test_phase_clone_bad_input_gets_one_line_errors(tmp_path, capsys):
+    from hingelab.cli.main import main
+
+    cases = {
+        "drop --no-prior": ["--no-prior"],
+        "not heuristic": ["--prior-source", "heuristic"],
+    }
+    for k, (message, args) in enumerate(cases.items()):
+        assert main(["train", "high", "--learner", "phase-clone", *args, "--out", str(tmp_path / f"r{k}"),
+                     "--no-progress"]) == 1
+        err = capsys.readouterr().err.strip()
+        assert message in err and len(err.splitlines()) == 1, err
