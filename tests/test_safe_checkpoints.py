@@ -57,6 +57,19 @@ def _trap_zip(source: Path, target: Path, marker: Path) -> None:
             archive.writestr(name, content)
 
 
+def _tiny_high_level_sac(path: Path) -> Path:
+    """A SAC zip of ToolPick-v0's spaces (14-D observation, 5-D action), untrained."""
+    import gymnasium as gym
+    from stable_baselines3 import SAC
+
+    class Spaces(gym.Env):
+        observation_space = gym.spaces.Box(-np.inf, np.inf, (14,), np.float64)
+        action_space = gym.spaces.Box(-1.0, 1.0, (5,), np.float32)
+
+    SAC("MlpPolicy", Spaces(), buffer_size=10, device="cpu", seed=0, policy_kwargs={"net_arch": [16, 16]}).save(path)
+    return path
+
+
 def test_a_booby_trapped_sac_zip_loads_without_its_pickles_running(tmp_path):
     from stable_baselines3 import SAC
 
@@ -64,11 +77,12 @@ def test_a_booby_trapped_sac_zip_loads_without_its_pickles_running(tmp_path):
 
     marker = tmp_path / "ran"
     trapped = tmp_path / "high_level.zip"
-    _trap_zip(ASSETS / "high_level.zip", trapped, marker)
+    source = _tiny_high_level_sac(tmp_path / "sac.zip")
+    _trap_zip(source, trapped, marker)
     model = load_high_level_checkpoint(trapped)
     assert not marker.exists()  # none of its pickled entries was unpickled
-    shipped = load_high_level_checkpoint(ASSETS / "high_level.zip")
-    x = np.random.default_rng(0).normal(size=(16, 17))
+    shipped = load_high_level_checkpoint(source)
+    x = np.random.default_rng(0).normal(size=(16, 14))
     assert np.array_equal(model.predict(x, deterministic=True)[0], shipped.predict(x, deterministic=True)[0])
     with pytest.raises(Exception):  # what stable-baselines3's own loader would have done (here, refused)
         SAC.load(trapped, device="cpu")
@@ -222,3 +236,22 @@ def test_an_older_pickled_checkpoint_is_refused_unread_and_converted_on_request(
     ours, theirs = _params(tmp_path / "old" / "model.zip"), _params(run / "model.zip")
     assert all(torch.equal(ours[k], theirs[k]) for k in theirs)
     assert reference.exists()
+
+
+def test_a_phase_clone_with_a_pickle_among_its_weights_is_refused(tmp_path):
+    """The phase clone's weights are plain arrays: an object array (a pickle) among them is refused unread."""
+    import io
+
+    from hingelab.learning.high_level_checkpoint import load_high_level_checkpoint
+
+    marker = tmp_path / "ran"
+    with zipfile.ZipFile(ASSETS / "high_level.zip") as archive:
+        meta = archive.read("phase_clone.json")
+    weights = io.BytesIO()
+    np.savez(weights, mean=np.array([Trap(marker)], dtype=object))
+    with zipfile.ZipFile(tmp_path / "trapped.zip", "w") as archive:
+        archive.writestr("phase_clone.json", meta)
+        archive.writestr("weights.npz", weights.getvalue())
+    with pytest.raises(ConfigError, match="not a readable phase-clone checkpoint"):
+        load_high_level_checkpoint(tmp_path / "trapped.zip")
+    assert not marker.exists()

@@ -18,7 +18,8 @@ def add_parser(subparsers) -> None:
                     "fingerprint (what its latents mean) is unchanged; for a run folder, rewrite its pickled "
                     "resume checkpoints (state.pkl, replay_buffer.pkl) as state.json and replay_buffer.npz so "
                     "--resume can read them. Reading an old file runs its pickle: convert only files you trust. "
-                    "SAC zips (.zip) need no conversion: they are checked to load without unpickling.")
+                    "SAC zips and phase clones (.zip) need no conversion: they are checked to load without "
+                    "unpickling.")
     convert.add_argument("files", type=Path, nargs="*",
                          help="checkpoints or run folders to convert (default: the shipped encoder, "
                               "assets/checkpoints/encoder.pt)")
@@ -41,6 +42,12 @@ def run_convert(args: argparse.Namespace) -> int:
         if not path.is_file():
             raise ConfigError(f"{path} does not exist")
         if path.suffix == ".zip":
+            from hingelab.learning.phase_clone import PhaseClone, is_phase_clone
+
+            if is_phase_clone(path):
+                PhaseClone.load(path)
+                print(f"{path}: a phase clone (JSON and plain arrays), read without unpickling; nothing to convert.")
+                continue
             read_plain_data(path)
             print(f"{path}: a SAC zip, read without unpickling; nothing to convert.")
             continue

@@ -76,7 +76,8 @@ def run_high(args: argparse.Namespace) -> int:
                             + (f", {len(d['skipped'])} left out" if d["skipped"] else "") + ")"
                             for d in prior["filled_from"])
         prior_text = (f" The privileged prior: {prior['transitions']} transitions of {prior['episodes']} episodes from "
-                      f"{sources}, demo share {config.demo_share:g}, BC weight {config.demo_bc_weight:g}.")
+                      f"{sources}" + (f", demo share {config.demo_share:g}, BC weight {config.demo_bc_weight:g}."
+                                      if config.learner == "sac" else "."))
     else:
         prior_text = " No privileged prior."
     if "fit" in s:  # the phase clone
