@@ -7,6 +7,7 @@ generates scripted demos that record the demonstrator's phases, clones them, eva
 
 from __future__ import annotations
 
+import io
 import json
 import zipfile
 
@@ -74,7 +75,7 @@ def test_the_zip_round_trips_without_pickles(timer_clone, tmp_path):
     assert is_phase_clone(tmp_path / "clone.zip")
     with zipfile.ZipFile(tmp_path / "clone.zip") as archive:
         assert sorted(archive.namelist()) == ["phase_clone.json", "weights.npz"]
-        np.load(__import__("io").BytesIO(archive.read("weights.npz")), allow_pickle=False)  # plain arrays
+        np.load(io.BytesIO(archive.read("weights.npz")), allow_pickle=False)  # plain arrays
     loaded = PhaseClone.load(tmp_path / "clone.zip")
     obs = np.random.default_rng(1).normal(0, 1, (3, 4))
     state = np.array([[0, 2], [1, 0], [0, 4]])
@@ -123,6 +124,15 @@ def test_train_high_phase_clone_and_eval_high(tmp_path, capsys):
     assert record["evaluation"]["env_steps"] == 0 and "git_commit" in record and record["env_kwargs"]["max_episode_steps"] == 40
     metrics = pd.read_csv(run / "metrics.csv")
     assert len(metrics) == 1 and {"success_rate", "first_attempt_success_rate", "updates"} <= set(metrics.columns)
+    # --resume keeps the prior and fits again from it: the same weights, one evaluation row
+    first = (run / "model.zip").read_bytes()
+    prior_files = sorted(p.name for p in (run / "prior").rglob("*.mcap"))
+    assert main(["train", "high", "--learner", "phase-clone", "--out", str(run), "--resume", "--no-progress"]) == 0
+    capsys.readouterr()
+    assert sorted(p.name for p in (run / "prior").rglob("*.mcap")) == prior_files
+    with zipfile.ZipFile(run / "model.zip") as a, zipfile.ZipFile(io.BytesIO(first)) as b:
+        assert a.read("weights.npz") == b.read("weights.npz")
+    assert len(pd.read_csv(run / "metrics.csv")) == 1
 
     evaluation = tmp_path / "eval"
     assert main(["eval", "high", str(run / "model.zip"), "--low-level", "privileged", "--episodes", "1",
