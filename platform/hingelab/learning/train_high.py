@@ -1,5 +1,6 @@
 """``train_high`` and ``train_flat``: SAC on ToolPick-v0 (a frozen low level inside) and on the
-flat baseline ToolPickFlat-v0, on the training core (``hingelab.learning.sac_run``).
+flat baseline ToolPickFlat-v0, on the training core (``hingelab.learning.sac_run``); and the phase
+clone (``--learner phase-clone``, ``PhaseCloneRun``) in the same run folder.
 
 The high level's pieces:
 
@@ -28,6 +29,7 @@ from pathlib import Path
 import numpy as np
 
 from hingelab.errors import ConfigError
+from hingelab.learning.fast_sac import configure_torch
 from hingelab.learning.high_level_config import FlatTrainConfig, HighLevelTrainConfig
 from hingelab.learning.sac_run import SACRun, algorithm_class, sac_arguments
 
@@ -228,13 +230,63 @@ class FlatRun(HighLevelRun):
                 "action_scale": {"fingers_rad": FINGER_SCALE, "hand_velocity_m_s": MAX_SPEED}}
 
 
+class PhaseCloneRun(HighLevelRun):
+    """``hingelab train high --learner phase-clone``: the phase clone (``phase_clone``) fitted in a run folder.
+
+    The run shares ``train high``'s folder, prior and evaluation: the scripted demos generated into
+    ``RUNDIR/prior`` (their steps record the demonstrator's phases) or given with ``--from``;
+    ``--clone-updates`` updates of the clone on them; one held-out evaluation into ``metrics.csv``;
+    ``model.zip`` (and ``best_model.zip``, the same policy) recording the env arguments, the low level's
+    sha256, the encoder's fingerprint, the prior and the fit. No SAC and no env step of the run's own,
+    so the run's dataset holds no training rollouts. ``--resume`` keeps a prior whose every dataset was
+    written (a cut-off generation is made again) and fits the clone again from the start (a few
+    minutes): the same weights, as the fit depends only on the demos and the seed.
+    """
+
+    label = "train high (phase clone)"
+
+    def setup(self):
+        configure_torch(self.config.torch_threads)
+        self.started = time.perf_counter()
+        if not self.resume:
+            self.prepare_new_run()
+            self.folder.write_run_files()
+        self.prepare_data()
+        self.make_evaluator()
+        return self
+
+    def train(self) -> dict:
+        from hingelab.learning.phase_clone import PhaseClone, PhaseDemos, fit_phase_clone
+
+        c = self.config
+        demos = PhaseDemos.from_transitions(self.demos, where=", ".join(self.demo_info["datasets"]))
+        if self.progress:
+            print(f"{self.label} {self.name}: cloning {len(demos)} demo steps of {self.demo_info['episodes']} "
+                  f"episodes ({c.clone_updates} updates, net {' x '.join(str(n) for n in c.net_arch)})")
+        net, fit = fit_phase_clone(demos, tuple(c.net_arch), c.clone_updates, c.clone_batch_size,
+                                   c.clone_learning_rate, c.seed, progress=self.progress)
+        self.model = PhaseClone(net)
+        self.metrics.truncate_after(-1)  # a resumed run evaluates its clone again
+        evaluation = {"env_steps": 0, "seed": c.seed, "updates": c.clone_updates, **self.evaluate_policy()}
+        self.metrics.append(evaluation)
+        self.model.hingelab_provenance = self.provenance({"fit": fit, "evaluation": evaluation})
+        for name in ("best_model.zip", "model.zip"):  # one policy: the clone is not trained further
+            self.model.save(self.run_dir / name)
+        self.close_evaluator()
+        self.best = {k: evaluation[k] for k in self.initial_best()} | {"env_steps": 0}
+        return {"run_dir": str(self.run_dir), "env_steps": 0, "updates": c.clone_updates,
+                "wall_time_s": time.perf_counter() - self.started, "last_evaluation": evaluation, "best": self.best,
+                "fit": fit, "prefill": None, **self.summary_extra()}
+
+    def summary_extra(self) -> dict:
+        return {**super().summary_extra(), "eval_seed": EVAL_SEED}
+
+
 def train_high(config: HighLevelTrainConfig, run_dir, resume: bool = False, progress: bool = True,
                name: str | None = None) -> dict:
     """Train (or resume) a high-level run (SAC, or the phase clone with ``learner="phase-clone"``; with a
     ``FlatTrainConfig``, a flat one); a summary dict."""
     cls = FlatRun if isinstance(config, FlatTrainConfig) else HighLevelRun
     if cls is HighLevelRun and config.learner == "phase-clone":
-        from hingelab.learning.phase_clone_run import PhaseCloneRun
-
         cls = PhaseCloneRun
     return cls(config, Path(run_dir), resume=resume, progress=progress, name=name).setup().train()
