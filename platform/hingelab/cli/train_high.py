@@ -36,8 +36,10 @@ def add_high_parser(learners) -> None:
          "--bc-weight, in a behaviour-cloning term; --no-prior trains without them. Every training rollout is "
          "an MCAP episode in RUNDIR/dataset (source high_level_training); held-out evaluations (first-attempt "
          "and overall success) go to RUNDIR/metrics.csv (hingelab report --runs RUNDIR); checkpoints with the "
-         "replay buffer to RUNDIR/checkpoints (continue with --resume). Every setting is a flag below and is "
-         "saved in RUNDIR/config.json.",
+         "replay buffer to RUNDIR/checkpoints (continue with --resume). --learner phase-clone fits the phase clone "
+         "instead (the shipped policy's recipe): a network of the observation and its own memory of the "
+         "demonstrator's phase, cloned from the prior's scripted demos, no SAC (RUNDIR/model.zip, one held-out "
+         "evaluation in RUNDIR/metrics.csv). Every setting is a flag below and is saved in RUNDIR/config.json.",
          "runs/high_seed{SEED}")
 
 
