@@ -92,11 +92,10 @@ def load_high_level_checkpoint(path, low_level: str | None = None):
 
     from hingelab.envs.tool_pick import observation_dim
     from hingelab.learning.checkpoints import load_sac_zip
+    from hingelab.learning.phase_clone import PhaseClone, is_phase_clone
     from hingelab.learning.safe_sb3 import read_plain_data
 
     path = resolve_checkpoint(path)
-    from hingelab.learning.phase_clone import PhaseClone, is_phase_clone
-
     if is_phase_clone(path):  # the phase clone (train high --learner phase-clone): a policy with memory
         model = PhaseClone.load(path)
         env_kwargs = model.hingelab_provenance.get("env_kwargs") or {}

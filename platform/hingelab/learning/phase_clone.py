@@ -175,17 +175,12 @@ class PhaseDemos:
     def __len__(self) -> int:
         return len(self.actions)
 
-    @staticmethod
-    def concat(parts: list["PhaseDemos"]) -> "PhaseDemos":
-        return PhaseDemos(*(np.concatenate([getattr(p, f) for p in parts]) for f in
-                            ("observations", "actions", "phases", "steps", "next_phases")))
-
 
 def fit_phase_clone(demos: PhaseDemos, hidden: tuple[int, ...], updates: int, batch_size: int,
-                    learning_rate: float, seed: int, progress: bool = False, on_progress=None) -> tuple[PhaseCloneNet, dict]:
+                    learning_rate: float, seed: int, progress: bool = False) -> tuple[PhaseCloneNet, dict]:
     """Fit a ``PhaseCloneNet``: squared action error + cross-entropy of the next phase, Adam with a
     cosine decay. Returns the net and its fit (final losses on all demos, phase accuracy overall and on
-    the demonstrator's phase changes). ``on_progress(update)`` is called every 1,000 updates."""
+    the demonstrator's phase changes)."""
     from tqdm import tqdm
 
     if len(demos) == 0:
@@ -209,8 +204,6 @@ def fit_phase_clone(demos: PhaseDemos, hidden: tuple[int, ...], updates: int, ba
         loss.backward()
         optimizer.step()
         schedule.step()
-        if on_progress is not None and (update + 1) % 1000 == 0:
-            on_progress(update + 1)
     net.eval()
     with torch.no_grad():
         predicted, logits = net(tensors[0], tensors[2], tensors[3])

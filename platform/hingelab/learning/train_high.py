@@ -278,9 +278,6 @@ class PhaseCloneRun(HighLevelRun):
                 "wall_time_s": time.perf_counter() - self.started, "last_evaluation": evaluation, "best": self.best,
                 "fit": fit, "prefill": None, **self.summary_extra()}
 
-    def summary_extra(self) -> dict:
-        return {**super().summary_extra(), "eval_seed": EVAL_SEED}
-
 
 def train_high(config: HighLevelTrainConfig, run_dir, resume: bool = False, progress: bool = True,
                name: str | None = None) -> dict:
