@@ -20,6 +20,7 @@ def test_camera_perception_drives_both_envs(env_id):
     env = gym.make(env_id, perception="camera")
     try:
         obs, info = env.reset(seed=4)
+        env.action_space.seed(4)  # reset does not seed the action space: unseeded, its samples made this test flaky
         for _ in range(4):
             obs, reward, terminated, truncated, info = env.step(env.action_space.sample() * 0.1)
         pick = env.unwrapped
