@@ -80,3 +80,43 @@ def test_cli_bad_object_is_one_line(tmp_path):
     assert result.returncode == 1
     assert result.stderr.strip().count("\n") == 0 and "unknown object 'banana'" in result.stderr
     assert not (tmp_path / "x").exists()
+
+
+def test_the_squeeze_cap_and_close_tracking_as_the_scripted_high_level_sets_them():
+    """``max_squeeze_fraction`` keeps a small object's squeeze from shutting the tips (the 1.5 cm
+    tetrahedron: 0.05 rad past a 0.04 rad contact); ``close_tracking`` servos the grip point onto the
+    object while closing, where the heuristic's own close stands still."""
+    import gymnasium as gym
+
+    from hingelab.envs import TOOL_PICK_ID
+    from hingelab.heuristic.controller import HeuristicConfig, PrivilegedHeuristic
+    from hingelab.learning.high_level_eval import ScriptedPolicy
+    from hingelab.sim.finger_synergy import FingerSynergy
+    from hingelab.sim.scripted import grip_point
+
+    env = gym.make(TOOL_PICK_ID, object="tetrahedron", size=0.015, low_level="privileged")
+    env.reset(seed=3)
+    pick = env.unwrapped
+
+    def heuristic(**fields):
+        h = PrivilegedHeuristic(pick.sim, FingerSynergy.load(), pick.object, HeuristicConfig(**fields))
+        h.reset(pick.state, pick.target)
+        h.phase, h.hinge_cmd = "close", h.contact_theta  # closing, the tips at the object's width
+        return h
+
+    own = heuristic()
+    assert own.contact_theta < own.config.squeeze  # the full squeeze would aim past shut
+    scripted = heuristic(**ScriptedPolicy.heuristic_config)
+    assert scripted.squeeze == pytest.approx(0.5 * scripted.contact_theta)
+    for _ in range(10):
+        floor_own, floor_scripted = own.act(pick.state).hinge_target, scripted.act(pick.state).hinge_target
+    assert floor_own == pytest.approx(own.contact_theta - own.config.squeeze) and floor_own < 0
+    assert floor_scripted == pytest.approx(0.5 * scripted.contact_theta) and floor_scripted > 0
+    # the grip point away from the object: the scripted close moves toward it, the heuristic's does not
+    own, scripted = heuristic(), heuristic(**ScriptedPolicy.heuristic_config)
+    offset = scripted._grip_target(pick.state) - grip_point(pick.sim)
+    assert np.linalg.norm(offset) > 0.01  # the reset's hand is centimetres off
+    velocity = scripted.act(pick.state).arm_velocity
+    assert np.dot(velocity, offset) > 0 and np.linalg.norm(velocity) > 0
+    assert not own.act(pick.state).arm_velocity.any()
+    env.close()

@@ -45,6 +45,10 @@ class HeuristicConfig:
     squeeze: float = 0.05  # rad the hinge servo aims past the contact angle
     finger_squeeze: float = 0.03  # rad the finger synergy aims past the contact angle
     close_steps: int = 12  # steps the hinge servo closes before carrying
+    # at most this fraction of the contact angle as squeeze (None: the full squeeze for every size): the
+    # full 0.05 rad past a 0.04 rad contact closes the tips completely and squeezes a small object out
+    max_squeeze_fraction: float | None = None
+    close_tracking: bool = False  # keep the grip point on the object while closing (else hold still)
     reach_tolerance: float = 0.003  # m
     success_radius: float = 0.01  # m (paper: object within 1 cm of the target)
     drop_height: float = 0.01  # m: the object back within this of its start height = dropped
@@ -71,6 +75,10 @@ class PrivilegedHeuristic:
         object_width = obj.width_at(self.grip_offset)
         self.object_width = object_width
         self.contact_theta = float(np.arcsin(min(1.0, object_width / scripted.TOOL_TIP_X)))
+        self.squeeze, self.finger_squeeze = self.config.squeeze, self.config.finger_squeeze
+        if self.config.max_squeeze_fraction is not None:
+            cap = self.config.max_squeeze_fraction * self.contact_theta
+            self.squeeze, self.finger_squeeze = min(self.squeeze, cap), min(self.finger_squeeze, cap)
         open_width = object_width + self.config.open_margin
         self.open_theta = min(float(np.arcsin(min(1.0, open_width / scripted.TOOL_TIP_X))),
                               synergy.theta_range[1])
@@ -120,12 +128,14 @@ class PrivilegedHeuristic:
                 self._enter("close")
                 self.hinge_cmd = state.hinge_angle
         elif self.phase == "close":
-            self.hinge_cmd = max(self.contact_theta - c.squeeze, self.hinge_cmd - 0.015)
-            fingers_theta = max(self.hinge_cmd, self.contact_theta - c.finger_squeeze)
+            if c.close_tracking:  # the closing leg drags the grip point sideways; one tip would push the object
+                velocity, _ = self._to(self._grip_target(state), c.max_speed / 2)
+            self.hinge_cmd = max(self.contact_theta - self.squeeze, self.hinge_cmd - 0.015)
+            fingers_theta = max(self.hinge_cmd, self.contact_theta - self.finger_squeeze)
             if self.phase_steps >= c.close_steps:
                 self._enter("carry")
         elif self.phase in ("carry", "hold"):
-            fingers_theta = self.contact_theta - c.finger_squeeze
+            fingers_theta = self.contact_theta - self.finger_squeeze
             error = self.target - state.object_pos_world
             velocity = np.clip(c.position_gain * error, -c.carry_speed, c.carry_speed)
             if self._dropped(state):

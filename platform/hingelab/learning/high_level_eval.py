@@ -21,7 +21,8 @@ The env's own reason stays in ``episodes.csv`` as ``env_failure_reason``.
 
 Baselines: ``heuristic`` (the privileged heuristic, ``hingelab.heuristic``: hinge commanded
 directly through ``command_privileged``); ``scripted`` (the heuristic's arm motion, closing for 20
-steps instead of its 12 (``ScriptedPolicy.close_steps``), its hinge command turned into a latent goal, ``calibration.z_for_opening(opening) / Z_SCALE`` clipped to
+steps instead of its 12, squeezing at most half the contact angle and keeping the grip point on the
+object while closing (``ScriptedPolicy.heuristic_config``), its hinge command turned into a latent goal, ``calibration.z_for_opening(opening) / Z_SCALE`` clipped to
 [-1, 1], and its world velocity into the hand frame / MAX_SPEED, acting through the env's normal
 5-D action over the low level); ``scripted-observed`` (``scripted`` reading the object's position from
 the policy's observation, noise and delay included, instead of the simulator); ``scripted-feedback`` (the same without the object's size:
@@ -133,15 +134,15 @@ class HeuristicPolicy:
     """The privileged heuristic: each step commands the arm and the hinge directly (``command_privileged``)."""
 
     privileged = True
-    close_steps = None  # the heuristic's own (HeuristicConfig.close_steps)
+    heuristic_config: dict = {}  # HeuristicConfig fields set otherwise than the heuristic's own
 
     def reset(self, env, seed: int) -> None:
         from hingelab.heuristic.controller import HeuristicConfig, PrivilegedHeuristic
         from hingelab.sim.finger_synergy import FingerSynergy
 
         pick = env.unwrapped
-        config = HeuristicConfig() if self.close_steps is None else HeuristicConfig(close_steps=self.close_steps)
-        self.heuristic = PrivilegedHeuristic(pick.sim, FingerSynergy.load(), pick.object, config)
+        self.heuristic = PrivilegedHeuristic(pick.sim, FingerSynergy.load(), pick.object,
+                                             HeuristicConfig(**self.heuristic_config))
         self.heuristic.reset(pick.state, pick.target)
 
     def act(self, env, obs) -> np.ndarray:
@@ -155,10 +156,16 @@ class ScriptedPolicy(HeuristicPolicy):
     """The heuristic's arm motion and hinge command as ToolPick-v0's 5-D action over the low level."""
 
     privileged = False
-    # over a low level the hinge follows the command with a lag: the heuristic's 12 steps of closing lifted
-    # the 2.5 cm sphere before the tips held it (eval high --seed 6000, 30 episodes: 0.87 with 12, 0.97 with
-    # 20; all 12 sets, 20 episodes each: 235 / 240 with 12, 237 / 240 with 20); since 2026-12-05, before 12
-    close_steps = 20
+    # Over a low level the hinge follows the command with a lag, and the tool shifts in the hand as the
+    # fingers close it (chosen on eval high --seed 6000 and 6100; analysis/high-level/README.md):
+    # - close_steps: the heuristic's 12 steps lifted the 2.5 cm sphere before the tips held it (seed
+    #   6000, 30 episodes: 0.87 with 12, 0.97 with 20); since 2026-12-05, before 12;
+    # - max_squeeze_fraction: the full 0.05 rad squeeze past the 1.5 cm tetrahedron's 0.042 rad contact
+    #   closed the tips shut and squeezed it out (seed 6100, 30 episodes: 0.60, with half of the
+    #   contact angle as squeeze at most 0.97); since 2026-12-05 (later);
+    # - close_tracking: standing still while closing, the closing leg dragged the grip point 2-3 mm
+    #   sideways and one tip pushed the 2.5 cm sphere off (seed 6100: 0.83, tracking 1.00); since 2026-12-05 (later).
+    heuristic_config = {"close_steps": 20, "max_squeeze_fraction": 0.5, "close_tracking": True}
 
     def act(self, env, obs) -> np.ndarray:
         return self._action(env, env.unwrapped.state)
