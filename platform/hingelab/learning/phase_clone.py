@@ -3,7 +3,7 @@
 Why: a Markov network cloned from the scripted high level picked 0.46-0.78 of the pick table's
 episodes, while the scripted high level picks 0.965 (``analysis/high-level/README.md``). The
 scripted decisions depend on the demonstrator's phase and the steps spent in it (it lines up 3 cm
-over the grip point before it descends, it closes for 12 steps before it lifts), which its
+over the grip point before it descends, it closes for a set count of steps before it lifts), which its
 observation does not hold: the Markov clone averages the phases where they meet (it descends while
 still centimetres off to the side, it never closes all the way). The phase clone is a network of
 the observation and its own memory, the phase it is in (one of ``PHASES``, the heuristic's, its
