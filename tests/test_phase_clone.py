@@ -92,6 +92,45 @@ def test_the_zip_round_trips_without_pickles(timer_clone, tmp_path):
         PhaseClone.load(tmp_path / "other.zip")
 
 
+
+def test_an_ensemble_acts_on_its_members_mean_and_round_trips(tmp_path):
+    from hingelab.learning.phase_clone import fit_phase_clone_members
+
+    nets, fit = fit_phase_clone_members(_timer_demos(), 2, (32, 32), 300, 64, 1e-2, seed=0)
+    assert len(nets) == 2 and fit["members"] == 2 and len(fit["member_fits"]) == 2
+    ensemble = PhaseClone(nets)
+    obs = np.random.default_rng(2).normal(0, 1, (3, 4))
+    state = np.array([[0, 2], [1, 0], [0, 4]])
+    singles = [PhaseClone(net).predict(obs, state=state)[0] for net in nets]
+    assert not np.allclose(singles[0], singles[1])  # different seeds: different members
+    action, next_state = ensemble.predict(obs, state=state)
+    np.testing.assert_allclose(action, (singles[0] + singles[1]) / 2, atol=1e-6)
+    ensemble.save(tmp_path / "ensemble.zip")
+    loaded = PhaseClone.load(tmp_path / "ensemble.zip")
+    assert len(loaded.nets) == 2
+    a2, s2 = loaded.predict(obs, state=state)
+    np.testing.assert_array_equal(action, a2)
+    np.testing.assert_array_equal(next_state, s2)
+    # member 0 is the one-net fit of the same seed
+    one, _ = fit_phase_clone(_timer_demos(), (32, 32), 300, 64, 1e-2, seed=0)
+    np.testing.assert_array_equal(PhaseClone(one).predict(obs, state=state)[0], singles[0])
+
+
+def test_a_one_net_zip_of_the_first_format_still_loads(timer_clone, tmp_path):
+    """``hingelab phase clone 1`` (before ensembles): one net's weights unprefixed, ``hidden`` flat."""
+    clone, _ = timer_clone
+    net = clone.nets[0]
+    weights = io.BytesIO()
+    np.savez(weights, **{k: v.numpy() for k, v in net.state_dict().items()})
+    with zipfile.ZipFile(tmp_path / "old.zip", "w") as archive:
+        archive.writestr("phase_clone.json", json.dumps({
+            "format": "hingelab phase clone 1", "observation_dim": 4, "hidden": [32, 32], "phases": list(PHASES),
+            "max_phase_steps": 60, "hingelab_provenance": {"env_kwargs": {}}}))
+        archive.writestr("weights.npz", weights.getvalue())
+    loaded = PhaseClone.load(tmp_path / "old.zip")
+    obs = np.random.default_rng(3).normal(0, 1, (2, 4))
+    np.testing.assert_array_equal(loaded.predict(obs)[0], clone.predict(obs)[0])
+
 def test_demos_without_phases_are_refused():
     from hingelab.episodes.transitions import Transitions
 
@@ -110,7 +149,7 @@ def test_train_high_phase_clone_and_eval_high(tmp_path, capsys):
 
     run = tmp_path / "clone"
     assert main(["train", "high", "--learner", "phase-clone", "--prior-episodes", "2", "--clone-updates", "50",
-                 "--net-arch", "16", "16", "--max-episode-steps", "40", "--eval-episodes", "1",
+                 "--clone-members", "2", "--net-arch", "16", "16", "--max-episode-steps", "40", "--eval-episodes", "1",
                  "--low-level", "privileged", "--no-randomize", "--out", str(run), "--no-progress"]) == 0
     out = capsys.readouterr().out
     assert "Cloned the high-level policy with phase memory" in out and "50 updates" in out
@@ -119,7 +158,9 @@ def test_train_high_phase_clone_and_eval_high(tmp_path, capsys):
     phases = demos.infos["demo_phase"].astype(int)
     assert phases[0] == 0 and {0, 1, 2} <= set(phases.tolist())  # open, above, descend at least
     assert is_phase_clone(run / "model.zip") and is_phase_clone(run / "best_model.zip")
-    record = PhaseClone.load(run / "model.zip").hingelab_provenance
+    clone = PhaseClone.load(run / "model.zip")
+    record = clone.hingelab_provenance
+    assert len(clone.nets) == 2 and record["config"]["clone_members"] == 2 and record["fit"]["members"] == 2
     assert record["low_level"] == "privileged" and record["fit"]["updates"] == 50
     assert record["evaluation"]["env_steps"] == 0 and "git_commit" in record and record["env_kwargs"]["max_episode_steps"] == 40
     metrics = pd.read_csv(run / "metrics.csv")
@@ -153,3 +194,27 @@ def test_phase_clone_bad_input_gets_one_line_errors(tmp_path, capsys):
                      "--no-progress"]) == 1
         err = capsys.readouterr().err.strip()
         assert message in err and len(err.splitlines()) == 1, err
+
+
+def test_noisy_demos_execute_a_perturbed_velocity_and_label_the_clean_action(tmp_path):
+    """--prior-action-noise: the scripted demonstrator's executed hand velocity carries the noise, its latent
+    goal does not, and the clone's demos take the clean action from the step's labels."""
+    from hingelab.episodes.dataset import Dataset
+    from hingelab.learning.high_level_config import HighLevelTrainConfig
+    from hingelab.learning.high_level_prefill import high_level_transitions
+    from hingelab.learning.high_level_prior import generate_prior
+
+    config = HighLevelTrainConfig(low_level="privileged", randomize=False, max_episode_steps=30, prior_episodes=1,
+                                  prior_action_noise=0.2, learner="phase-clone", seed=3)
+    root, = generate_prior(tmp_path / "prior", config, "noisy", progress=False)
+    assert Dataset(root).card.config["action_noise"] == 0.2
+    transitions = high_level_transitions([root], actions="recorded")
+    clean = np.stack([transitions.infos[f"demo_action_{i}"] for i in range(5)], axis=1)
+    executed = np.asarray(transitions.actions)
+    np.testing.assert_allclose(executed[:, :2], clean[:, :2], atol=1e-6)  # the latent goal as commanded
+    offset = executed[:, 2:] - clean[:, 2:]
+    inside = np.abs(executed[:, 2:]) < 1  # clipped components say nothing of the noise
+    assert 0.1 < offset[inside].std() < 0.3
+    np.testing.assert_allclose(PhaseDemos.from_transitions(transitions).actions, clean, atol=1e-6)
+    with pytest.raises(ConfigError, match="--prior-action-noise"):
+        HighLevelTrainConfig(prior_action_noise=0.1, prior_source="heuristic")

@@ -22,7 +22,7 @@ def _add(learners, name: str, config_class, help_text: str, description: str, de
 # the demonstrations' flags: the heuristic's demos are not in the flat action space
 FLAT_SKIPS = ("from_datasets", "demo_bc_weight", "bc_pretrain_updates", "demo_q_filter", "prior_episodes",
               "prior_source", "demo_share", "demo_actions", "demo_lookahead", "learner", "clone_updates",
-              "clone_batch_size", "clone_learning_rate")
+              "clone_batch_size", "clone_learning_rate", "clone_members", "prior_action_noise")
 
 
 def add_high_parser(learners) -> None:

@@ -59,6 +59,9 @@ class HighLevelTrainConfig(SACTrainConfig):
                                            "without the object's size: the hinge closed by feedback on the perceived "
                                            "opening)", choices=PRIOR_SOURCES)
     prior_episodes: int = option(100, "episodes of the generated prior (over all its objects)")
+    prior_action_noise: float = option(0.0, "std of Gaussian noise (action units) on the scripted demonstrator's "
+                                            "executed hand velocity; the phase clone learns its clean actions, so the "
+                                            "demos show recoveries (DART)", metavar="STD")
     prior_objects: str = option("run", "the objects of the generated prior: run (the run's --object and --size) or "
                                        "all (the pick table's 4 shapes x 3 sizes, the episodes shared evenly)",
                                 choices=PRIOR_OBJECTS)
@@ -92,6 +95,9 @@ class HighLevelTrainConfig(SACTrainConfig):
     clone_updates: int = option(30_000, "phase-clone: Adam updates of the clone", metavar="UPDATES")
     clone_batch_size: int = option(512, "phase-clone: demo steps per update")
     clone_learning_rate: float = option(1e-3, "phase-clone: Adam's learning rate (cosine decay to 0)")
+    clone_members: int = option(1, "phase-clone: nets fitted on the same demos from different seeds; the policy "
+                                   "acts on their mean action and most probable next phase (an ensemble)",
+                                metavar="NETS")
 
     kind = "high-level"
     env_id = HIGH_ENV_ID
@@ -107,13 +113,18 @@ class HighLevelTrainConfig(SACTrainConfig):
                     "demo_offline_updates": self.demo_offline_updates >= 0,
                     "eval_episodes": self.eval_episodes >= 1, "placement_half_width": self.placement_half_width >= 0,
                     "learner": self.learner in HIGH_LEARNERS, "clone_updates": self.clone_updates >= 1,
-                    "clone_batch_size": self.clone_batch_size >= 1, "clone_learning_rate": self.clone_learning_rate > 0})
+                    "clone_batch_size": self.clone_batch_size >= 1, "clone_learning_rate": self.clone_learning_rate > 0,
+                    "clone_members": self.clone_members >= 1,
+                    "prior_action_noise": self.prior_action_noise >= 0})
         if self.learner == "phase-clone":
             if not self.prior:
                 raise ConfigError("--learner phase-clone learns from the privileged prior's demos: drop --no-prior")
             if self.prior_source == "heuristic" and not self.from_datasets:
                 raise ConfigError("--learner phase-clone needs demos that record the demonstrator's phases: "
                                   "--prior-source scripted (or scripted-feedback), not heuristic")
+        if self.prior_action_noise and (self.prior_source == "heuristic" or self.from_datasets or not self.prior):
+            raise ConfigError("--prior-action-noise is noise on the scripted demonstrator's actions as the run "
+                              "generates its prior: drop it, or drop --from / --no-prior / --prior-source heuristic")
         if not self.prior:
             if self.from_datasets:
                 raise ConfigError("--no-prior trains without demonstrations: drop --from")

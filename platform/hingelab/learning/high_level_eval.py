@@ -166,6 +166,20 @@ class ScriptedPolicy(HeuristicPolicy):
     # - close_tracking: standing still while closing, the closing leg dragged the grip point 2-3 mm
     #   sideways and one tip pushed the 2.5 cm sphere off (seed 6100: 0.83, tracking 1.00); since 2026-12-05 (later).
     heuristic_config = {"close_steps": 20, "max_squeeze_fraction": 0.5, "close_tracking": True}
+    # Gaussian noise (std, action units) on the executed hand velocity, 0 for none: demos for cloning that
+    # show the demonstrator recovering from off-course states (DART, Laskey et al. 2017); its clean action
+    # goes into the step's labels (``demo_action_0`` .. ``_4``), which the clone learns instead. Not on the
+    # latent goal: the low level shakes the tool out of the hand (0.1 on all five: 56 of 60 sphere demos
+    # dropped the tool)
+    action_noise = 0.0
+
+    def reset(self, env, seed: int) -> None:
+        super().reset(env, seed)
+        self.noise = self.noise_stream(seed)
+
+    @staticmethod
+    def noise_stream(seed: int) -> np.random.Generator:
+        return np.random.default_rng([seed, 0xDA27])  # apart from the env's own streams
 
     def act(self, env, obs) -> np.ndarray:
         return self._action(env, env.unwrapped.state)
@@ -184,7 +198,13 @@ class ScriptedPolicy(HeuristicPolicy):
         z_goal = np.asarray(pick.perception.calibration.z_for_opening(opening), float)
         rot_hand = pick.sim.data.xmat[pick.sim.reader.hand_body].reshape(3, 3)
         velocity_hand = rot_hand.T @ np.asarray(command.arm_velocity, float)
-        return np.clip(np.concatenate([z_goal / Z_SCALE, velocity_hand / MAX_SPEED]), -1, 1).astype(np.float32)
+        action = np.clip(np.concatenate([z_goal / Z_SCALE, velocity_hand / MAX_SPEED]), -1, 1).astype(np.float32)
+        if not self.action_noise:
+            return action
+        self.labels.update({f"demo_action_{i}": float(a) for i, a in enumerate(action)})
+        noisy = action.copy()
+        noisy[2:] += self.noise.normal(0.0, self.action_noise, 3)  # the hand velocity (ToolPick-v0's last 3)
+        return np.clip(noisy, -1, 1).astype(np.float32)
 
 
 class DemonstratorLabels(gym.Wrapper):
@@ -241,6 +261,7 @@ class FeedbackScriptedPolicy(ScriptedPolicy):
 
         self.heuristic = FeedbackHeuristic(pick.sim, FingerSynergy.load(), pick.object, perceived_opening)
         self.heuristic.reset(pick.state, pick.target)
+        self.noise = self.noise_stream(seed)
 
 
 def baseline_policy(name: str):

@@ -1,6 +1,6 @@
 """The privileged prior a ``train high`` run generates for itself when no ``--from`` is given.
 
-Two sources of privileged demonstrations, both recorded as ToolPick-v0 high-level episodes
+Three sources of privileged demonstrations, all recorded as ToolPick-v0 high-level episodes
 (source ``heuristic``) into ``RUNDIR/prior``:
 
 * ``scripted`` (the default): the privileged heuristic acting through the high level's own
@@ -13,6 +13,10 @@ Two sources of privileged demonstrations, both recorded as ToolPick-v0 high-leve
 * ``heuristic``: ``hingelab generate heuristic``: the heuristic commands the hinge directly
   (privileged low level); the demo action is the latent the tool reached (the paper's,
   ``demo_actions="reached"``).
+
+With ``--prior-action-noise STD`` (scripted sources), the executed hand velocity carries Gaussian
+noise and each step's info records the demonstrator's clean action (``demo_action_0`` .. ``_4``), which
+the phase clone learns: the demos visit states off the demonstrator's course and show it recovering.
 
 Why the default is not the paper's: the reached latent of a closed grasp is the latent of the
 object's width, which the privileged hinge servo holds with a built-in squeeze
@@ -82,10 +86,12 @@ def _generate(root: Path, config, seed: int, name: str, progress: bool) -> Path:
     arguments = config.env_arguments()
     policy = config.prior_source  # scripted or scripted-feedback: eval high's baselines
     create_dataset(root, name=name, source="heuristic", seed=seed,
-                   config={"policy": policy, "episodes": config.prior_episodes, **arguments},
+                   config={"policy": policy, "episodes": config.prior_episodes,
+                           "action_noise": config.prior_action_noise, **arguments},
                    description=f"the privileged heuristic ({policy}) as high-level actions over "
                                f"the low level {config.low_level} (hingelab train high's prior)")
     demonstrator = baseline_policy(policy)
+    demonstrator.action_noise = config.prior_action_noise
     # the demonstrator's phases go into every step's info (the phase clone learns them)
     env = DemonstratorLabels(FailureReasonWrapper(gym.make(config.env_id, **arguments)), demonstrator)
     env = RecordingWrapper(env, root, source="heuristic", object_name=object_label(config.object), action_level="high",

@@ -37,7 +37,8 @@ PHASES = ("open", "above", "descend", "close", "carry")  # the heuristic's (hing
 MAX_PHASE_STEPS = 60  # the steps input saturates here (the heuristic's longest phase timeout)
 ACTION_DIM = 5
 META_FILE, WEIGHTS_FILE = "phase_clone.json", "weights.npz"
-FORMAT = "hingelab phase clone 1"
+FORMAT = "hingelab phase clone 2"  # one net or an ensemble (weights "MEMBER/name")
+FORMAT_ONE = "hingelab phase clone 1"  # one net (read, not written)
 LABELS = ("demo_phase", "demo_phase_steps", "demo_next_phase")  # the demos' step infos (DemonstratorLabels)
 
 
@@ -76,15 +77,21 @@ class PhaseCloneNet(nn.Module):
 
 
 class PhaseClone:
-    """A high-level policy with phase memory (module doc); ``hingelab_provenance`` as a SAC zip's."""
+    """A high-level policy with phase memory (module doc); ``hingelab_provenance`` as a SAC zip's.
 
-    def __init__(self, net: PhaseCloneNet, provenance: dict | None = None):
-        self.net = net.eval()
+    It holds one ``PhaseCloneNet`` or several (an ensemble: ``train high --clone-members``, nets fitted
+    on the same demos from different seeds): the action is the members' mean, the next phase the one
+    of highest mean probability, so the members share one memory."""
+
+    def __init__(self, nets, provenance: dict | None = None):
+        self.nets = [net.eval() for net in ([nets] if isinstance(nets, PhaseCloneNet) else list(nets))]
+        if not self.nets or len({net.observation_dim for net in self.nets}) != 1:
+            raise ConfigError("a phase clone needs one net or more, all of the same observation size")
         self.hingelab_provenance = provenance or {}
 
     @property
     def observation_dim(self) -> int:
-        return self.net.observation_dim
+        return self.nets[0].observation_dim
 
     def predict(self, observation, state=None, episode_start=None, deterministic: bool = True):
         """(action, state) for one observation ``(D,)`` or a batch ``(n, D)``; see the module doc."""
@@ -95,10 +102,12 @@ class PhaseClone:
         memory = np.zeros((n, 2), np.int64) if state is None else np.array(state, np.int64).reshape(n, 2)
         if episode_start is not None:
             memory[np.asarray(episode_start, bool).reshape(n)] = 0
+        inputs = (torch.as_tensor(obs), torch.as_tensor(memory[:, 0]), torch.as_tensor(memory[:, 1]))
         with torch.no_grad():
-            action, logits = self.net(torch.as_tensor(obs), torch.as_tensor(memory[:, 0]),
-                                      torch.as_tensor(memory[:, 1]))
-        phase, steps = next_memory(memory[:, 0], memory[:, 1], logits.argmax(1).numpy())
+            outputs = [net(*inputs) for net in self.nets]
+            action = torch.stack([a for a, _ in outputs]).mean(0)
+            probability = torch.stack([torch.softmax(logits, 1) for _, logits in outputs]).mean(0)
+        phase, steps = next_memory(memory[:, 0], memory[:, 1], probability.argmax(1).numpy())
         action = action.numpy().astype(np.float32)
         return (action[0] if single else action), np.stack([phase, steps], axis=1)
 
@@ -106,8 +115,9 @@ class PhaseClone:
     def save(self, path) -> None:
         path = Path(path)
         weights = io.BytesIO()
-        np.savez(weights, **{k: v.detach().cpu().numpy() for k, v in self.net.state_dict().items()})
-        meta = {"format": FORMAT, "observation_dim": self.observation_dim, "hidden": list(self.net.hidden),
+        np.savez(weights, **{f"{i}/{k}": v.detach().cpu().numpy() for i, net in enumerate(self.nets)
+                             for k, v in net.state_dict().items()})
+        meta = {"format": FORMAT, "observation_dim": self.observation_dim, "hidden": [list(net.hidden) for net in self.nets],
                 "phases": list(PHASES), "max_phase_steps": MAX_PHASE_STEPS, "hingelab_provenance": self.hingelab_provenance}
         tmp = path.with_name(path.name + ".tmp")
         with zipfile.ZipFile(tmp, "w", zipfile.ZIP_DEFLATED) as archive:
@@ -117,25 +127,35 @@ class PhaseClone:
 
     @classmethod
     def load(cls, path) -> "PhaseClone":
+        """A clone of this format, or of ``FORMAT_ONE`` (one net: its weights unprefixed, ``hidden`` flat)."""
         path = Path(path)
         try:
             with zipfile.ZipFile(path) as archive:
                 meta = json.loads(archive.read(META_FILE))
-                if meta.get("format") != FORMAT or tuple(meta.get("phases", ())) != PHASES:
+                if meta.get("format") not in (FORMAT, FORMAT_ONE) or tuple(meta.get("phases", ())) != PHASES:
                     raise ConfigError(f"{path} is a phase clone of another layout ({meta.get('format')}, phases "
-                                      f"{meta.get('phases')}); this hingelab reads {FORMAT!r} with phases {PHASES}")
+                                      f"{meta.get('phases')}); this hingelab reads {FORMAT!r} and {FORMAT_ONE!r} "
+                                      f"with phases {PHASES}")
                 arrays = np.load(io.BytesIO(archive.read(WEIGHTS_FILE)), allow_pickle=False)
-                state = {k: torch.as_tensor(arrays[k]) for k in arrays.files}
+                arrays = {k: torch.as_tensor(arrays[k]) for k in arrays.files}
         except (OSError, KeyError, ValueError, EOFError, zipfile.BadZipFile) as exc:
             raise ConfigError(f"{path} is not a readable phase-clone checkpoint ({type(exc).__name__}: {exc}); "
                               "train one with `hingelab train high --learner phase-clone`") from exc
-        net = PhaseCloneNet(meta["observation_dim"], tuple(meta["hidden"]), state["mean"].numpy(),
-                            state["std"].numpy())
-        try:
-            net.load_state_dict(state)
-        except RuntimeError as exc:
-            raise ConfigError(f"{path}: its weights do not fit its own layout ({exc})") from exc
-        return cls(net, meta.get("hingelab_provenance") or {})
+        if meta["format"] == FORMAT_ONE:
+            hidden, states = [meta["hidden"]], [arrays]
+        else:
+            hidden = meta["hidden"]
+            states = [{k.split("/", 1)[1]: v for k, v in arrays.items() if k.split("/", 1)[0] == str(i)}
+                      for i in range(len(hidden))]
+        nets = []
+        for layout, state in zip(hidden, states):
+            try:
+                net = PhaseCloneNet(meta["observation_dim"], tuple(layout), state["mean"].numpy(), state["std"].numpy())
+                net.load_state_dict(state)
+            except (KeyError, RuntimeError) as exc:
+                raise ConfigError(f"{path}: its weights do not fit its own layout ({type(exc).__name__}: {exc})") from exc
+            nets.append(net)
+        return cls(nets, meta.get("hingelab_provenance") or {})
 
 
 def is_phase_clone(path) -> bool:
@@ -168,7 +188,10 @@ class PhaseDemos:
                               "clone needs scripted demos recorded by this hingelab: drop --from to generate them "
                               "(--prior-source scripted)")
         infos = transitions.infos
-        return cls(np.asarray(transitions.observations, np.float32), np.asarray(transitions.actions, np.float32),
+        # demos with noise on the executed action (--prior-action-noise) label the clean one
+        clean = [infos.get(f"demo_action_{i}") for i in range(ACTION_DIM)]
+        actions = transitions.actions if any(a is None for a in clean) else np.stack(clean, axis=1)
+        return cls(np.asarray(transitions.observations, np.float32), np.asarray(actions, np.float32),
                    infos["demo_phase"].astype(np.int64), infos["demo_phase_steps"].astype(np.int64),
                    infos["demo_next_phase"].astype(np.int64))
 
@@ -218,5 +241,29 @@ def fit_phase_clone(demos: PhaseDemos, hidden: tuple[int, ...], updates: int, ba
     return net, fit
 
 
-__all__ = ["PHASES", "PhaseClone", "PhaseCloneNet", "PhaseDemos", "fit_phase_clone", "is_phase_clone",
+
+MEMBER_SEED_STRIDE = 1_000_003  # member i of an ensemble fits with seed + i * stride (member 0: the one-net fit's)
+
+
+def fit_phase_clone_members(demos: PhaseDemos, members: int, hidden: tuple[int, ...], updates: int, batch_size: int,
+                            learning_rate: float, seed: int, progress: bool = False) -> tuple[list[PhaseCloneNet], dict]:
+    """``members`` nets fitted by ``fit_phase_clone`` on the same demos from different seeds (an ensemble
+    for ``PhaseClone``); the nets and the fit (member 0's figures, every member's, total seconds)."""
+    if members < 1:
+        raise ConfigError(f"an ensemble needs at least one member, not {members}")
+    nets, fits = [], []
+    for member in range(members):
+        if progress and members > 1:
+            print(f"phase clone: member {member + 1} of {members}")
+        net, fit = fit_phase_clone(demos, hidden, updates, batch_size, learning_rate,
+                                   seed + member * MEMBER_SEED_STRIDE, progress=progress)
+        nets.append(net)
+        fits.append(fit)
+    fit = dict(fits[0])
+    if members > 1:
+        fit.update(members=members, member_fits=fits, seconds=round(sum(f["seconds"] for f in fits), 1))
+    return nets, fit
+
+__all__ = ["PHASES", "PhaseClone", "PhaseCloneNet", "PhaseDemos", "fit_phase_clone", "fit_phase_clone_members",
+           "is_phase_clone",
            "next_memory", "phase_index"]

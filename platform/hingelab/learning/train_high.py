@@ -235,7 +235,7 @@ class PhaseCloneRun(HighLevelRun):
 
     The run shares ``train high``'s folder, prior and evaluation: the scripted demos generated into
     ``RUNDIR/prior`` (their steps record the demonstrator's phases) or given with ``--from``;
-    ``--clone-updates`` updates of the clone on them; one held-out evaluation into ``metrics.csv``;
+    ``--clone-updates`` updates of the clone on them (of each of ``--clone-members`` nets, an ensemble); one held-out evaluation into ``metrics.csv``;
     ``model.zip`` (and ``best_model.zip``, the same policy) recording the env arguments, the low level's
     sha256, the encoder's fingerprint, the prior and the fit. No SAC and no env step of the run's own,
     so the run's dataset holds no training rollouts. ``--resume`` keeps a prior whose every dataset was
@@ -256,16 +256,17 @@ class PhaseCloneRun(HighLevelRun):
         return self
 
     def train(self) -> dict:
-        from hingelab.learning.phase_clone import PhaseClone, PhaseDemos, fit_phase_clone
+        from hingelab.learning.phase_clone import PhaseClone, PhaseDemos, fit_phase_clone_members
 
         c = self.config
         demos = PhaseDemos.from_transitions(self.demos, where=", ".join(self.demo_info["datasets"]))
         if self.progress:
             print(f"{self.label} {self.name}: cloning {len(demos)} demo steps of {self.demo_info['episodes']} "
-                  f"episodes ({c.clone_updates} updates, net {' x '.join(str(n) for n in c.net_arch)})")
-        net, fit = fit_phase_clone(demos, tuple(c.net_arch), c.clone_updates, c.clone_batch_size,
-                                   c.clone_learning_rate, c.seed, progress=self.progress)
-        self.model = PhaseClone(net)
+                  f"episodes ({c.clone_updates} updates, net {' x '.join(str(n) for n in c.net_arch)}"
+                  f"{f', {c.clone_members} members' if c.clone_members > 1 else ''})")
+        nets, fit = fit_phase_clone_members(demos, c.clone_members, tuple(c.net_arch), c.clone_updates,
+                                            c.clone_batch_size, c.clone_learning_rate, c.seed, progress=self.progress)
+        self.model = PhaseClone(nets)
         self.metrics.truncate_after(-1)  # a resumed run evaluates its clone again
         evaluation = {"env_steps": 0, "seed": c.seed, "updates": c.clone_updates, **self.evaluate_policy()}
         self.metrics.append(evaluation)
