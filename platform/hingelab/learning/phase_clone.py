@@ -14,8 +14,9 @@ run time its memory is what it predicted, not the demonstrator's: nothing privil
 ``PhaseClone.predict(observation, state, episode_start, deterministic)`` returns ``(action,
 state)`` as stable-baselines3's recurrent policies do (``state``: ``(n, 2)`` int, phase and steps;
 ``None`` or ``episode_start`` starts a new episode in "open"), so ``high_level_eval.ModelPolicy``
-drives it and a SAC zip alike. A checkpoint is a zip of ``phase_clone.json`` (layout, observation
-standardization, provenance) and ``weights.npz`` (plain arrays: loading unpickles nothing).
+drives it and a SAC zip alike. It may hold several nets (an ensemble, ``fit_phase_clone_members``) that
+share one memory. A checkpoint is a zip of ``phase_clone.json`` (layout, provenance) and ``weights.npz``
+(plain arrays, each net's observation standardization with its weights: loading unpickles nothing).
 """
 
 from __future__ import annotations
@@ -241,7 +242,6 @@ def fit_phase_clone(demos: PhaseDemos, hidden: tuple[int, ...], updates: int, ba
     return net, fit
 
 
-
 MEMBER_SEED_STRIDE = 1_000_003  # member i of an ensemble fits with seed + i * stride (member 0: the one-net fit's)
 
 
@@ -264,6 +264,6 @@ def fit_phase_clone_members(demos: PhaseDemos, members: int, hidden: tuple[int, 
         fit.update(members=members, member_fits=fits, seconds=round(sum(f["seconds"] for f in fits), 1))
     return nets, fit
 
+
 __all__ = ["PHASES", "PhaseClone", "PhaseCloneNet", "PhaseDemos", "fit_phase_clone", "fit_phase_clone_members",
-           "is_phase_clone",
-           "next_memory", "phase_index"]
+           "is_phase_clone", "next_memory", "phase_index"]
