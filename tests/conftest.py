@@ -21,7 +21,8 @@ def random_pick_dataset(tmp_path_factory):
     """A factory of datasets of real ToolPick-v0 episodes (random actions, privileged low level) as
     ``RecordingWrapper`` writes them: clouds, columns, metadata."""
     from hingelab.episodes import create_dataset
-    from hingelab.learning.high_level_eval import RandomPolicy, evaluate, make_eval_env
+    from hingelab.policies.baselines import RandomPolicy
+    from hingelab.rollouts.high_level import evaluate, make_eval_env
 
     def make(name: str, object: str = "sphere", episodes: int = 1, max_episode_steps: int = 5):
         root = tmp_path_factory.mktemp(name) / name

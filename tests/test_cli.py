@@ -89,7 +89,7 @@ def test_demo_runs_and_measures_the_platform(tmp_path):
             table.loc[f"{condition}_seed0", "final_success_rate"])
     # the shipped high-level policy (once shipped): printed = recorded = reported
     learned = json.loads(out_file.read_text())["step_learned_hierarchy"]
-    from hingelab.learning.high_level_checkpoint import SHIPPED_HIGH_LEVEL
+    from hingelab.policies.high_level import SHIPPED_HIGH_LEVEL
 
     assert learned.get("skipped", False) == (not SHIPPED_HIGH_LEVEL.exists())
     if not learned.get("skipped"):

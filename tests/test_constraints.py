@@ -38,6 +38,6 @@ def test_every_declared_dependency_is_pinned_within_its_bounds():
 
 def test_the_known_incompatible_releases_are_kept_out():
     pins = _pins()
-    assert pins["stable-baselines3"] >= Version("2.7")  # ReplayBufferSamples.discounts (learning/fast_sac.py)
+    assert pins["stable-baselines3"] >= Version("2.7")  # ReplayBufferSamples.discounts (learners/sac/fast_sac.py)
     assert pins["numpy"].major == 2
     assert pins["torch"] == Version("2.13.0")  # the CPU build on local disk

@@ -308,8 +308,8 @@ def test_tool_pick_gives_the_shipped_low_level_policy_the_commanded_goal():
     goal the tool's z_bar before the step. A closed then an open goal (0.03, 0.20 rad, 30 steps each):
     over three seeds the hinge opens by more than half of the 0.17 rad asked for, on average (the
     success rate itself is the slow test's, on fresh seeds)."""
-    from hingelab.envs.low_level import SHIPPED_LOW_LEVEL
-    from hingelab.envs.tool_pick import Z_SCALE
+    from hingelab.policies.low_level import SHIPPED_LOW_LEVEL
+    from hingelab.tasks import Z_SCALE
 
     assert SHIPPED_LOW_LEVEL.exists(), "the shipped low-level policy is missing: see assets/checkpoints/README.md"
     env = gym.make(TOOL_PICK_ID, low_level="policy")
@@ -350,9 +350,10 @@ def test_tool_pick_shipped_low_level_settles_on_fresh_goals():
     analysis/low-level-experts/README.md, after_compiled_tracking). At the interval's lower end,
     0.936, fewer than 50 of 60 happen with probability 0.14% (0.90: 3.4%); a policy at 0.75 passes
     with probability 8.6%. (In ToolPick-v0 on exploration seeds not used here, 57 of 60 settled.)"""
-    from hingelab.envs.tool_pick import Z_SCALE
-    from hingelab.envs.tool_shape import SETTLE_STEPS, latent_distance_for_gap
-    from hingelab.learning.low_level_eval import sampled_goals
+    from hingelab.tasks import Z_SCALE
+    from hingelab.envs.tool_shape import SETTLE_STEPS
+    from hingelab.perception.calibration import latent_distance_for_gap
+    from hingelab.rollouts.low_level import sampled_goals
     from hingelab.sim.finger_synergy import FingerSynergy
 
     env = gym.make(TOOL_PICK_ID, low_level="policy")
@@ -406,7 +407,8 @@ def test_bench_envs_replays_the_same_steps_as_its_raw_baseline(shape_env):
 def test_a_low_level_checkpoint_folder_means_its_model_zip(tmp_path):
     import shutil
 
-    from hingelab.envs.low_level import SHIPPED_LOW_LEVEL_SAC, PolicyLowLevel
+    from hingelab.envs.low_level import PolicyLowLevel
+    from hingelab.policies.low_level import SHIPPED_LOW_LEVEL_SAC
 
     step = tmp_path / "checkpoints" / "step_000000010000"
     step.mkdir(parents=True)

@@ -69,7 +69,7 @@ def test_scripted_observed_reads_the_object_from_the_observation(shape):
     import gymnasium as gym
 
     from hingelab.envs import TOOL_PICK_ID
-    from hingelab.learning.high_level_eval import ObservedScriptedPolicy
+    from hingelab.policies.baselines import ObservedScriptedPolicy
 
     env = gym.make(TOOL_PICK_ID, object=shape, low_level="privileged")
     obs, _ = env.reset(seed=4)
@@ -136,7 +136,7 @@ def test_the_default_checkpoint_is_the_shipped_high_level_policy(tmp_path, capsy
 
 def test_failure_reasons_from_the_env_reason_and_the_episode():
     """The env's reason refined by what the episode did (first match wins; module doc)."""
-    from hingelab.learning.high_level_eval import FailureReasonWrapper
+    from hingelab.rollouts.high_level import FailureReasonWrapper
 
     wrapper = FailureReasonWrapper.__new__(FailureReasonWrapper)  # classify reads only the tracked facts
 

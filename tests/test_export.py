@@ -30,7 +30,7 @@ STEPS = 6  # per episode: the suite stays fast
 @pytest.fixture(scope="module")
 def heuristic(tmp_path_factory):
     """ToolPick-v0, the privileged heuristic (``hingelab generate heuristic``)."""
-    from hingelab.heuristic.rollout import HeuristicRunConfig, generate_heuristic_dataset
+    from hingelab.rollouts.heuristic_demos import HeuristicRunConfig, generate_heuristic_dataset
 
     root = tmp_path_factory.mktemp("heuristic") / "heuristic"
     generate_heuristic_dataset(root, HeuristicRunConfig(episodes=2, seed=3, max_episode_steps=STEPS), progress=False)
@@ -51,7 +51,7 @@ def _run(env, seeds, action_dim):
 @pytest.fixture(scope="module")
 def low_eval(tmp_path_factory):
     """ToolShape-v0 (goal env, Dict observations), as ``hingelab eval low`` records it."""
-    from hingelab.learning.low_level_eval import make_eval_env
+    from hingelab.rollouts.low_level import make_eval_env
 
     root = tmp_path_factory.mktemp("low_eval") / "low_eval"
     env_args = {"randomize": False, "max_episode_steps": STEPS}
@@ -64,8 +64,8 @@ def low_eval(tmp_path_factory):
 @pytest.fixture(scope="module")
 def low_train(tmp_path_factory):
     """ToolShape-v0 training rollouts, as ``hingelab train low`` records them."""
-    from hingelab.learning.low_level_config import LowLevelTrainConfig
-    from hingelab.learning.training_envs import _make_training_env
+    from hingelab.learners.sac.low_level_config import LowLevelTrainConfig
+    from hingelab.training.envs import _make_training_env
 
     root = tmp_path_factory.mktemp("low_train") / "low_train"
     config = LowLevelTrainConfig(max_episode_steps=STEPS, n_envs=1, randomize=False)
@@ -192,7 +192,7 @@ def expected_env_kwargs(name, root):
     if name == "low_eval":
         return {"randomize": False}, STEPS
     if name == "low_train":
-        from hingelab.learning.low_level_config import LowLevelTrainConfig
+        from hingelab.learners.sac.low_level_config import LowLevelTrainConfig
 
         arguments = LowLevelTrainConfig.from_dict({**config, "steps": 1}).env_arguments()
         return {k: v for k, v in arguments.items() if k != "max_episode_steps"}, STEPS

@@ -17,7 +17,7 @@ from stable_baselines3 import SAC, HerReplayBuffer
 from stable_baselines3.common.logger import configure
 
 from hingelab.bench.sac import ARMS, BASELINE, OURS, build_table, ratio_name, update_rate
-from hingelab.learning.fast_sac import FastSAC
+from hingelab.learners.sac.fast_sac import FastSAC
 
 NET = dict(net_arch=[32, 32])
 

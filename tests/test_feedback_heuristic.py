@@ -8,8 +8,9 @@ import numpy as np
 import pytest
 
 from hingelab.envs import TOOL_PICK_ID
-from hingelab.learning.high_level_eval import FeedbackScriptedPolicy, episode_seed
-from hingelab.learning.high_level_prior import PICK_SETS, prior_parts
+from hingelab.policies.baselines import FeedbackScriptedPolicy
+from hingelab.rollouts.high_level import episode_seed
+from hingelab.training.prior import PICK_SETS, prior_parts
 
 
 def _run(object: str, size: float, seed: int):
@@ -71,7 +72,7 @@ def test_observed_object_position_is_the_centre():
 
 
 def test_prior_parts_share_episodes_over_the_pick_sets():
-    from hingelab.learning.high_level_config import HighLevelTrainConfig
+    from hingelab.learners.sac.high_level_config import HighLevelTrainConfig
 
     parts = prior_parts(HighLevelTrainConfig(prior_objects="all", prior_episodes=26))
     assert [(o, s) for _, o, s, _ in parts] == list(PICK_SETS)

@@ -26,7 +26,8 @@ class _Constant:
 
 @pytest.fixture(scope="module")
 def shipped():
-    from hingelab.envs.low_level import SHIPPED_LOW_LEVEL_SAC, PolicyLowLevel
+    from hingelab.envs.low_level import PolicyLowLevel
+    from hingelab.policies.low_level import SHIPPED_LOW_LEVEL_SAC
     from hingelab.perception.encoder import shipped_encoder
 
     return SHIPPED_LOW_LEVEL_SAC, PolicyLowLevel(SHIPPED_LOW_LEVEL_SAC).model, shipped_encoder().calibration
@@ -39,7 +40,7 @@ def _observation(calibration, openings):
 
 
 def test_each_goal_goes_to_the_expert_of_its_band(shipped):
-    from hingelab.learning.goal_experts import GoalRegionExperts
+    from hingelab.policies.goal_experts import GoalRegionExperts
 
     _, model, calibration = shipped
     experts = GoalRegionExperts([_Constant(v, model) for v in (1, 2, 3)], [0.05, 0.15], calibration, {})
@@ -79,7 +80,7 @@ def test_compose_writes_a_manifest_that_eval_and_the_envs_take(tmp_path, shipped
 
 
 def test_bad_manifests_and_changed_experts_are_refused(tmp_path, shipped, capsys):
-    from hingelab.learning.goal_experts import load_experts, write_experts
+    from hingelab.policies.goal_experts import load_experts, write_experts
 
     path, _, _ = shipped
     a, b = tmp_path / "a.zip", tmp_path / "b.zip"

@@ -11,7 +11,7 @@ import pytest
 from hingelab.episodes import read_episode
 from hingelab.episodes.dataset import Dataset
 from hingelab.episodes.verify import verify_dataset
-from hingelab.heuristic.rollout import HeuristicRunConfig, generate_heuristic_dataset
+from hingelab.rollouts.heuristic_demos import HeuristicRunConfig, generate_heuristic_dataset
 
 
 @pytest.fixture(scope="module")
@@ -90,7 +90,7 @@ def test_the_squeeze_cap_and_close_tracking_as_the_scripted_high_level_sets_them
 
     from hingelab.envs import TOOL_PICK_ID
     from hingelab.heuristic.controller import HeuristicConfig, PrivilegedHeuristic
-    from hingelab.learning.high_level_eval import ScriptedPolicy
+    from hingelab.policies.baselines import ScriptedPolicy
     from hingelab.sim.finger_synergy import FingerSynergy
     from hingelab.sim.scripted import grip_point
 

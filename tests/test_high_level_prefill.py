@@ -17,7 +17,7 @@ from hingelab.episodes.dataset import Dataset
 from hingelab.episodes.errors import DatasetError
 from hingelab.episodes.transitions import dataset_transitions
 from hingelab.errors import ConfigError
-from hingelab.learning.high_level_prefill import fill_high_level_buffer, high_level_transitions
+from hingelab.training.high_level_demos import fill_high_level_buffer, high_level_transitions
 
 
 @pytest.fixture(scope="module")
@@ -144,8 +144,8 @@ def test_a_low_level_dataset_is_a_one_line_error_naming_it(tmp_path, heuristic):
 def test_demo_share_buffer_keeps_the_demos_in_every_batch(heuristic, tmp_path):
     from stable_baselines3 import SAC
 
-    from hingelab.learning.high_level_prefill import DemoShareReplayBuffer
-    from hingelab.learning.plain_state import load_buffer, save_buffer
+    from hingelab.training.high_level_demos import DemoShareReplayBuffer
+    from hingelab.training.resume_state import load_buffer, save_buffer
 
     tr = high_level_transitions([heuristic])
     # a demo row: its observation (the buffer keeps the float64 observation space) and float32 action; a

@@ -1,5 +1,5 @@
 """A local Ray dies with its driver: `hingelab generate heuristic --ray` SIGKILLed mid-episode leaves no
-process of its Ray session behind (the reaper of ``hingelab.cluster.local_ray_reaper`` stops them), and
+process of its Ray session behind (the reaper of ``hingelab.workers.ray_reaper`` stops them), and
 a command that ends normally leaves none either."""
 
 from __future__ import annotations
@@ -13,7 +13,7 @@ import time
 import psutil
 import pytest
 
-from hingelab.cluster.local_ray_reaper import session_processes
+from hingelab.workers.ray_reaper import session_processes
 
 CLEANUP_DEADLINE_S = 30  # Ray's agents alone were measured living on ~100 s after the driver without the reaper
 
@@ -70,7 +70,7 @@ def test_a_sigkilled_ray_driver_leaves_no_process_of_its_session(tmp_path):
 
 
 def test_a_ray_command_that_ends_normally_leaves_no_ray_process(tmp_path):
-    from hingelab.cluster.ray_runtime import ray_session
+    from hingelab.workers.ray_runtime import ray_session
 
     with ray_session(num_cpus=1) as ray:
         session_dir = ray._private.worker.global_worker.node.get_session_dir_path()

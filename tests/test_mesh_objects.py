@@ -81,7 +81,7 @@ def test_tool_pick_mesh_object_rests_on_platform(meshes, name):
 def test_heuristic_picks_mesh_objects(meshes):
     """Measured: 20/20 for the 2 cm box and icosphere meshes (seeds 100-119), as for the
     built-in cube and sphere; the three seeds here all succeed."""
-    from hingelab.heuristic.rollout import HeuristicRunConfig, make_env, run_episode
+    from hingelab.rollouts.heuristic_demos import HeuristicRunConfig, make_env, run_episode
 
     for name in ("box", "ico"):
         env = make_env(HeuristicRunConfig(object=f"mesh:{meshes[name]}", size=0.02))

@@ -11,7 +11,7 @@ import torch
 from gymnasium import spaces
 
 from hingelab.errors import ConfigError
-from hingelab.learning.plain_state import load_buffer, restore_rng_states, rng_states, save_buffer
+from hingelab.training.resume_state import load_buffer, restore_rng_states, rng_states, save_buffer
 
 
 def _her_buffer(env):
@@ -23,7 +23,7 @@ def _her_buffer(env):
 def test_a_her_buffer_with_its_info_dicts_round_trips(tmp_path):
     from stable_baselines3.common.vec_env import DummyVecEnv
 
-    from hingelab.learning.low_level_eval import make_eval_env
+    from hingelab.rollouts.low_level import make_eval_env
 
     env = DummyVecEnv([lambda: make_eval_env({"max_episode_steps": 5})] * 2)
     try:
@@ -57,7 +57,7 @@ def test_a_her_buffer_with_its_info_dicts_round_trips(tmp_path):
 
 
 def test_rng_states_round_trip_through_json():
-    from hingelab.learning import plain_state
+    from hingelab.training import resume_state as plain_state
 
     torch.manual_seed(3), np.random.seed(3), random.seed(3)
     states = plain_state.loads(plain_state.dumps(rng_states()))

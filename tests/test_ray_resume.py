@@ -113,7 +113,7 @@ def test_an_episode_still_being_written_when_resume_starts_cannot_land(tmp_path)
     from hingelab.episodes import create_dataset
     from hingelab.episodes.synthetic import synthetic_step, write_synthetic_episode
     from hingelab.episodes.writer import EpisodeWriter
-    from hingelab.heuristic.rollout import HeuristicRunConfig, _seeds_to_run, episode_seed
+    from hingelab.rollouts.heuristic_demos import HeuristicRunConfig, _seeds_to_run, episode_seed
 
     config = HeuristicRunConfig(episodes=4, seed=2)
     out = tmp_path / "demos"
@@ -136,7 +136,7 @@ def test_an_evaluation_resumed_keeps_only_journaled_episodes_and_a_late_writer_c
     from hingelab.episodes import create_dataset
     from hingelab.episodes.synthetic import synthetic_step, write_synthetic_episode
     from hingelab.episodes.writer import EpisodeWriter
-    from hingelab.learning.eval_journal import EpisodeJournal, prepare_resume
+    from hingelab.rollouts.journal import EpisodeJournal, prepare_resume
 
     config = {"baseline": "hold-still", "episodes": 4, "seed": 3}
     out = tmp_path / "eval"

@@ -73,7 +73,7 @@ def _tiny_high_level_sac(path: Path) -> Path:
 def test_a_booby_trapped_sac_zip_loads_without_its_pickles_running(tmp_path):
     from stable_baselines3 import SAC
 
-    from hingelab.learning.high_level_checkpoint import load_high_level_checkpoint
+    from hingelab.policies.high_level import load_high_level_checkpoint
 
     marker = tmp_path / "ran"
     trapped = tmp_path / "high_level.zip"
@@ -90,7 +90,7 @@ def test_a_booby_trapped_sac_zip_loads_without_its_pickles_running(tmp_path):
 
 
 def test_a_sac_zip_with_a_pickle_among_its_tensors_is_refused(tmp_path):
-    from hingelab.learning.low_level_checkpoint import load_sac_checkpoint
+    from hingelab.policies.low_level import load_sac_checkpoint
 
     marker = tmp_path / "ran"
     trapped = tmp_path / "low_level.zip"
@@ -109,7 +109,7 @@ def test_a_sac_zip_with_a_pickle_among_its_tensors_is_refused(tmp_path):
 def test_the_shipped_checkpoints_load_safely_and_as_before():
     from stable_baselines3 import SAC
 
-    from hingelab.learning.low_level_checkpoint import load_sac_checkpoint
+    from hingelab.policies.low_level import load_sac_checkpoint
 
     for name in ("low_level.zip", "low_level_closed.zip"):
         ours, theirs = load_sac_checkpoint(ASSETS / name), SAC.load(ASSETS / name, device="cpu")
@@ -127,8 +127,8 @@ TINY_RUN = dict(steps=60, n_envs=1, max_episode_steps=10, learning_starts=20, ba
 
 @pytest.fixture(scope="module")
 def tiny_low_run(tmp_path_factory):
-    from hingelab.learning.low_level_config import LowLevelTrainConfig
-    from hingelab.learning.train_low import train_low
+    from hingelab.learners.sac.low_level_config import LowLevelTrainConfig
+    from hingelab.learners.sac.low_level import train_low
 
     config = LowLevelTrainConfig(**TINY_RUN)
     run = tmp_path_factory.mktemp("resume") / "run"
@@ -144,7 +144,7 @@ def _params(path) -> dict:
 
 def _boundary(run: Path) -> Path:
     """A checkpoint between episodes (resuming from it continues exactly), before the last step."""
-    from hingelab.learning import checkpoints as ckpt
+    from hingelab.training import checkpoints as ckpt
 
     return next(p for p in ckpt.checkpoint_dirs(run) if not ckpt.read_state(p)["mid_episode"]
                 and 0 < ckpt.read_state(p)["model"]["num_timesteps"] < TINY_RUN["steps"])
@@ -152,7 +152,7 @@ def _boundary(run: Path) -> Path:
 
 def _resume_from(run: Path, step: Path, target: Path) -> Path:
     """A copy of ``run`` cut back to checkpoint ``step``."""
-    from hingelab.learning import checkpoints as ckpt
+    from hingelab.training import checkpoints as ckpt
 
     shutil.copytree(run, target)
     for later in ckpt.checkpoint_dirs(target):
@@ -163,7 +163,7 @@ def _resume_from(run: Path, step: Path, target: Path) -> Path:
 
 
 def test_a_runs_checkpoints_hold_no_pickles(tiny_low_run):
-    from hingelab.learning import checkpoints as ckpt
+    from hingelab.training import checkpoints as ckpt
 
     _, run = tiny_low_run
     for step in ckpt.checkpoint_dirs(run):
@@ -176,8 +176,8 @@ def test_a_runs_checkpoints_hold_no_pickles(tiny_low_run):
 def test_resume_reads_no_pickle_of_a_booby_trapped_checkpoint(tiny_low_run, tmp_path):
     """The checkpoint's model.zip with every pickled entry a trap: the run resumes, exactly, and
     nothing ran (resume takes only its tensors and its plain counters)."""
-    from hingelab.learning import checkpoints as ckpt
-    from hingelab.learning.train_low import train_low
+    from hingelab.training import checkpoints as ckpt
+    from hingelab.learners.sac.low_level import train_low
 
     config, run = tiny_low_run
     marker = tmp_path / "ran"
@@ -193,8 +193,8 @@ def test_resume_reads_no_pickle_of_a_booby_trapped_checkpoint(tiny_low_run, tmp_
 def _as_older_hingelab(step: Path, config, buffer_from: Path, marker: Path | None) -> None:
     """Rewrite a checkpoint the way hingelab wrote them before plain resume state (pickles); with
     ``marker``, its state.pkl is a trap."""
-    from hingelab.learning import checkpoints as ckpt
-    from hingelab.learning.train_low import LowLevelRun
+    from hingelab.training import checkpoints as ckpt
+    from hingelab.learners.sac.low_level import LowLevelRun
 
     state = ckpt.read_state(step)
     rng = state.pop("rng")
@@ -214,8 +214,8 @@ def _as_older_hingelab(step: Path, config, buffer_from: Path, marker: Path | Non
 
 def test_an_older_pickled_checkpoint_is_refused_unread_and_converted_on_request(tiny_low_run, tmp_path, capsys):
     from hingelab.cli.main import main
-    from hingelab.learning import checkpoints as ckpt
-    from hingelab.learning.train_low import train_low
+    from hingelab.training import checkpoints as ckpt
+    from hingelab.learners.sac.low_level import train_low
 
     config, run = tiny_low_run
     first = _boundary(run)
@@ -242,7 +242,7 @@ def test_a_phase_clone_with_a_pickle_among_its_weights_is_refused(tmp_path):
     """The phase clone's weights are plain arrays: an object array (a pickle) among them is refused unread."""
     import io
 
-    from hingelab.learning.high_level_checkpoint import load_high_level_checkpoint
+    from hingelab.policies.high_level import load_high_level_checkpoint
 
     marker = tmp_path / "ran"
     with zipfile.ZipFile(ASSETS / "high_level.zip") as archive:

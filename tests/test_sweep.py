@@ -14,7 +14,7 @@ import pytest
 
 from hingelab.cli.main import main
 from hingelab.episodes.dataset import Dataset
-from hingelab.learning import checkpoints as ckpt
+from hingelab.training import checkpoints as ckpt
 
 TINY_ARGS = ["--max-episode-steps", "10", "--learning-starts", "30", "--batch-size", "16", "--buffer-size", "2000",
              "--eval-goals", "1", "--algorithm", "sac", "--keep-checkpoints", "10"]

@@ -14,9 +14,9 @@ import torch
 
 from hingelab.episodes.dataset import Dataset
 from hingelab.errors import ConfigError
-from hingelab.learning import checkpoints as ckpt
-from hingelab.learning.high_level_config import FlatTrainConfig, HighLevelTrainConfig
-from hingelab.learning.train_high import train_high
+from hingelab.training import checkpoints as ckpt
+from hingelab.learners.sac.high_level_config import FlatTrainConfig, HighLevelTrainConfig
+from hingelab.learners.sac.high_level import train_high
 
 TINY = HighLevelTrainConfig(
     steps=300, n_envs=1, max_episode_steps=50, learning_starts=50, batch_size=16, buffer_size=2000, net_arch=(32, 32),
@@ -54,7 +54,7 @@ def test_run_writes_prior_rollouts_metrics_and_records(tiny_high):
     rollouts = Dataset(run / "dataset")
     assert len(rollouts) >= 300 // TINY.max_episode_steps
     assert (rollouts.index["source"] == "high_level_training").all()
-    from hingelab.learning.safe_sb3 import read_plain_data
+    from hingelab.policies.sb3_zip import read_plain_data
 
     record = read_plain_data(run / "model.zip")[0]["hingelab_provenance"]
     assert record["env_id"] == "hingelab/ToolPick-v0" and record["env_kwargs"]["low_level"] == "privileged"
@@ -68,10 +68,10 @@ def test_run_writes_prior_rollouts_metrics_and_records(tiny_high):
 
 def test_demo_share_keeps_the_demos_in_every_batch(tiny_high, tmp_path):
     """The kept demo share: the demos sit in their own store, never overwritten, and half of a batch."""
-    from hingelab.learning.demo_sac import DemoSAC
-    from hingelab.learning.high_level_prefill import DemoShareReplayBuffer
+    from hingelab.learners.sac.demo_sac import DemoSAC
+    from hingelab.training.high_level_demos import DemoShareReplayBuffer
 
-    from hingelab.learning.train_high import HighLevelRun
+    from hingelab.learners.sac.high_level import HighLevelRun
 
     run, summary = tiny_high
     copy = tmp_path / "copy"
@@ -105,7 +105,7 @@ def test_resume_continues_exactly(tiny_high, tmp_path):
 
 def test_plain_prefill_goes_through_the_ring_buffer(tmp_path):
     """--demo-share 0: the paper's plain pre-fill, here of the paper's heuristic demos (reached latents)."""
-    from hingelab.learning.train_high import HighLevelRun
+    from hingelab.learners.sac.high_level import HighLevelRun
 
     config = replace(TINY, demo_share=0.0, steps=0, demo_bc_weight=0.0, bc_pretrain_updates=0,
                      prior_source="heuristic", prior_episodes=2)
@@ -132,7 +132,7 @@ def test_flat_baseline_trains_on_its_own_env(tmp_path):
     import gymnasium as gym
 
     from hingelab.envs import TOOL_PICK_FLAT_ID
-    from hingelab.learning.checkpoints import load_sac_zip
+    from hingelab.policies.sb3_zip import load_sac_zip
 
     env = gym.make(TOOL_PICK_FLAT_ID)
     model = load_sac_zip(tmp_path / "flat" / "model.zip", env.observation_space, env.action_space)  # the env's spaces
@@ -143,15 +143,15 @@ def test_flat_baseline_trains_on_its_own_env(tmp_path):
 
 
 def test_high_level_checkpoint_is_refused_beside_another_low_level(tiny_high):
-    from hingelab.learning.high_level_checkpoint import load_high_level_checkpoint
+    from hingelab.policies.high_level import load_high_level_checkpoint
 
     run, _ = tiny_high
     assert load_high_level_checkpoint(run / "model.zip", low_level="privileged") is not None
     with pytest.raises(ConfigError, match="learned over the low level privileged"):
         load_high_level_checkpoint(run / "model.zip", low_level="policy")
     # a policy learned over the shipped low level is refused over another trained one, not over the servo
-    from hingelab.envs.low_level import SHIPPED_LOW_LEVEL_SAC
-    from hingelab.learning.high_level_checkpoint import check_context, training_context
+    from hingelab.policies.low_level import SHIPPED_LOW_LEVEL_SAC
+    from hingelab.policies.high_level import check_context, training_context
 
     model = load_high_level_checkpoint(run / "model.zip")
     model.hingelab_provenance = {**model.hingelab_provenance, **training_context("policy")}
@@ -189,7 +189,7 @@ def test_cli_flags_come_from_the_config(capsys):
     parser = build_parser()
     args = parser.parse_args(["train", "high", "--gamma", "0.95", "--net-arch", "64", "64", "--no-prior",
                               "--c-h1", "50", "--demo-share", "0"])
-    from hingelab.learning.run_config import config_from_args
+    from hingelab.training.run_config import config_from_args
 
     config = config_from_args(args.config_class, args)
     assert config.gamma == 0.95 and config.net_arch == (64, 64) and not config.prior and config.c_h1 == 50
@@ -202,7 +202,7 @@ def test_cli_flags_come_from_the_config(capsys):
     on = parser.parse_args(["train", "high", "--demo-q-filter"])
     assert config_from_args(on.config_class, on).demo_q_filter is True
     assert parser.parse_args(["train", "low", "--bc-no-q-filter"]).demo_q_filter is False
-    from hingelab.learning.low_level_config import LowLevelTrainConfig
+    from hingelab.learners.sac.low_level_config import LowLevelTrainConfig
 
     # a flag not given stays out of the parsed args (a --resume tells it from a default) ...
     assert not hasattr(parser.parse_args(["train", "low"]), "demo_q_filter")
@@ -213,8 +213,8 @@ def test_cli_flags_come_from_the_config(capsys):
 
 def test_pretraining_fits_the_spread_too(tiny_high):
     """--bc-pretrain-std: the actor's spread shrinks toward the demonstrations' (it starts near 1)."""
-    from hingelab.learning.demo_sac import DemoSAC, Demonstrations
-    from hingelab.learning.high_level_prefill import high_level_transitions
+    from hingelab.learners.sac.demo_sac import DemoSAC, Demonstrations
+    from hingelab.training.high_level_demos import high_level_transitions
 
     run, _ = tiny_high
     demos = Demonstrations.from_transitions(high_level_transitions([run / "prior"], actions="recorded"))
@@ -258,7 +258,7 @@ def test_a_start_that_failed_before_its_first_step_runs_again(tmp_path, capsys):
     """A bad --from fails after config.json is written; the same command again gives the same one-line
     error, not 'already holds a run' (a --resume would fail alike), and a started run is still refused."""
     from hingelab.cli.main import main
-    from hingelab.learning.run_folder import has_started
+    from hingelab.training.run_folder import has_started
 
     typo = tmp_path / "demos_typo"
     typo.mkdir()

@@ -15,9 +15,9 @@ import torch
 from hingelab.episodes.dataset import Dataset
 from hingelab.episodes.errors import DatasetError
 from hingelab.errors import ConfigError
-from hingelab.learning import checkpoints as ckpt
-from hingelab.learning.low_level_config import LowLevelTrainConfig
-from hingelab.learning.train_low import train_low
+from hingelab.training import checkpoints as ckpt
+from hingelab.learners.sac.low_level_config import LowLevelTrainConfig
+from hingelab.learners.sac.low_level import train_low
 
 TINY = LowLevelTrainConfig(
     steps=120, n_envs=1, max_episode_steps=10, learning_starts=30, batch_size=16, buffer_size=2000,
@@ -94,7 +94,7 @@ def test_resume_from_a_checkpoint_continues_exactly(tiny_run, tmp_path):
 def test_metrics_log_keeps_every_value_in_its_column(tmp_path):
     """metrics.csv: a row with its columns in another order, or with new ones, lands in the right
     columns; resuming a run whose rows predate schema 2 renames them (success_rate = settled)."""
-    from hingelab.learning.run_folder import MetricsLog
+    from hingelab.training.run_folder import MetricsLog
 
     log = MetricsLog(tmp_path / "metrics.csv")
     log.append({"env_steps": 0, "success_rate": 0.1, "settled_success_rate": 0.5, "wall_time_s": 0.0, "offline": 1})
@@ -137,7 +137,7 @@ def test_prefill_matches_per_transition_add_and_feeds_her(tiny_run):
     from stable_baselines3.common.buffers import DictReplayBuffer
 
     from hingelab.episodes.transitions import fill_replay_buffer
-    from hingelab.learning.replay_prefill import insert_transitions, read_transitions
+    from hingelab.training.buffer_fill import insert_transitions, read_transitions
 
     run, _ = tiny_run
     transitions, episodes = read_transitions([run / "dataset"])
@@ -154,7 +154,7 @@ def test_prefill_matches_per_transition_add_and_feeds_her(tiny_run):
     np.testing.assert_array_equal(fast.dones, slow.dones)
     np.testing.assert_array_equal(fast.timeouts, slow.timeouts)
     # HER: whole episodes per env slot, relabelled samples come out
-    from hingelab.learning.low_level_eval import make_eval_env
+    from hingelab.rollouts.low_level import make_eval_env
     from stable_baselines3.common.vec_env import DummyVecEnv
 
     env = DummyVecEnv([lambda: make_eval_env({"max_episode_steps": 10}), lambda: make_eval_env({"max_episode_steps": 10})])
@@ -171,7 +171,7 @@ def test_prefill_refuses_another_tasks_data(tiny_run):
     from stable_baselines3.common.buffers import ReplayBuffer
     from gymnasium import spaces
 
-    from hingelab.learning.replay_prefill import insert_transitions, read_transitions
+    from hingelab.training.buffer_fill import insert_transitions, read_transitions
 
     run, _ = tiny_run
     transitions, _ = read_transitions([run / "dataset"])
@@ -273,7 +273,7 @@ def test_prefill_relabels_rewards_with_the_runs_own_reward(tiny_run):
     """Recorded with the effort term, the same transitions train a --no-effort run on the goal term alone."""
     import gymnasium as gym
 
-    from hingelab.learning.replay_prefill import read_transitions, relabel_rewards
+    from hingelab.training.buffer_fill import read_transitions, relabel_rewards
 
     run, _ = tiny_run
     recorded, _ = read_transitions([run / "dataset"])
@@ -305,7 +305,7 @@ def test_drift_weight_charges_the_tools_true_drift_beyond_5mm(tiny_run):
     from their recorded drift, and transitions without it are refused for such a run."""
     import gymnasium as gym
 
-    from hingelab.learning.replay_prefill import read_transitions, relabel_rewards
+    from hingelab.training.buffer_fill import read_transitions, relabel_rewards
 
     env = gym.make("hingelab/ToolShape-v0", drift_weight=400.0, goal_sampling="reachable").unwrapped
     env.reset(seed=3)
@@ -341,7 +341,7 @@ def test_drift_weight_charges_the_tools_true_drift_beyond_5mm(tiny_run):
 
 def test_a_goal_band_is_part_of_the_config_and_the_env():
     """--goal-openings LOW:HIGH (an expert's goals): saved as a tuple, given to the env, checked."""
-    from hingelab.learning.low_level_config import LowLevelTrainConfig
+    from hingelab.learners.sac.low_level_config import LowLevelTrainConfig
 
     config = replace(TINY, goal_openings=[0.0, 0.1])
     assert config.goal_openings == (0.0, 0.1) and config.env_arguments()["goal_openings"] == (0.0, 0.1)
@@ -358,8 +358,8 @@ def test_learning_from_demonstrations_pretrains_and_anchors_the_actor(tiny_run, 
     """--bc-pretrain fits the actor to the --from episodes' actions; --bc-weight keeps a
     Q-filtered BC term in the actor loss (DemoSAC owns it); the checkpoint does not carry the
     demonstrations."""
-    from hingelab.learning.demo_sac import DemoSAC, Demonstrations
-    from hingelab.learning.replay_prefill import read_transitions
+    from hingelab.learners.sac.demo_sac import DemoSAC, Demonstrations
+    from hingelab.training.buffer_fill import read_transitions
 
     run, _ = tiny_run
     transitions, _ = read_transitions([run / "dataset"])

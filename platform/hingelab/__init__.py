@@ -21,10 +21,6 @@ def _default_gl_backend() -> None:
 _default_gl_backend()
 
 
-def _register() -> None:
-    from hingelab.envs import register_envs
+from hingelab.tasks import register_envs  # noqa: E402  (after the GL backend: it must precede mujoco)
 
-    register_envs()
-
-
-_register()
+register_envs()

@@ -128,7 +128,7 @@ def load_seed_curves(run_dirs) -> pd.DataFrame:
     return metrics[columns].sort_values(["run", "seed", "env_steps"]).reset_index(drop=True)
 
 
-SWEEP_CSV = "sweep.csv"  # hingelab.cluster.sweep's table of trials (not imported: analysis needs no Ray)
+SWEEP_CSV = "sweep.csv"  # hingelab.sweeps.runner's table of trials (not imported: analysis needs no Ray)
 
 
 def expand_sweeps(run_dirs) -> list[Path]:

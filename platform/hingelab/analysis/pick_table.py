@@ -20,7 +20,7 @@ import pandas as pd
 from hingelab.analysis.wilson import wilson_interval
 from hingelab.errors import ConfigError
 
-# the failure reasons of ToolPick-v0 episodes (hingelab.learning.high_level_eval.FailureReasonWrapper)
+# the failure reasons of ToolPick-v0 episodes (hingelab.rollouts.high_level.FailureReasonWrapper)
 FAILURE_REASONS = ("divergence", "no_camera_cloud", "tool_drop", "slip", "table_collision", "missed_grasp", "timeout")
 
 

@@ -37,7 +37,7 @@ from hingelab.analysis.wilson import wilson_interval
 from hingelab.errors import ConfigError
 
 DEFAULT_BAND_EDGES = (0.10, 0.18, 0.22)  # rad: the bands analysis/low-level-experts/README.md reads
-THIRDS = ("closed", "middle", "open")  # hingelab.learning.low_level_envs.REGIONS
+THIRDS = ("closed", "middle", "open")  # hingelab.rollouts.low_level_goals.REGIONS
 DRIFT_LIMIT_MM = 10.0  # "the tool < 1 cm": its largest drift in the hand over the episode
 EPISODES_FILE = "episodes.csv"
 

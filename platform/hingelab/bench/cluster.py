@@ -31,9 +31,10 @@ import numpy as np
 from hingelab.bench.table import BenchTable
 
 # the code this benchmark measures (the bench's own module is added by hingelab.bench.measured_paths)
-MEASURES = ("platform/hingelab/cluster", "platform/hingelab/learning/eval_on_ray.py",
-            "platform/hingelab/learning/low_level_eval.py", "platform/hingelab/learning/low_level_checkpoint.py",
-            "platform/hingelab/heuristic", "platform/hingelab/envs", "platform/hingelab/episodes")
+MEASURES = ("platform/hingelab/workers", "platform/hingelab/rollouts/on_ray.py",
+            "platform/hingelab/rollouts/low_level.py", "platform/hingelab/policies/low_level.py",
+            "platform/hingelab/heuristic", "platform/hingelab/rollouts/heuristic_demos.py", "platform/hingelab/envs",
+            "platform/hingelab/episodes")
 
 WORKERS = 2
 ROUNDS = 3
@@ -68,7 +69,7 @@ def _pool_arm(factory, items) -> tuple[float, float]:
 
 
 def _ray_arm(factory, items) -> tuple[float, float]:
-    from hingelab.cluster.fan_out import fan_out
+    from hingelab.workers.ray_fan_out import fan_out
 
     start = time.perf_counter()
     stamps = []
@@ -94,12 +95,13 @@ def _ray_overheads(ray, tasks: int) -> dict:
 
 
 def _workloads(root: Path, quick: bool):
-    from hingelab.envs.low_level import SHIPPED_LOW_LEVEL, PolicyLowLevel
+    from hingelab.envs.low_level import PolicyLowLevel
+    from hingelab.policies.low_level import SHIPPED_LOW_LEVEL
     from hingelab.episodes import create_dataset
-    from hingelab.heuristic.rollout import HeuristicEpisodes, HeuristicRunConfig, episode_seed
-    from hingelab.learning.eval_on_ray import LowLevelEpisodes
-    from hingelab.learning.low_level_checkpoint import evaluation_env_arguments
-    from hingelab.learning.low_level_eval import make_eval_env, sampled_goals
+    from hingelab.rollouts.heuristic_demos import HeuristicEpisodes, HeuristicRunConfig, episode_seed
+    from hingelab.rollouts.on_ray import LowLevelEpisodes
+    from hingelab.rollouts.low_level import evaluation_env_arguments
+    from hingelab.rollouts.low_level import make_eval_env, sampled_goals
 
     env_args = {**evaluation_env_arguments(PolicyLowLevel(SHIPPED_LOW_LEVEL).model), "randomize": True}
     env = make_eval_env(env_args)
@@ -126,7 +128,7 @@ def _episode_bytes(folder: Path) -> tuple[float, int]:
 
 
 def run(quick: bool = False) -> BenchTable:
-    from hingelab.cluster.ray_runtime import ray_session
+    from hingelab.workers.ray_runtime import ray_session
 
     root = Path(tempfile.mkdtemp(prefix="hingelab_bench_cluster_"))
     rows, ratios, notes = [], {}, []
@@ -159,7 +161,7 @@ def run(quick: bool = False) -> BenchTable:
             ratios[f"{name.split(' (')[0]}: Ray tasks / local worker processes"] = ray_rate / pool_rate
         notes += [
             f"{WORKERS} workers in both arms: a local one-node Ray of {WORKERS} CPUs (one task per episode, 1 CPU each; "
-            f"hingelab.cluster.fan_out) against a multiprocessing spawn pool of {WORKERS} processes, the same episode "
+            f"hingelab.workers.ray_fan_out) against a multiprocessing spawn pool of {WORKERS} processes, the same episode "
             "runner (env and policy built once per worker) writing MCAP into a fresh dataset folder.",
             f"Rates are steady: episodes per second after the first {WORKERS} results (the workers' start-up) to the "
             f"last, the best of {rounds} interleaved rounds per arm (pool, then Ray, per workload and round); 'first "

@@ -40,7 +40,7 @@ from hingelab.paths import ANALYSIS_DIR
 MEASURES = ("platform/hingelab/perception", "platform/hingelab/sim/names.py", "assets/tweezer",
             "assets/checkpoints/encoder.pt", "platform/hingelab/camera.py", "platform/hingelab/sim/rig_camera.py",
             "platform/hingelab/sim/depth_render.py", "platform/hingelab/sim/depth_noise.py",
-            "platform/hingelab/envs/tool_perception.py", "platform/hingelab/envs/__init__.py",
+            "platform/hingelab/perception/tool_perception.py", "platform/hingelab/envs/__init__.py",
             "platform/hingelab/sim/core.py")
 
 PLOT_PATH = ANALYSIS_DIR / "perception" / "latent_space.png"
@@ -314,7 +314,7 @@ def bench_camera(frames: int, rows: list, notes: list) -> dict:
     from scipy.spatial import cKDTree
 
     from hingelab.camera import AZURE_KINECT_NFOV_UNBINNED
-    from hingelab.envs.tool_perception import CameraClouds
+    from hingelab.perception.tool_perception import CameraClouds
     from hingelab.perception.camera_cloud import ToolCloudConfig, remove_statistical_outliers, voxel_downsample
     from hingelab.sim.core import SimCore
 

@@ -9,7 +9,7 @@ glibc's heap, differ between them):
 - ``SB3 SAC``: ``stable_baselines3.SAC`` as it comes: the baseline;
 - ``SB3 SAC + configure_torch``: the same with hingelab's process settings, which separates
   them from FastSAC's own changes;
-- ``FastSAC + configure_torch``: ``hingelab.learning.fast_sac``, what ``hingelab train low``
+- ``FastSAC + configure_torch``: ``hingelab.learners.sac.fast_sac``, what ``hingelab train low``
   uses: ours.
 
 In each round every arm runs one block of updates, one arm at a time, in an order shuffled per
@@ -33,7 +33,7 @@ import numpy as np
 from hingelab.bench.table import BenchTable
 
 # the code this benchmark measures (the bench's own module is added by hingelab.bench.measured_paths)
-MEASURES = ("platform/hingelab/learning/fast_sac.py",)
+MEASURES = ("platform/hingelab/learners/sac/fast_sac.py",)
 
 SEED = 0
 BATCH_SIZE = 256
@@ -174,7 +174,7 @@ def _worker(arm: str, connection: Any) -> None:
         import torch as th
         from stable_baselines3 import SAC
 
-        from hingelab.learning.fast_sac import FastSAC, configure_torch
+        from hingelab.learners.sac.fast_sac import FastSAC, configure_torch
 
         _role, algorithm, process_settings = ARMS[arm]
         if process_settings:

@@ -32,7 +32,8 @@ from hingelab.bench.table import BenchTable
 
 # the code and models this benchmark measures (the bench module itself: hingelab.bench.measured_paths):
 # `hingelab train low` whole (its envs, recording, replay pre-fill, reports) and its algorithm
-MEASURES = ("platform/hingelab/learning", "platform/hingelab/envs", "platform/hingelab/sim",
+MEASURES = ("platform/hingelab/learners", "platform/hingelab/training", "platform/hingelab/rollouts",
+            "platform/hingelab/policies", "platform/hingelab/envs", "platform/hingelab/sim",
             "platform/hingelab/perception", "platform/hingelab/episodes", "platform/hingelab/analysis", "assets")
 
 SEED = 0
@@ -64,10 +65,10 @@ def bench_updates(blocks: int, per_block: int, rows: list, ratios: dict, notes: 
     from stable_baselines3 import SAC
     from stable_baselines3.common.logger import configure
 
-    from hingelab.learning.low_level_config import LowLevelTrainConfig
-    from hingelab.learning.low_level_eval import make_eval_env
-    from hingelab.learning.sac_run import algorithm_class
-    from hingelab.learning.train_low import build_model
+    from hingelab.learners.sac.low_level_config import LowLevelTrainConfig
+    from hingelab.rollouts.low_level import make_eval_env
+    from hingelab.learners.sac.run import algorithm_class
+    from hingelab.learners.sac.low_level import build_model
 
     default_threads = torch.get_num_threads()
     config = LowLevelTrainConfig(buffer_size=20_000)
@@ -109,7 +110,7 @@ def _bare_learn_rate(warmup: int, steps: int, env=None) -> float:
     from stable_baselines3 import SAC
     from stable_baselines3.common.callbacks import BaseCallback
 
-    from hingelab.learning.low_level_eval import make_eval_env
+    from hingelab.rollouts.low_level import make_eval_env
 
     class Clock(BaseCallback):
         def _on_step(self) -> bool:
@@ -141,8 +142,8 @@ def _our_learn_rate(train, config, warmup: int, steps: int, run_dir: Path, **qui
 
 
 def bench_learn(warmup: int, steps: int, rows: list, ratios: dict, notes: list, tmp: Path) -> Path:
-    from hingelab.learning.low_level_config import LowLevelTrainConfig
-    from hingelab.learning.train_low import train_low
+    from hingelab.learners.sac.low_level_config import LowLevelTrainConfig
+    from hingelab.learners.sac.low_level import train_low
 
     base = LowLevelTrainConfig(seed=SEED)
     bare = _bare_learn_rate(warmup, steps)
@@ -164,8 +165,8 @@ def bench_learn(warmup: int, steps: int, rows: list, ratios: dict, notes: list, 
 def bench_learn_high(warmup: int, steps: int, rows: list, ratios: dict, notes: list, tmp: Path) -> None:
     import gymnasium as gym
 
-    from hingelab.learning.high_level_config import HighLevelTrainConfig
-    from hingelab.learning.train_high import train_high
+    from hingelab.learners.sac.high_level_config import HighLevelTrainConfig
+    from hingelab.learners.sac.high_level import train_high
 
     base = HighLevelTrainConfig(seed=SEED, prior=False)
     bare = _bare_learn_rate(warmup, steps, env=gym.make(base.env_id, **base.env_arguments()))
@@ -190,8 +191,8 @@ def bench_prefill(dataset: Path, repeats: int, rows: list, ratios: dict, notes: 
 
     from hingelab.episodes.dataset import Dataset
     from hingelab.episodes.transitions import dataset_transitions, fill_replay_buffer
-    from hingelab.learning.low_level_eval import make_eval_env
-    from hingelab.learning.replay_prefill import prefill_replay_buffer
+    from hingelab.rollouts.low_level import make_eval_env
+    from hingelab.training.buffer_fill import prefill_replay_buffer
 
     env = make_eval_env({})
     spaces = env.observation_space, env.action_space

@@ -28,12 +28,12 @@ def add_parser(subparsers) -> None:
 
 def run_convert(args: argparse.Namespace) -> int:
     from hingelab.errors import ConfigError
-    from hingelab.learning.safe_sb3 import read_plain_data
+    from hingelab.policies.sb3_zip import read_plain_data
     from hingelab.perception.encoder import SHIPPED_CHECKPOINT, convert_checkpoint
 
     for path in args.files or [SHIPPED_CHECKPOINT]:
         if path.is_dir():
-            from hingelab.learning.checkpoints import convert_pickled
+            from hingelab.training.checkpoints import convert_pickled
 
             rewritten = convert_pickled(path)
             print(f"{path}: {len(rewritten)} pickled checkpoint(s) rewritten as state.json and replay_buffer.npz"
@@ -42,7 +42,7 @@ def run_convert(args: argparse.Namespace) -> int:
         if not path.is_file():
             raise ConfigError(f"{path} does not exist")
         if path.suffix == ".zip":
-            from hingelab.learning.phase_clone import PhaseClone, is_phase_clone
+            from hingelab.policies.phase_clone import PhaseClone, is_phase_clone
 
             if is_phase_clone(path):
                 PhaseClone.load(path)

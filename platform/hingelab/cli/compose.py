@@ -1,6 +1,6 @@
 """``hingelab compose low``: one low-level policy from experts that each serve a band of goal openings.
 
-Writes a manifest (``hingelab.learning.goal_experts``) that ``hingelab eval low``, ToolPick-v0's
+Writes a manifest (``hingelab.policies.goal_experts``) that ``hingelab eval low``, ToolPick-v0's
 ``low_level=`` and ``PolicyLowLevel`` take wherever they take a checkpoint.
 """
 
@@ -49,7 +49,7 @@ def parse_expert(text: str) -> tuple[Path, float | None]:
 
 
 def run_low(args: argparse.Namespace) -> int:
-    from hingelab.learning.goal_experts import load_experts, write_experts
+    from hingelab.policies.goal_experts import load_experts, write_experts
 
     from hingelab.paths import refuse_to_replace_shipped
 

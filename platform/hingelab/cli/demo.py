@@ -93,7 +93,7 @@ DEMO_OUT = ANALYSIS_DIR / "demo"
 
 def step_heuristic_demos(seed: int) -> dict:
     """Issue 5: heuristic demos on ToolPick-v0, recorded as an MCAP dataset."""
-    from hingelab.heuristic.rollout import HeuristicRunConfig, generate_heuristic_dataset, summarize
+    from hingelab.rollouts.heuristic_demos import HeuristicRunConfig, generate_heuristic_dataset, summarize
 
     shutil.rmtree(DEMO_DATASET, ignore_errors=True)  # the demo's own output: remade each run
     config = HeuristicRunConfig(episodes=3, seed=seed)
@@ -109,10 +109,11 @@ DEMO_LOW_LEVEL_DATASET = DATASETS_DIR / "demo_low_level"
 
 def step_low_level_policy(seed: int) -> dict:
     """Issue 7: the shipped low-level policy shapes the tweezer to latent goals (ToolShape-v0)."""
-    from hingelab.envs.low_level import SHIPPED_LOW_LEVEL, PolicyLowLevel
+    from hingelab.envs.low_level import PolicyLowLevel
+    from hingelab.policies.low_level import SHIPPED_LOW_LEVEL
     from hingelab.episodes import create_dataset
-    from hingelab.learning.low_level_checkpoint import evaluation_env_arguments
-    from hingelab.learning.low_level_eval import evaluate_sampled_goals, make_eval_env, region_table
+    from hingelab.rollouts.low_level import evaluation_env_arguments
+    from hingelab.rollouts.low_level import evaluate_sampled_goals, make_eval_env, region_table
 
     shutil.rmtree(DEMO_LOW_LEVEL_DATASET, ignore_errors=True)
     policy = PolicyLowLevel(SHIPPED_LOW_LEVEL).model
@@ -150,7 +151,7 @@ def _pick_sphere(policy, label: str, dataset, seed: int, name: str, description:
     """``HIERARCHY_EPISODES`` episodes of ``policy`` on ToolPick-v0 (2 cm sphere) over the shipped
     low-level policy, recorded into ``dataset`` as `hingelab eval high` records them."""
     from hingelab.episodes import create_dataset
-    from hingelab.learning import high_level_eval as H
+    from hingelab.rollouts import high_level as H
 
     create_dataset(dataset, name=name, source="high_level_evaluation",
                    config={"policy": label, "low_level": "policy", "object": "sphere", "size": 0.02,
@@ -175,10 +176,10 @@ def _pick_sphere(policy, label: str, dataset, seed: int, name: str, description:
 def step_scripted_hierarchy(seed: int) -> dict:
     """Issue 26's reference: the hierarchy with a scripted high level (the heuristic's arm motion, its
     hinge command as a latent goal) over the shipped low-level policy."""
-    from hingelab.learning import high_level_eval as H
+    from hingelab.rollouts import high_level as H
 
     shutil.rmtree(DEMO_HIERARCHY_DATASET, ignore_errors=True)
-    return _pick_sphere(H.baseline_policy("scripted"), "scripted high level", DEMO_HIERARCHY_DATASET, seed,
+    return _pick_sphere(load_policy("scripted"), "scripted high level", DEMO_HIERARCHY_DATASET, seed,
                         "demo-scripted-hierarchy",
                         "hingelab demo: hingelab eval high --baseline scripted over the shipped low level")
 
@@ -186,15 +187,15 @@ def step_scripted_hierarchy(seed: int) -> dict:
 def step_learned_hierarchy(seed: int) -> dict:
     """Issue 26: the shipped high-level policy (assets/checkpoints/high_level.zip) over the shipped
     low-level policy picks the sphere, as `hingelab eval high` runs it."""
-    from hingelab.learning import high_level_eval as H
-    from hingelab.learning.high_level_checkpoint import SHIPPED_HIGH_LEVEL, load_high_level_checkpoint, observes_extent
+    from hingelab.policies import ModelPolicy
+    from hingelab.policies.high_level import SHIPPED_HIGH_LEVEL, load_high_level_checkpoint, observes_extent
 
     shutil.rmtree(DEMO_LEARNED_DATASET, ignore_errors=True)
     if not SHIPPED_HIGH_LEVEL.exists():
         print(f"  no shipped high-level policy ({SHIPPED_HIGH_LEVEL}) yet: step skipped")
         return {"skipped": True}
     model = load_high_level_checkpoint(SHIPPED_HIGH_LEVEL, low_level="policy")
-    return _pick_sphere(H.ModelPolicy(model), SHIPPED_HIGH_LEVEL.name, DEMO_LEARNED_DATASET, seed,
+    return _pick_sphere(ModelPolicy(model), SHIPPED_HIGH_LEVEL.name, DEMO_LEARNED_DATASET, seed,
                         "demo-learned-hierarchy",
                         "hingelab demo: the shipped high-level policy over the shipped low-level policy",
                         observe_extent=observes_extent(model))
@@ -207,7 +208,7 @@ def step_stand_in_trial(seed: int) -> dict:
     """Issue 28: one `hingelab trial` on the MuJoCo stand-in of the rig: the depth camera's frames through
     the camera cloud pipeline, the shipped hierarchy acting through the robot interface."""
     from hingelab.episodes import create_dataset
-    from hingelab.learning.high_level_checkpoint import SHIPPED_HIGH_LEVEL
+    from hingelab.policies.high_level import SHIPPED_HIGH_LEVEL
     from hingelab.robot.controller import CheckpointHighLevel, HierarchicalController
     from hingelab.robot.stand_in import StandInRobot
     from hingelab.robot.trial import TrialConfig, run_trials
@@ -276,8 +277,8 @@ def step_sweep(seed: int) -> dict:
     `train low`, as Ray tasks on a local one-node Ray with this machine's cores."""
     import os
 
-    from hingelab.cluster.sweep import SWEEP_CSV, run_sweep, summary
-    from hingelab.cluster.sweep_file import load_sweep
+    from hingelab.sweeps.runner import SWEEP_CSV, run_sweep, summary
+    from hingelab.sweeps.spec import load_sweep
 
     shutil.rmtree(DEMO_SWEEP, ignore_errors=True)  # the demo's own output: remade each run
     try:

@@ -8,7 +8,7 @@ recorded ``success``, so ``hingelab report`` of ``--out`` counts the same episod
 
 ``high``: a high-level checkpoint (SAC or phase clone), or a baseline (heuristic, scripted, scripted-observed, scripted-feedback,
 random), on ToolPick-v0
-(``hingelab.learning.high_level_eval``): success within 200 steps and at the first attempt,
+(``hingelab.rollouts.high_level``): success within 200 steps and at the first attempt,
 attempts and failure reasons per episode; a table with Wilson 95% intervals (table.csv, report.md).
 
 ``perception``: the depth camera's perception against the synthesized clouds on the same poses
@@ -98,13 +98,15 @@ def add_parser(subparsers) -> None:
 
 
 def run_low(args: argparse.Namespace) -> int:
-    from hingelab.envs.low_level import SHIPPED_LOW_LEVEL, PolicyLowLevel
+    from hingelab.envs.low_level import PolicyLowLevel
+    from hingelab.policies.low_level import SHIPPED_LOW_LEVEL
     from hingelab.episodes import create_dataset
     from hingelab.errors import ConfigError
     from hingelab.envs.tool_shape import SETTLE_STEPS
-    from hingelab.learning.low_level_checkpoint import evaluation_env_arguments
-    from hingelab.learning.eval_journal import prepare_resume
-    from hingelab.learning.low_level_eval import evaluate_sampled_goals, make_eval_env, reference_policy, region_table
+    from hingelab.rollouts.low_level import evaluation_env_arguments
+    from hingelab.rollouts.journal import prepare_resume
+    from hingelab.policies import load_policy
+    from hingelab.rollouts.low_level import evaluate_sampled_goals, make_eval_env, region_table
 
     if args.baseline and args.checkpoint is not None:
         raise ConfigError("give a checkpoint or --baseline, not both")
@@ -131,11 +133,11 @@ def run_low(args: argparse.Namespace) -> int:
                        seed=args.seed, description="hingelab eval low: a low-level policy toward reachable goals")
     env = make_eval_env(env_args, record_dir=None if args.ray else args.out)  # --ray: the tasks record
     unwrapped = env.unwrapped
-    policy = reference_policy(args.baseline, env) if args.baseline else model
+    policy = load_policy(args.baseline, env=env) if args.baseline else model
     with stop_cleanly_on_a_full_disk(args, journal):
         if args.ray:
-            from hingelab.learning.eval_on_ray import evaluate_low_on_ray
-            from hingelab.learning.low_level_eval import sampled_goals
+            from hingelab.rollouts.on_ray import evaluate_low_on_ray
+            from hingelab.rollouts.low_level import sampled_goals
 
             goals = sampled_goals(unwrapped.calibration, unwrapped.reachable_range, args.episodes, args.seed)
             episodes = evaluate_low_on_ray(goals, env_args, args.out, args.checkpoint, args.baseline, journal,
@@ -175,7 +177,7 @@ def run_low(args: argparse.Namespace) -> int:
 def stop_cleanly_on_a_full_disk(args: argparse.Namespace, journal):
     """A full disk during an evaluation: one line (folder, free space, episodes kept), resumable."""
     from hingelab.disk_full import disk_full_error, is_disk_full
-    from hingelab.learning.eval_journal import command_line
+    from hingelab.rollouts.journal import command_line
 
     try:
         yield
@@ -188,15 +190,15 @@ def stop_cleanly_on_a_full_disk(args: argparse.Namespace, journal):
 
 def run_high(args: argparse.Namespace) -> int:
     from hingelab.analysis.documents import markdown_table
-    from hingelab.learning.eval_journal import prepare_resume
+    from hingelab.rollouts.journal import prepare_resume
     from hingelab.episodes import create_dataset
     from hingelab.errors import ConfigError
-    from hingelab.learning import high_level_eval as H
+    from hingelab.rollouts import high_level as H
 
     if args.baseline and args.checkpoint is not None:
         raise ConfigError("give a checkpoint or --baseline, not both")
     if args.checkpoint is None and not args.baseline:
-        from hingelab.learning.high_level_checkpoint import SHIPPED_HIGH_LEVEL
+        from hingelab.policies.high_level import SHIPPED_HIGH_LEVEL
 
         if not SHIPPED_HIGH_LEVEL.exists():
             raise ConfigError(f"there is no shipped high-level policy ({SHIPPED_HIGH_LEVEL}) yet: give a SAC "
@@ -206,17 +208,17 @@ def run_high(args: argparse.Namespace) -> int:
     if args.episodes < 1:
         raise ConfigError("--episodes must be at least 1")
     if args.baseline:
-        policy, label, observe_extent = H.baseline_policy(args.baseline), args.baseline, False
+        policy, label, observe_extent = load_policy(args.baseline), args.baseline, False
         # the heuristic bypasses the low level: privileged, as in hingelab generate heuristic
         low_level = "privileged" if args.baseline == "heuristic" else (args.low_level or "policy")
     else:
-        from hingelab.learning.high_level_checkpoint import check_context, load_high_level_checkpoint, observes_extent
+        from hingelab.policies.high_level import check_context, load_high_level_checkpoint, observes_extent
 
         model = load_high_level_checkpoint(args.checkpoint)
         recorded = getattr(model, "hingelab_provenance", None) or {}
         low_level = args.low_level or recorded.get("low_level", "policy")
         check_context(model, args.checkpoint, low_level)
-        policy, label = H.ModelPolicy(model), str(args.checkpoint)
+        policy, label = ModelPolicy(model), str(args.checkpoint)
         observe_extent = observes_extent(model)
     # bad object or low level: an error before files
     H.make_eval_env(args.object, args.size, low_level, observe_extent=observe_extent,
@@ -238,7 +240,7 @@ def run_high(args: argparse.Namespace) -> int:
                    "extra_metadata": {"policy": label, "low_level": low_level, "perception": args.perception},
                    "perception": args.perception}
     if args.ray:
-        from hingelab.learning.eval_on_ray import evaluate_high_on_ray
+        from hingelab.rollouts.on_ray import evaluate_high_on_ray
 
         with stop_cleanly_on_a_full_disk(args, journal):
             episodes = evaluate_high_on_ray(args.episodes, args.seed, env_options, args.out, args.checkpoint,
@@ -271,7 +273,7 @@ def run_high(args: argparse.Namespace) -> int:
         f"seed {H.SEED_BASE} + {args.seed} * {H.SEED_STRIDE} + i, the same for every policy), low level "
         f"{low_level}. `success`: the env's verdict, object within 1 cm of the target within 200 steps; "
         f"`first_attempt_`: that before any grasp was lost; intervals are Wilson 95%; failure reasons as in "
-        f"`hingelab.learning.high_level_eval`.\n\n" + markdown_table(table.round(3)) + "\n\n" + summary + "\n")
+        f"`hingelab.rollouts.high_level`.\n\n" + markdown_table(table.round(3)) + "\n\n" + summary + "\n")
     print(table.to_string(index=False, float_format=lambda v: f"{v:.3f}"))
     print(summary)
     return 0

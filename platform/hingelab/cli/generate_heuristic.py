@@ -10,7 +10,7 @@ from hingelab.paths import DATASETS_DIR
 
 
 def add_heuristic_parser(sources) -> None:
-    from hingelab.heuristic.rollout import HeuristicRunConfig
+    from hingelab.rollouts.heuristic_demos import HeuristicRunConfig
 
     d = HeuristicRunConfig()
     p = sources.add_parser(
@@ -44,7 +44,7 @@ def add_heuristic_parser(sources) -> None:
 
 
 def run_heuristic(args: argparse.Namespace) -> int:
-    from hingelab.heuristic.rollout import HeuristicRunConfig, generate_heuristic_dataset, summarize, timed
+    from hingelab.rollouts.heuristic_demos import HeuristicRunConfig, generate_heuristic_dataset, summarize, timed
 
     config = HeuristicRunConfig(episodes=args.episodes, object=args.object, size=args.size, mass=args.mass,
                                 seed=args.seed, workers=args.workers, randomize=not args.no_randomize)

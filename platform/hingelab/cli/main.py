@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import argparse
 import importlib
+import inspect
 import os
 import sys
 
@@ -32,7 +33,10 @@ VERB_MODULES = [
 ]
 
 
-def build_parser() -> argparse.ArgumentParser:
+def build_parser(argv: list[str] | None = None) -> argparse.ArgumentParser:
+    """The whole command line; ``argv`` lets a verb build its flags for the command line at hand
+    (``hingelab train high --learner NAME`` gets that learner's flags)."""
+    argv = list(sys.argv[1:] if argv is None else argv)
     parser = argparse.ArgumentParser(
         prog="hingelab",
         description=(
@@ -48,7 +52,10 @@ def build_parser() -> argparse.ArgumentParser:
             if exc.name == name:  # verb not built yet
                 continue
             raise
-        module.add_parser(subparsers)
+        if "argv" in inspect.signature(module.add_parser).parameters:
+            module.add_parser(subparsers, argv)
+        else:
+            module.add_parser(subparsers)
     return parser
 
 
@@ -70,7 +77,7 @@ def main(argv: list[str] | None = None) -> int:
     if problem:
         print(f"hingelab: error: {problem}", file=sys.stderr)
         return 1
-    parser = build_parser()
+    parser = build_parser(argv)
     args = parser.parse_args(argv)
     args.argv = list(sys.argv[1:] if argv is None else argv)  # the command line (a resume hint repeats it)
     if not hasattr(args, "func"):

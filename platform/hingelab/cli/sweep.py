@@ -41,8 +41,8 @@ def add_parser(subparsers) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from hingelab.cluster.sweep import run_sweep, summary
-    from hingelab.cluster.sweep_file import load_sweep
+    from hingelab.sweeps.runner import run_sweep, summary
+    from hingelab.sweeps.spec import load_sweep
     from hingelab.errors import ConfigError
 
     if args.address is not None and args.cpus is not None:

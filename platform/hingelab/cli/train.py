@@ -1,38 +1,99 @@
-"""``hingelab train WHAT``: train a learner from datasets.
+"""``hingelab train WHAT``: train the tool encoder, or a policy with one of the registered learners.
 
-One sub-subcommand per learner. ``LEARNERS`` maps a name to the function that adds its
-sub-subcommand (``"module:function"``, imported on use), so a later learner (``low``,
-``high``) is one entry here and one module of its own. Each run shows progress, logs
-per-epoch metrics, writes a checkpoint that records its data, config, seed and code
-version, and ends with a one-paragraph summary.
+``train encoder`` trains the PointNet VAE from a cloud dataset. ``train low|high|flat [--learner NAME]``
+trains a policy with a learner of ``hingelab.learners`` (the default ``sac``); the flags are the chosen
+learner's config fields (``--learner`` is read from the command line before the parser is built, so
+``--help`` lists what applies to it), the run folder's flags are every learner's. A ``--resume`` without
+``--learner`` continues with the learner the run folder records.
 """
 
 from __future__ import annotations
 
 import argparse
-import importlib
 from pathlib import Path
 
 from hingelab.errors import ConfigError
-
-LEARNERS = {
-    "encoder": "hingelab.cli.train:add_encoder_parser",
-    "low": "hingelab.cli.train:add_low_parser",
-    "high": "hingelab.cli.train_high:add_high_parser",
-    "flat": "hingelab.cli.train_high:add_flat_parser",
-}
+from hingelab.learners import registry
+from hingelab.training.run_config import config_from_args, given_settings
 
 
-def add_parser(subparsers) -> None:
+def add_parser(subparsers, argv: list[str] = ()) -> None:
     p = subparsers.add_parser(
         "train",
         help="train the tool encoder or a policy from datasets",
-        description=f"Train a learner from datasets. Learners: {', '.join(LEARNERS)}.",
+        description="Train the tool encoder, or a policy with a registered learner: "
+                    + "; ".join(f"{level}: {', '.join(registry.learners(level))}" for level in registry.LEVELS) + ".",
     )
-    learners = p.add_subparsers(title="learners", metavar="WHAT", required=True)
-    for name, target in LEARNERS.items():
-        module, function = target.split(":")
-        getattr(importlib.import_module(module), function)(learners)
+    levels = p.add_subparsers(title="what to train", metavar="WHAT", required=True)
+    add_encoder_parser(levels)
+    for level in registry.LEVELS:
+        add_policy_parser(levels, level, chosen_learner(list(argv), level))
+
+
+def chosen_learner(argv: list[str], level: str) -> str:
+    """The ``--learner`` of ``train LEVEL`` on this command line; on a ``--resume`` without it, the learner
+    the ``--out`` run folder records; else the default."""
+    try:
+        start = argv.index("train") + 1
+    except ValueError:
+        return registry.DEFAULT_LEARNER
+    if start >= len(argv) or argv[start] != level:
+        return registry.DEFAULT_LEARNER
+    args = argv[start + 1:]
+    for i, token in enumerate(args):
+        if token == "--learner" and i + 1 < len(args):
+            return args[i + 1]
+        if token.startswith("--learner="):
+            return token.split("=", 1)[1]
+    if "--resume" in args:
+        for i, token in enumerate(args):
+            out = args[i + 1] if token == "--out" and i + 1 < len(args) else (
+                token.split("=", 1)[1] if token.startswith("--out=") else None)
+            if out:
+                return registry.run_learner(out) or registry.DEFAULT_LEARNER
+    return registry.DEFAULT_LEARNER
+
+
+def add_policy_parser(levels, level: str, name: str) -> None:
+    found = registry.learners(level)
+    learner = found.get(name) or found[registry.DEFAULT_LEARNER]
+    p = levels.add_parser(level, help=found[registry.DEFAULT_LEARNER].help, description=learner.description)
+    registry.add_learner_arguments(p, level, learner)
+    p.set_defaults(func=run_policy, level=level, learner_class=learner)
+
+
+def run_policy(args: argparse.Namespace) -> int:
+    from hingelab.paths import REPO_ROOT, refuse_to_replace_shipped
+    from hingelab.training.run_folder import resumed_config
+
+    learner = args.learner_class
+    if args.learner != learner.name:  # argparse took a --learner the pre-scan did not see (an abbreviation)
+        raise ConfigError(f"--learner {args.learner}: write it out as --learner {args.learner} (not abbreviated)")
+    # paths the run records: absolute, so the run folder says where its inputs were wherever it is run
+    if getattr(args, "init_from", ""):
+        args.init_from = str(Path(args.init_from).resolve())
+    if hasattr(args, "from_datasets"):
+        args.from_datasets = tuple(str(Path(p).resolve()) if args.level != "low" else str(p)
+                                   for p in args.from_datasets)
+    if getattr(args, "low_level", "none") not in ("policy", "privileged", "none"):
+        args.low_level = str(Path(args.low_level).resolve())
+    config = config_from_args(learner.config_class, args)
+    if args.out is None:
+        default = learner.default_out_for(config) if hasattr(learner, "default_out_for") else \
+            learner.default_out.format(SEED=config.seed)
+        out = REPO_ROOT / default
+    else:
+        out = args.out
+    refuse_to_replace_shipped(out, args.force)
+    if args.resume:
+        recorded = registry.run_learner(out)
+        if recorded is not None and recorded != learner.name:
+            raise ConfigError(f"{out} is a run of --learner {recorded}, not {learner.name}: resume it with "
+                              f"--learner {recorded}")
+        config = resumed_config(out, config, given_settings(learner.config_class, args))
+    result = learner.train(config, out, resume=args.resume, progress=not args.no_progress, name=args.name)
+    print(learner.summary(result, config, out))
+    return 0
 
 
 # ---------------------------------------------------------------------------- encoder
@@ -127,68 +188,4 @@ def run_curve_recalibration(args: argparse.Namespace) -> int:
           f"{m['r2_opening_after']:.4f}; ToolShape-v0's success threshold {m['success_threshold_before']:.4f} -> "
           f"{m['success_threshold_after']:.4f}. Fingerprint {m['fingerprint_before']} -> {encoder.fingerprint} "
           "(policies trained beside the old one still load).")
-    return 0
-
-
-# ---------------------------------------------------------------------------- low
-def add_run_arguments(p, default_out: str) -> None:
-    """The flags every SAC learner's command has besides its config's."""
-    p.add_argument("--out", type=Path, default=None,
-                   help=f"run folder (default {default_out}); never under assets/ without --force")
-    p.add_argument("--force", action="store_true", help="allow a run folder that replaces files under assets/")
-    p.add_argument("--resume", action="store_true",
-                   help="continue the run in --out from its last checkpoint (its saved config is kept; "
-                        "--steps may raise the budget)")
-    p.add_argument("--name", default=None, help="curve label in reports (default: the run folder's name)")
-    p.add_argument("--no-progress", action="store_true", help="no progress bar")
-
-
-def add_low_parser(learners) -> None:
-    from hingelab.learning.low_level_config import LowLevelTrainConfig
-    from hingelab.learning.run_config import add_config_arguments
-
-    p = learners.add_parser(
-        "low",
-        help="the low-level policy: SAC shaping the tweezer to latent goals (ToolShape-v0)",
-        description="Train the goal-conditioned low-level SAC policy on hingelab/ToolShape-v0. Every training "
-                    "rollout is written as MCAP episodes into RUNDIR/dataset; evaluations on fixed held-out "
-                    "goals go to RUNDIR/metrics.csv (hingelab report RUNDIR draws the curves); checkpoints "
-                    "with the replay buffer go to RUNDIR/checkpoints (continue with --resume). All settings "
-                    "are saved in RUNDIR/config.json; every one of them is a flag below.",
-    )
-    add_config_arguments(p, LowLevelTrainConfig)
-    add_run_arguments(p, "runs/low_seed{SEED}[_no_effort]")
-    p.set_defaults(func=run_low)
-
-
-def run_low(args: argparse.Namespace) -> int:
-    from hingelab.learning.low_level_config import LowLevelTrainConfig
-    from hingelab.learning.run_config import config_from_args, given_settings
-    from hingelab.learning.run_folder import resumed_config
-    from hingelab.learning.train_low import train_low
-    from hingelab.paths import REPO_ROOT, refuse_to_replace_shipped
-
-    if getattr(args, "init_from", ""):  # the run folder records where it started from, wherever it is run
-        args.init_from = str(Path(args.init_from).resolve())
-    if hasattr(args, "from_datasets"):
-        args.from_datasets = tuple(str(p) for p in args.from_datasets)
-    config = config_from_args(LowLevelTrainConfig, args)
-    out = args.out or REPO_ROOT / "runs" / f"low_seed{config.seed}{'' if config.use_effort else '_no_effort'}"
-    refuse_to_replace_shipped(out, args.force)
-    if args.resume:
-        config = resumed_config(out, config, given_settings(LowLevelTrainConfig, args))
-    s = train_low(config, out, resume=args.resume, progress=not args.no_progress, name=args.name)
-    last, best = s["last_evaluation"], s["best"]
-    prefill = ""
-    if s["prefill"]:
-        pf = s["prefill"]
-        prefill = (f" The replay buffer was pre-filled with {pf['transitions']} transitions from {pf['episodes']} "
-                   f"episodes at {pf['transitions_per_s']:.0f} transitions/s.")
-    print(f"Trained the low-level policy to {s['env_steps']} env steps ({s['updates']} updates) in "
-          f"{s['wall_time_s'] / 60:.1f} min.{prefill} Last evaluation: success {float(last.get('success_rate', 0)):.2f} "
-          f"on {s['eval_goals']} held-out reachable goals, final latent distance "
-          f"{float(last.get('final_latent_distance', 0)):.3f}, max tool drift "
-          f"{float(last.get('tool_drift_mm_max', 0)):.1f} mm. Best: success {best['success_rate']:.2f} at "
-          f"{best.get('env_steps', '?')} steps ({out}/best_model.zip). Curves: hingelab report {out}; "
-          f"rollouts: {out}/dataset.")
     return 0

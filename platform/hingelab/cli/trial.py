@@ -47,7 +47,7 @@ def add_parser(subparsers) -> None:
 
 
 def _high_level(args, robot):
-    from hingelab.learning.high_level_checkpoint import SHIPPED_HIGH_LEVEL
+    from hingelab.policies.high_level import SHIPPED_HIGH_LEVEL
     from hingelab.robot.controller import CheckpointHighLevel, ScriptedStandInHighLevel
 
     path = args.policy or SHIPPED_HIGH_LEVEL

@@ -15,34 +15,17 @@ from __future__ import annotations
 
 from pathlib import Path
 
+import gymnasium as gym
 import numpy as np
 
 from hingelab.errors import ConfigError
-from hingelab.learning.low_level_checkpoint import load_sac_checkpoint, recorded_action_scale
-from hingelab.paths import ASSETS_DIR
+from hingelab.policies.goal_experts import GoalRegionExperts
+from hingelab.policies.loading import load_policy
+from hingelab.policies.low_level import SHIPPED_LOW_LEVEL, recorded_action_scale, resolve_low_level
 from hingelab.sim.core import SimCore
 from hingelab.sim.finger_synergy import FingerSynergy
 
-SHIPPED_LOW_LEVEL = ASSETS_DIR / "checkpoints" / "low_level_experts.json"  # the default: experts by goal band
-SHIPPED_LOW_LEVEL_SAC = ASSETS_DIR / "checkpoints" / "low_level.zip"  # its expert for all but the closed goals
 FINGER_SQUEEZE = 0.03  # rad the fingers aim past the commanded opening (keeps leg b pressed)
-
-
-def resolve_low_level(spec: str | Path) -> str | Path:
-    """"privileged", or the checkpoint file a low-level spec names ("policy": the shipped experts; a
-    run folder: its model.zip); a missing one is a one-line ConfigError."""
-    if str(spec) == "privileged":
-        return "privileged"
-    path = SHIPPED_LOW_LEVEL if str(spec) == "policy" else Path(spec)
-    if not path.exists():
-        raise ConfigError(f"low-level checkpoint {path} does not exist; give policy, privileged, or a checkpoint "
-                          "from `hingelab train low` / `hingelab compose low`")
-    if path.is_dir():
-        if not (path / "model.zip").is_file():
-            raise ConfigError(f"{path} is a folder without a model.zip; give a run folder, a checkpoints/step_* "
-                              "folder or a .zip from `hingelab train low`")
-        path = path / "model.zip"
-    return path
 
 
 class PrivilegedLowLevel:
@@ -82,16 +65,16 @@ class PolicyLowLevel:
         if path == "privileged":
             raise ConfigError("PolicyLowLevel needs a checkpoint; the privileged low level is PrivilegedLowLevel")
         self.path = path
-        if path.suffix == ".json":
-            from hingelab.learning.goal_experts import load_experts
-
-            self.model = load_experts(path, encoder)
+        self.model = load_policy(path, encoder=encoder)
+        if not isinstance(getattr(self.model, "observation_space", None), gym.spaces.Dict):
+            raise ConfigError(f"{path} is not a low-level policy (ToolShape-v0's goal-conditioned observation); "
+                              "give a checkpoint from `hingelab train low` or `hingelab compose low`")
+        if isinstance(self.model, GoalRegionExperts):
             scales = {recorded_action_scale(m) for m in self.model.experts}
             if len(scales) != 1:
                 raise ConfigError(f"{path}: its experts were trained with different action scales {sorted(scales)}")
             self.action_scale = scales.pop()
         else:
-            self.model = load_sac_checkpoint(path, encoder)
             self.action_scale = recorded_action_scale(self.model)
 
     def reset(self) -> None:

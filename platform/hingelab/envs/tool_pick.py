@@ -57,31 +57,23 @@ import gymnasium as gym
 import numpy as np
 from gymnasium import spaces
 
-from hingelab.envs.low_level import SHIPPED_LOW_LEVEL, PolicyLowLevel, PrivilegedLowLevel
+from hingelab.envs.low_level import PolicyLowLevel, PrivilegedLowLevel
+from hingelab.policies.low_level import SHIPPED_LOW_LEVEL
 from hingelab.envs.rendering import SimRenderMixin
 from hingelab.envs.rewards import HighLevelRewardConfig, high_level_terms
 from hingelab.envs.tool_shape import DROP_DISTANCE_M
-from hingelab.envs.tool_perception import ToolPerception, camera_for
+from hingelab.perception.tool_perception import ToolPerception, camera_for
 from hingelab.errors import ConfigError
 from hingelab.sim import scripted
 from hingelab.sim.core import SimCore
 from hingelab.sim.delay import DelayLine
 from hingelab.sim.objects import ObjectSpec
 from hingelab.sim.randomization import RandomizationConfig
+from hingelab.tasks import MAX_SPEED, Z_SCALE, observation_dim
 
-Z_SCALE = 3.0
-MAX_SPEED = 0.08  # m/s
 TARGET_HEIGHT = 0.05  # m above the object's start
 OBJECT_NOISE_M = 0.002
 ALPHA = 0.9  # smoothing of t and theta (the paper smooths the high-level tool state too)
-
-
-OBSERVED_OBJECT = slice(8, 11)  # the observed object centre (hand frame, m) in the observation (_fresh_observation)
-
-
-def observation_dim(observe_extent: bool = False) -> int:
-    """ToolPick-v0's observation size: 14, and 3 more with the object's extent (``observe_extent``)."""
-    return 17 if observe_extent else 14
 
 
 class ToolPickEnv(SimRenderMixin, gym.Env):

@@ -96,18 +96,19 @@ from gymnasium import spaces
 from hingelab.envs.rendering import SimRenderMixin
 from hingelab.envs.rewards import (LowLevelRewardConfig, drift_term, effort_from_info, effort_quantities,
                                    effort_terms, goal_reward)
-from hingelab.envs.tool_perception import ToolPerception, camera_for
+from hingelab.perception.tool_perception import ToolPerception, camera_for
 from hingelab.errors import ConfigError
 from hingelab.perception.clouds import ToolGeometry
+from hingelab.perception.calibration import latent_distance_for_gap
 from hingelab.sim.core import SimCore
 from hingelab.sim.finger_synergy import FingerSynergy
 from hingelab.sim.randomization import RandomizationConfig
+from hingelab.tasks import TOOL_SHAPE_SUCCESS_GAP_MM as SUCCESS_GAP_MM
 
 GOAL_SAMPLERS = ("normal", "reachable", "reachable_open", "reachable_closed")
 OPEN_SHARE = 0.4  # "reachable_open": the top part of the reachable range that gets half of the goals
 CLOSED_SHARE = 0.25  # "reachable_closed": the bottom part of the reachable range that gets half of the goals
 DROP_DISTANCE_M = 0.03
-SUCCESS_GAP_MM = 2.0
 SETTLE_STEPS = 10  # the last 0.5 s at 20 Hz: the success verdict's window (where the policy holds the tool)
 SUCCESS_VERDICT = "settled_0.5s"  # the metadata value of success_verdict (hingelab.episodes.schemas.SUCCESS_VERDICTS)
 CANONICAL_OPENING = 0.15  # rad: the canonical cloud the effort term moves
@@ -302,14 +303,3 @@ class ToolShapeEnv(SimRenderMixin, gym.Env):
             "action": None if action is None else np.asarray(action, float), "reward_terms": info["reward_terms"],
             "privileged": self.state, "object_position_hand": None, "target_position_hand": None,
         }
-
-
-def latent_distance_for_gap(calibration, gap_mm: float) -> float:
-    """Latent distance along the calibration curve that spans ``gap_mm`` of tip gap, mid-range."""
-    low, high = calibration.opening_range
-    mid = 0.5 * (low + high)
-    z_a, z_b = calibration.z_for_opening(mid - 0.01), calibration.z_for_opening(mid + 0.01)
-    # the curve's own openings (by projection): the threshold does not depend on the reader
-    gap_a, gap_b = (calibration.tip_gap_mm_for_opening(calibration.project_opening(z)) for z in (z_a, z_b))
-    per_mm = float(np.linalg.norm(np.asarray(z_b) - np.asarray(z_a))) / max(abs(float(gap_b - gap_a)), 1e-9)
-    return per_mm * gap_mm

@@ -325,7 +325,7 @@ def recorded_env(dataset, schema: ExportSchema) -> dict | None:
         return None
     import gymnasium as gym
 
-    from hingelab.envs import register_envs
+    from hingelab.tasks import register_envs
 
     register_envs()
     env_id = schema.tasks[0]

@@ -177,4 +177,15 @@ class OpeningCalibration:
                               "encoder with `hingelab train encoder`") from exc
 
 
-__all__ = ["OpeningCalibration", "READER_FIELDS", "r_squared"]
+def latent_distance_for_gap(calibration, gap_mm: float) -> float:
+    """Latent distance along the calibration curve that spans ``gap_mm`` of tip gap, mid-range."""
+    low, high = calibration.opening_range
+    mid = 0.5 * (low + high)
+    z_a, z_b = calibration.z_for_opening(mid - 0.01), calibration.z_for_opening(mid + 0.01)
+    # the curve's own openings (by projection): the threshold does not depend on the reader
+    gap_a, gap_b = (calibration.tip_gap_mm_for_opening(calibration.project_opening(z)) for z in (z_a, z_b))
+    per_mm = float(np.linalg.norm(np.asarray(z_b) - np.asarray(z_a))) / max(abs(float(gap_b - gap_a)), 1e-9)
+    return per_mm * gap_mm
+
+
+__all__ = ["OpeningCalibration", "READER_FIELDS", "r_squared", "latent_distance_for_gap"]

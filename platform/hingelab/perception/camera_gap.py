@@ -49,7 +49,7 @@ def run_gap(config: GapConfig = GapConfig(), progress: bool = True, frame_hook=N
     import mujoco
     from tqdm import tqdm
 
-    from hingelab.envs.tool_perception import ToolPerception, camera_for
+    from hingelab.perception.tool_perception import ToolPerception, camera_for
     from hingelab.perception.encoder import load_encoder
     from hingelab.sim.core import SimCore
     from hingelab.sim.finger_synergy import FingerSynergy

@@ -30,12 +30,13 @@ from pathlib import Path
 import numpy as np
 
 from hingelab.errors import ConfigError
-from hingelab.perception.calibration import OpeningCalibration
+from hingelab.perception.calibration import OpeningCalibration, latent_distance_for_gap
 from hingelab.perception.clouds import CloudRealism, CloudSynthesizer, ToolGeometry
 from hingelab.perception.encoder import ToolEncoder, load_encoder, rewrite_calibration
 from hingelab.perception.synthetic_dataset import nominal_tool_pose
 from hingelab.perception.tool_state import ToolState
 from hingelab.provenance import code_version
+from hingelab.tasks import TOOL_SHAPE_SUCCESS_GAP_MM as SUCCESS_GAP_MM
 
 SWEEP_STEPS = 60  # control steps from one end of the range to the other (~0.005 rad a step: tracking holds)
 DWELL_STEPS = 5  # steps held at each end before and after the sweep (the ends are where the old fit was off)
@@ -88,7 +89,6 @@ def recalibrate_curve(checkpoint, sweeps: int = 40, seed: int = 0, progress: boo
     Fitted on sweeps ``seed .. seed + sweeps - 1``, checked on as many others (``seed + sweeps ..``).
     Returns (the rewritten encoder, metrics: the held-out offsets of the old and the new curve per
     opening band, R^2 of the reader on the held-out sweeps, the fingerprints, the wall time)."""
-    from hingelab.envs.tool_shape import SUCCESS_GAP_MM, latent_distance_for_gap
 
     started = time.perf_counter()
     checkpoint = Path(checkpoint)

@@ -23,7 +23,8 @@ from pathlib import Path
 
 import numpy as np
 
-from hingelab.envs.tool_pick import ALPHA, MAX_SPEED, TARGET_HEIGHT, Z_SCALE
+from hingelab.envs.tool_pick import ALPHA, TARGET_HEIGHT
+from hingelab.tasks import MAX_SPEED, Z_SCALE
 from hingelab.perception.camera_cloud import ToolCloudConfig, tool_cloud_from_frame
 from hingelab.robot.interface import RobotReadings
 
@@ -49,7 +50,7 @@ class CheckpointHighLevel:
 
     def __init__(self, path: str | Path, low_level: str | None = None):
         from hingelab.errors import ConfigError
-        from hingelab.learning.high_level_checkpoint import check_context, load_high_level_checkpoint, observes_extent
+        from hingelab.policies.high_level import check_context, load_high_level_checkpoint, observes_extent
 
         self.label = str(path)
         self.model = load_high_level_checkpoint(path)
@@ -77,7 +78,7 @@ class ScriptedStandInHighLevel:
     label = "scripted"
 
     def __init__(self, robot, low_level: str | None = None):
-        from hingelab.learning.high_level_eval import ScriptedPolicy
+        from hingelab.policies.baselines import ScriptedPolicy
 
         if not hasattr(robot, "env"):
             from hingelab.errors import ConfigError

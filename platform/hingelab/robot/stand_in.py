@@ -39,7 +39,7 @@ class StandInRobot:
         import gymnasium as gym
 
         from hingelab.envs import TOOL_PICK_ID
-        from hingelab.learning.high_level_eval import FailureReasonWrapper
+        from hingelab.rollouts.high_level import FailureReasonWrapper
 
         self.env = FailureReasonWrapper(gym.make(TOOL_PICK_ID, object=object, size=size, mass=mass,
                                                  low_level="privileged", perception="camera", randomize=randomize,

@@ -101,7 +101,7 @@ def write_sim_rig_bag(path, spec: SimRigBagSpec = SimRigBagSpec()) -> dict:
     from scipy.spatial.transform import Rotation
 
     from hingelab.envs import TOOL_PICK_ID
-    from hingelab.heuristic.rollout import episode_seed
+    from hingelab.rollouts.heuristic_demos import episode_seed
     from hingelab.perception.clouds import CloudRealism, CloudSynthesizer
 
     ts = get_typestore(Stores.ROS2_HUMBLE)

@@ -1,0 +1,114 @@
+"""Fitting the phase clone (``hingelab.policies.phase_clone``) to the scripted demonstrator's demos:
+the action and the demonstrator's next phase, from the observation and the phase and steps before it.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass
+
+import numpy as np
+import torch
+from torch import nn
+from tqdm import tqdm
+
+from hingelab.errors import ConfigError
+from hingelab.policies.phase_clone import ACTION_DIM, LABELS, PhaseCloneNet
+from hingelab.seeds import ensemble_member_seed
+
+
+# ------------------------------------------------------------------ fitting
+@dataclass
+class PhaseDemos:
+    """Demo steps: observation (N, D), action (N, 5) in [-1, 1], the demonstrator's phase and steps
+    before the step, its phase after (N,) int."""
+
+    observations: np.ndarray
+    actions: np.ndarray
+    phases: np.ndarray
+    steps: np.ndarray
+    next_phases: np.ndarray
+
+    @classmethod
+    def from_transitions(cls, transitions, where: str = "the demos") -> "PhaseDemos":
+        """The demos' phases from their step infos (recorded by ``DemonstratorLabels``)."""
+        missing = [k for k in LABELS if k not in transitions.infos]
+        if missing:
+            raise ConfigError(f"{where} do not record the demonstrator's phases ({', '.join(missing)}); the phase "
+                              "clone needs scripted demos recorded by this hingelab: drop --from to generate them "
+                              "(--prior-source scripted)")
+        infos = transitions.infos
+        # demos with noise on the executed action (--prior-action-noise) label the clean one
+        clean = [infos.get(f"demo_action_{i}") for i in range(ACTION_DIM)]
+        actions = transitions.actions if any(a is None for a in clean) else np.stack(clean, axis=1)
+        return cls(np.asarray(transitions.observations, np.float32), np.asarray(actions, np.float32),
+                   infos["demo_phase"].astype(np.int64), infos["demo_phase_steps"].astype(np.int64),
+                   infos["demo_next_phase"].astype(np.int64))
+
+    def __len__(self) -> int:
+        return len(self.actions)
+
+
+def fit_phase_clone(demos: PhaseDemos, hidden: tuple[int, ...], updates: int, batch_size: int,
+                    learning_rate: float, seed: int, progress: bool = False) -> tuple[PhaseCloneNet, dict]:
+    """Fit a ``PhaseCloneNet``: squared action error + cross-entropy of the next phase, Adam with a
+    cosine decay. Returns the net and its fit (final losses on all demos, phase accuracy overall and on
+    the demonstrator's phase changes)."""
+    if len(demos) == 0:
+        raise ConfigError("no demo steps to clone")
+    torch.manual_seed(seed)
+    generator = torch.Generator().manual_seed(seed)
+    std = demos.observations.std(0) + 1e-6
+    net = PhaseCloneNet(demos.observations.shape[1], hidden, demos.observations.mean(0), std)
+    tensors = [torch.as_tensor(a) for a in (demos.observations, np.clip(demos.actions, -1, 1), demos.phases,
+                                            demos.steps, demos.next_phases)]
+    optimizer = torch.optim.Adam(net.parameters(), lr=learning_rate)
+    schedule = torch.optim.lr_scheduler.CosineAnnealingLR(optimizer, max(updates, 1))
+    started = time.perf_counter()
+    net.train()
+    for update in tqdm(range(updates), desc="phase clone", unit="update", disable=not progress, mininterval=2):
+        index = torch.randint(len(demos), (batch_size,), generator=generator)
+        obs, action, phase, steps, next_phase = (t[index] for t in tensors)
+        predicted, logits = net(obs, phase, steps)
+        loss = ((predicted - action) ** 2).sum(1).mean() + nn.functional.cross_entropy(logits, next_phase)
+        optimizer.zero_grad()
+        loss.backward()
+        optimizer.step()
+        schedule.step()
+    net.eval()
+    with torch.no_grad():
+        predicted, logits = net(tensors[0], tensors[2], tensors[3])
+        guessed = logits.argmax(1)
+        changes = tensors[4] != tensors[2]
+        fit = {"updates": updates, "demo_steps": len(demos),
+               "action_squared_error": float(((predicted - tensors[1]) ** 2).sum(1).mean()),
+               "phase_accuracy": float((guessed == tensors[4]).float().mean()),
+               "phase_change_accuracy": float((guessed[changes] == tensors[4][changes]).float().mean())
+               if bool(changes.any()) else 1.0,
+               "seconds": round(time.perf_counter() - started, 1)}
+    return net, fit
+
+
+
+
+def fit_phase_clone_members(demos: PhaseDemos, members: int, hidden: tuple[int, ...], updates: int, batch_size: int,
+                            learning_rate: float, seed: int, progress: bool = False) -> tuple[list[PhaseCloneNet], dict]:
+    """``members`` nets fitted by ``fit_phase_clone`` on the same demos from different seeds (an ensemble
+    for ``PhaseClone``); the nets and the fit (member 0's figures, every member's, total seconds)."""
+    if members < 1:
+        raise ConfigError(f"an ensemble needs at least one member, not {members}")
+    nets, fits = [], []
+    for member in range(members):
+        if progress and members > 1:
+            print(f"phase clone: member {member + 1} of {members}")
+        net, fit = fit_phase_clone(demos, hidden, updates, batch_size, learning_rate,
+                                   ensemble_member_seed(seed, member), progress=progress)
+        nets.append(net)
+        fits.append(fit)
+    fit = dict(fits[0])
+    if members > 1:
+        fit.update(members=members, member_fits=fits, seconds=round(sum(f["seconds"] for f in fits), 1))
+    return nets, fit
+
+
+__all__ = ["PhaseDemos", "fit_phase_clone", "fit_phase_clone_members"]

@@ -1,1 +1,0 @@
-"""Policy learners: SAC on the platform's envs, trained from and into MCAP episode datasets."""

@@ -1,0 +1,47 @@
+"""The platform's three tasks as a contract: their Gymnasium ids, time limits and the scales of
+ToolPick-v0's action and observation that policies are trained and checked against.
+
+The envs (``hingelab.envs``) implement them; policies, rollouts and learners read them from here,
+so a layer below the envs (``hingelab.policies``) can check a checkpoint against a task without
+importing the env. ``register_envs`` registers the ids with Gymnasium by entry-point strings
+(``import hingelab`` calls it): the env classes load on the first ``gymnasium.make``.
+"""
+
+from __future__ import annotations
+
+import gymnasium as gym
+
+TOOL_SHAPE_ID = "hingelab/ToolShape-v0"
+TOOL_PICK_ID = "hingelab/ToolPick-v0"
+TOOL_PICK_FLAT_ID = "hingelab/ToolPickFlat-v0"
+TOOL_SHAPE_EPISODE_STEPS = 50
+TOOL_SHAPE_SUCCESS_GAP_MM = 2.0  # ToolShape-v0 succeeds within this tip gap of the goal, held over its last 0.5 s
+
+# ToolPick-v0's action: the latent goal in units of Z_SCALE and the hand velocity in units of MAX_SPEED
+Z_SCALE = 3.0
+MAX_SPEED = 0.08  # m/s
+OBSERVED_OBJECT = slice(8, 11)  # the observed object centre (hand frame, m) in ToolPick-v0's observation
+HIGH_LEVEL_ACTION_SHAPE = (5,)
+LOW_LEVEL_ACTION_SHAPE = (9,)
+LOW_LEVEL_OBSERVATION_DIM = 26  # hand q and q-dot (18), tool v and omega (6), z (2); the goal z apart
+
+
+def observation_dim(observe_extent: bool = False) -> int:
+    """ToolPick-v0's observation size: 14, and 3 more with the object's extent (``observe_extent``)."""
+    return 17 if observe_extent else 14
+
+
+def register_envs() -> None:
+    if TOOL_SHAPE_ID not in gym.registry:
+        gym.register(id=TOOL_SHAPE_ID, entry_point="hingelab.envs.tool_shape:ToolShapeEnv",
+                     max_episode_steps=TOOL_SHAPE_EPISODE_STEPS)
+    if TOOL_PICK_ID not in gym.registry:
+        # the 200-step limit lives in the env (privileged steps count too)
+        gym.register(id=TOOL_PICK_ID, entry_point="hingelab.envs.tool_pick:ToolPickEnv")
+    if TOOL_PICK_FLAT_ID not in gym.registry:  # its 200-step limit lives in the env too
+        gym.register(id=TOOL_PICK_FLAT_ID, entry_point="hingelab.envs.tool_pick_flat:ToolPickFlatEnv")
+
+
+__all__ = ["TOOL_SHAPE_ID", "TOOL_PICK_ID", "TOOL_PICK_FLAT_ID", "TOOL_SHAPE_EPISODE_STEPS", "TOOL_SHAPE_SUCCESS_GAP_MM", "Z_SCALE", "MAX_SPEED",
+           "OBSERVED_OBJECT", "HIGH_LEVEL_ACTION_SHAPE", "LOW_LEVEL_ACTION_SHAPE", "LOW_LEVEL_OBSERVATION_DIM",
+           "observation_dim", "register_envs"]
