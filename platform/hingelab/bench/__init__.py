@@ -5,7 +5,8 @@ Each benchmark measures ours against a named baseline in one run and writes
 
 Each benchmark's module also declares ``MEASURES``: the repository paths (files or folders)
 of the code and models its figures depend on. A committed table is stale once a commit after
-the one it records changes any of them (``hingelab.bench.freshness``; tests/test_bench_tables.py).
+the one it records changes any of them (``hingelab.bench.freshness``); ``hingelab bench --stale``
+lists the stale tables and the command that regenerates each.
 """
 
 from __future__ import annotations

@@ -10,13 +10,19 @@ The lock file (``constraints.txt``, measured by every benchmark) is compared pin
 that only adds pins (a new package for code the benchmark does not run, e.g. Ray for the sweeps)
 leaves every package the table was measured with as it was, so it does not make the table stale;
 a commit that changes or removes a pin does.
+
+``hingelab bench --stale`` prints ``report``: a stale table is something to regenerate, not an
+error, so neither that command nor the default test run fails on one.
 """
 
 from __future__ import annotations
 
 import json
 import subprocess
+from collections.abc import Callable, Iterable
 from pathlib import Path
+
+from hingelab.bench import measured_paths as bench_measured_paths
 
 MAX_COMMITS_NAMED = 5
 
@@ -48,7 +54,8 @@ def stale_reason(json_path: Path, measured: tuple[str, ...], repo: Path, command
     """One line saying why the table at ``json_path`` is stale, or None if it is current.
 
     ``measured``: repository paths (files or folders) the benchmark measures; ``command``: what
-    regenerates the table. ``repo`` must pass ``require_history``.
+    regenerates the table. ``repo`` must pass ``require_history``. A stale table's line names the
+    oldest commit that changed what it measures ("stale since") and the newest few, newest first.
     """
     try:
         table = json.loads(Path(json_path).read_text())
@@ -72,8 +79,8 @@ def stale_reason(json_path: Path, measured: tuple[str, ...], repo: Path, command
         return None
     named = ", ".join(log[:MAX_COMMITS_NAMED]) + (f" and {len(log) - MAX_COMMITS_NAMED} more"
                                                    if len(log) > MAX_COMMITS_NAMED else "")
-    return (f"{where}: the code it measures changed since in {len(log)} commit{'s' * (len(log) > 1)} "
-            f"({named}); run `{command}`")
+    return (f"{where}: stale since {log[-1]}, the code it measures changed in {len(log)} "
+            f"commit{'s' * (len(log) > 1)} ({named}); run `{command}`")
 
 
 LOCK_FILE = "constraints.txt"
@@ -92,3 +99,46 @@ def _changes_what_it_measures(repo: Path, commit: str, measured: tuple[str, ...]
         return True  # a root commit or an unreadable diff: count it
     removed = [line[1:] for line in diff.stdout.splitlines() if line.startswith("-") and not line.startswith("---")]
     return any(line.split("#")[0].strip() for line in removed)  # a pin changed or went (headers do not count)
+
+
+def report(repo: Path, bench_dir: Path, names: Iterable[str],
+           measured_paths: Callable[[str], tuple[str, ...]] | None = None) -> list[tuple[str, bool]]:
+    """One ``(line, stale)`` per benchmark in ``names``: its table under ``bench_dir``, current or why not.
+
+    A stale line names the table, the commit it records, the commits since that changed what it
+    measures and the command that regenerates it (``hingelab bench NAME``); a missing table is stale.
+    Paths are shown relative to ``repo``. ``measured_paths``: name -> the paths that benchmark
+    measures (default ``hingelab.bench.measured_paths``). Raises ``HistoryUnavailable`` when ``repo``
+    cannot answer.
+    """
+    measured_paths = measured_paths or bench_measured_paths
+    require_history(repo)
+    repo, bench_dir = Path(repo), Path(bench_dir)
+
+    def shown(path: Path) -> str:
+        try:
+            return path.resolve().relative_to(repo.resolve()).as_posix()
+        except ValueError:
+            return str(path)
+
+    lines = []
+    for name in names:
+        command = f"hingelab bench {name}"
+        json_path = bench_dir / f"{name}.json"
+        missing = [f"{name}{ext}" for ext in (".md", ".json") if not (bench_dir / f"{name}{ext}").is_file()]
+        if missing:
+            lines.append((f"{shown(json_path)}: {' and '.join(missing)} missing; run `{command}`", True))
+            continue
+        try:
+            measured = measured_paths(name)
+        except ImportError as exc:  # a broken benchmark module: say so for its table, report the others
+            lines.append((f"{shown(json_path)}: cannot tell what it measures, its module does not import "
+                          f"({type(exc).__name__}: {exc})", True))
+            continue
+        reason = stale_reason(json_path, measured, repo, command)
+        if reason is None:
+            recorded = str(json.loads(json_path.read_text())["code"]["git_commit"])
+            lines.append((f"{shown(json_path)} (recorded at {recorded[:12]}): current", False))
+        else:
+            lines.append((reason.replace(str(json_path), shown(json_path), 1), True))
+    return lines

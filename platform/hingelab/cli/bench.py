@@ -1,28 +1,49 @@
-"""``hingelab bench NAME``: run one benchmark, print its table, write it under analysis/bench/."""
+"""``hingelab bench NAME``: run one benchmark, print its table, write it under analysis/bench/.
+
+``hingelab bench --stale``: say which committed tables under analysis/bench/ are stale, since which
+commit, and the command that regenerates each (a report: it exits 0 whether or not any is stale).
+"""
 
 from __future__ import annotations
 
 import argparse
 import importlib
+import textwrap
 from pathlib import Path
 
 from hingelab.bench import BENCHMARKS
+from hingelab.bench.freshness import HistoryUnavailable, report
 from hingelab.errors import ConfigError
-from hingelab.paths import ANALYSIS_DIR
+from hingelab.paths import ANALYSIS_DIR, REPO_ROOT
 from hingelab.provenance import code_version, require_clean_for
 
 
 def add_parser(subparsers) -> None:
     p = subparsers.add_parser(
         "bench",
-        help="run a benchmark (ours vs a named baseline, one run) and write analysis/bench/NAME.md",
-        description=(
+        help="run a benchmark (ours vs a named baseline, one run) and write analysis/bench/NAME.md; "
+             "--stale: which committed tables are stale",
+        usage="%(prog)s NAME [--quick] [--encoder ENCODER] [--out OUT] [--allow-dirty]\n"
+              "       %(prog)s --stale [NAME]",
+        description="\n\n".join(textwrap.fill(paragraph, width=92) for paragraph in (
             "Run one benchmark, print its table, and write analysis/bench/NAME.md and "
             "NAME.json with the figures, the baseline's figures, their ratio, the machine "
-            "and the code version. Benchmarks: " + ", ".join(BENCHMARKS) + "."
-        ),
+            "and the code version. Benchmarks: " + ", ".join(BENCHMARKS) + ".",
+            "--stale runs nothing: it prints one line per committed table under analysis/bench/ "
+            "(or for NAME only), saying whether it is current or stale. A table is stale once a commit "
+            "after the one it records changed the code it measures (the benchmark's MEASURES, its own "
+            "module, the locked versions in constraints.txt), or if it was made from uncommitted code; "
+            "its line names the commits since and the command that regenerates it (hingelab bench NAME). "
+            "It exits 0 whether or not a table is stale, and 1 with a one-line reason if the git history "
+            "cannot be read (not a git checkout, a shallow clone).",
+        )),
+        formatter_class=argparse.RawDescriptionHelpFormatter,
     )
-    p.add_argument("name", help="which benchmark: " + ", ".join(BENCHMARKS))
+    p.add_argument("name", nargs="?", default=None,
+                   help="which benchmark: " + ", ".join(BENCHMARKS) + " (with --stale: report this table only)")
+    p.add_argument("--stale", action="store_true",
+                   help="run nothing: report which committed tables are stale, since which commit, and the "
+                        "command that regenerates each (exit 0 either way; 1 if the git history cannot be read)")
     p.add_argument("--quick", action="store_true", help="a short run (for tests; noisier figures)")
     p.add_argument("--encoder", type=Path, default=None,
                    help="perception only: an encoder checkpoint to measure instead of the shipped one")
@@ -35,6 +56,10 @@ def add_parser(subparsers) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    if args.stale:
+        return report_stale(args)
+    if args.name is None:
+        raise ConfigError(f"name a benchmark ({', '.join(BENCHMARKS)}), or --stale to see which tables are stale")
     if args.name not in BENCHMARKS:
         raise ConfigError(f"unknown benchmark {args.name!r}; choose one of: {', '.join(BENCHMARKS)}")
     try:
@@ -55,4 +80,29 @@ def run(args: argparse.Namespace) -> int:
     print(table.markdown())
     md_path, json_path = table.write(args.out)
     print(f"wrote {md_path} and {json_path}")
+    return 0
+
+
+def report_stale(args: argparse.Namespace) -> int:
+    """Print one line per committed table (current or why stale) and a summary; 0 whether stale or not."""
+    used = [flag for flag, value in (("--quick", args.quick), ("--encoder", args.encoder), ("--out", args.out),
+                                     ("--allow-dirty", args.allow_dirty)) if value not in (False, None)]
+    if used:
+        raise ConfigError(f"--stale runs no benchmark: {' and '.join(used)} "
+                          f"{'does' if len(used) == 1 else 'do'} not apply")
+    if args.name is not None and args.name not in BENCHMARKS:
+        raise ConfigError(f"unknown benchmark {args.name!r}; choose one of: {', '.join(BENCHMARKS)}")
+    names = [args.name] if args.name is not None else list(BENCHMARKS)
+    try:
+        lines = report(REPO_ROOT, ANALYSIS_DIR / "bench", names)
+    except HistoryUnavailable as exc:
+        raise ConfigError(f"cannot tell which benchmark tables are stale: {exc}") from None
+    for line, _ in lines:
+        print(line)
+    stale = sum(is_stale for _, is_stale in lines)
+    if stale:
+        print(f"{stale} of {len(lines)} table{'s' * (len(lines) > 1)} stale: regenerate each with the command on "
+              "its line, from a clean checkout on an idle machine (analysis/bench/README.md)")
+    else:
+        print(f"all {len(lines)} table{'s' * (len(lines) > 1)} current")
     return 0
