@@ -6,10 +6,10 @@ train low --envs 2`` uses), with stable-baselines3's ``SubprocVecEnv`` beside it
 baseline is the same model's bare ``mj_step`` on one core, in control steps (25 physics
 steps each), replaying the 1-worker run's own steps (start states with the solver's warm
 start, and controls): the same physics work, so the ratio is what the env adds to it. The
-physics of a moving arm and object costs ~2x the resting scene's in ToolPick-v0, so the
-resting loop (the earlier baseline, still reported) made the env look slower than it is.
+physics of a moving arm and object costs more than the resting scene's in ToolPick-v0, so a
+resting loop (also reported, "at rest") makes the env look slower than it is.
 Raw, 1 worker and 2 workers take turns in rounds; the figures are medians over rounds.
-Goal (issue): at least 0.6 of the raw physics rate.
+Goal: at least 0.6 of the raw physics rate.
 """
 
 from __future__ import annotations
@@ -34,7 +34,7 @@ WARMUP_STEPS = 20  # untimed steps first, in every worker
 # replay's contact solver starts elsewhere and drifts by ~1e-7)
 PHYSICS = mujoco.mjtState.mjSTATE_FULLPHYSICS | mujoco.mjtState.mjSTATE_WARMSTART
 ROUNDS = 10  # raw, 1 worker and 2 workers take turns: a slower spell of the machine hits all three
-# (these shared machines drift by +-30% within minutes: many short rounds, medians of their ratios)
+# (these shared machines drift by tens of percent within minutes: many short rounds, medians of ratios)
 
 
 def _raw_rate(model: mujoco.MjModel, control_steps: int, n_substeps: int) -> float:

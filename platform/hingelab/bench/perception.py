@@ -224,7 +224,7 @@ def bench_tool_state(steps: int, rows: list) -> dict:
         synth.new_episode()
         rot, pos = np.repeat(rot0[None], n_tools, 0), np.repeat(pos0[None], n_tools, 0)
         state.update(synth.from_tool_pose(rot, pos, np.full(n_tools, 0.1)))  # warm up
-        n_steps = steps * (10 if n_tools == 1 else 1)  # one cloud takes ~1 ms: enough of them to time
+        n_steps = steps * (10 if n_tools == 1 else 1)  # one cloud is quick: ten times as many to time
         start = time.perf_counter()
         for k in range(n_steps):
             theta = np.full(n_tools, 0.15 + 0.1 * np.sin(0.2 * k))

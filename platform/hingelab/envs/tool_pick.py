@@ -47,8 +47,8 @@ path), ``randomize`` (True: object friction 1-5, finger friction, gains
 (0.05 m), ``max_episode_steps`` (200), ``encoder_path``, ``terminate_on_drop`` (True), ``observe_extent`` (False).
 
 ## Version History
-v0: first version. (2026-12-05: the observed object position is the centre, not the body origin;
-the same observation for the sphere, cube, cylinder and meshes.)
+v0: first version. Changed within v0: the observed object position is the centre, not the body
+origin (the same observation for the sphere, cube, cylinder and meshes).
 """
 
 from __future__ import annotations
@@ -165,7 +165,7 @@ class ToolPickEnv(SimRenderMixin, gym.Env):
         if action.shape != self.action_space.shape or not np.isfinite(action).all():
             raise ConfigError(f"{self.env_name} takes {self.action_space.shape[0]} finite values in [-1, 1], "
                               f"got {action!r}")
-        # a view into MjData: in the privileged branch it is read after the step, as it always was
+        # a view into MjData: the privileged branch reads it after the step, the policy branch before
         rot_hand = self.sim.data.xmat[self._hand_body].reshape(3, 3)
         if self._privileged_command is not None:
             velocity_world, hinge_target, hand_targets = self._privileged_command

@@ -47,9 +47,9 @@ One verdict, ``info["is_success"]`` (the episode's recorded ``success``, with me
 the mean of z_bar over the last ``SETTLE_STEPS`` = 10 steps (0.5 s at 20 Hz; fewer in an
 episode's first steps, and at reset the reset's z_bar alone), within ``success_threshold`` of
 z_goal (``info["settled_latent_distance"]`` is that mean's distance). The env keeps that window
-itself. Why not one frame: at rest the in-hand latent jitters by 0.04 to 0.10 from frame to frame,
-about the threshold itself, so one frame's verdict measures the camera as much as the policy
-(``analysis/low-level-ablation/README.md``). The one-frame verdict stays as a secondary field,
+itself. Why not one frame: at rest the in-hand latent jitters from frame to frame by about the
+threshold itself, so one frame's verdict measures the camera as much as the policy (measured in
+``analysis/low-level-ablation/README.md``). The one-frame verdict stays as a secondary field,
 never the success: ``info["last_step_success"]`` (``||z_bar - z_goal|| < success_threshold`` at
 this step; ``info["latent_distance"]`` its distance). The threshold's default is the latent
 distance that 2 mm of tip gap spans along the calibration curve (mid-range), so success means
@@ -73,16 +73,16 @@ calibrated), ``action_scale`` (0.05), ``encoder_path`` (None: shipped), ``realis
 mean point displacement per step; the weight of the tool-motion part of the effort), ``drift_weight`` (0:
 off; c4 per m of tool drift beyond 5 mm, per step), ``smoothing_alpha`` (0.9: the EMA
 weight of the newest v, omega, z; 0.1 smooths over ~10 steps and cuts the latent's
-frame-to-frame jitter from 0.04-0.10 to about a quarter of that), ``terminate_on_drop`` (True).
+frame-to-frame jitter to about a quarter), ``terminate_on_drop`` (True).
 
 ## Version History
 v0: first version (later options that default to v0's behaviour: ``effort_weight``,
 ``drift_weight``, ``goal_openings``, ``goal_sampling="reachable_open"`` and ``"reachable_closed"``).
 v0, from episode schema 2: ``info["is_success"]`` is the settled verdict (z_bar over the last
-0.5 s); before, it was the last step's z_bar alone (now ``info["last_step_success"]``). Recorded
-episodes name their verdict (``success_verdict``). Observations, dynamics, the reward and
-``compute_reward`` are unchanged, so the id stays v0; version-1 episodes' ``success`` is the old
-verdict, and ``hingelab report`` says so.
+0.5 s); episodes of schema 1 recorded the last step's z_bar alone as ``success`` (the verdict of
+``info["last_step_success"]``). Recorded episodes name their verdict (``success_verdict``).
+Observations, dynamics, the reward and ``compute_reward`` are the same in both, so the id stays v0;
+``hingelab report`` says which verdict a version-1 episode's ``success`` is.
 """
 
 from __future__ import annotations

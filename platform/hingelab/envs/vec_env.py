@@ -1,16 +1,14 @@
 """``PinnedVecEnv``: stable-baselines3's ``SubprocVecEnv``, with observations, actions, rewards and
 dones through shared memory and each worker process held to one core.
 
-Why: 2 ToolShape-v0 workers in a ``SubprocVecEnv`` ran ~1.3x one env in one process, while two
-independent env processes ran ~1.95x. ``SubprocVecEnv`` pickles every observation through a pipe
-both ways (~0.28 ms of the main process per vector step) and lets the scheduler move the workers
-between the cores (and each move starts a step on caches that hold the other worker's data). Here
-the arrays stay in shared memory (the pipe carries a one-byte command and the info dict; ~0.18 ms
-per vector step) and worker i runs on core i mod cores (``pin=False`` leaves placement to the
-scheduler). Measured on the 2-core machine, ToolShape-v0, 2 workers, two runs each (steps/s):
-SubprocVecEnv 578 / 585, pinned 668 / 638; shared memory 639 / 654, and pinned 696 / 673; two
-independent processes 854 / 861; one env 458 / 436. The rest of the gap is the lockstep: each
-vector step waits for the slower env.
+Why: 2 workers in a ``SubprocVecEnv`` step markedly slower than two independent env processes.
+``SubprocVecEnv`` pickles every observation through a pipe both ways (main-process time on every
+vector step) and lets the scheduler move the workers between the cores (and each move starts a
+step on caches that hold the other worker's data). Here the arrays stay in shared memory (the
+pipe carries a one-byte command and the info dict) and worker i runs on core i mod cores
+(``pin=False`` leaves placement to the scheduler); both changes help, together most. The rest of
+the gap to independent processes is the lockstep: each vector step waits for the slower env.
+``hingelab bench envs`` measures PinnedVecEnv against SubprocVecEnv (``analysis/bench/envs.md``).
 
 The contract is SubprocVecEnv's (SB3 ``VecEnv``): ``step`` auto-resets finished envs and puts
 the last observation in ``info["terminal_observation"]``, ``info["TimeLimit.truncated"]``,

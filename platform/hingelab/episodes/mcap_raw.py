@@ -1,8 +1,8 @@
 """Raw access to MCAP records: the reader's fast path, without per-record Python objects.
 
 The mcap library turns every record into a Python object through many small
-reads; for a learner reading a 200-step episode that overhead (summary ~0.7 ms,
-metadata ~0.4 ms, per-message records) is larger than the data itself. Here the
+reads; for a learner reading a 200-step episode that overhead (the summary, the
+metadata, per-message records) is larger than the data itself. Here the
 summary section is read with one read and walked with ``struct``, a chunk is read
 with one seek and decompressed in one call, and its message records are walked to
 find payload offsets. Record layouts are those of the MCAP spec (little endian):
@@ -219,7 +219,7 @@ class ChunkBatch:
     workers; zstd and lz4 release the GIL) while this thread decompresses the first
     and the caller works on what is yielded, so one episode's clouds decode on
     several cores. Chunks are read, and zstd chunks decompressed, into reused buffers
-    (on a VM a fresh large allocation costs a page fault per 4 KiB, as much time as
+    (on a VM a fresh large allocation costs a page fault per 4 KiB, which rivals
     the decompression): iterating yields each chunk's records, valid until the batch
     is closed (use it as a context manager); copy what you keep.
 

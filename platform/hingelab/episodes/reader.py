@@ -393,7 +393,7 @@ def _gather_rows(records, starts: np.ndarray, n_bytes: int, out: np.ndarray) -> 
 
     Evenly spaced starts are copied by one strided assignment of ``n_bytes``-wide void
     items (a memcpy per row); otherwise by memoryview slices (a byte-wise numpy gather is
-    ten times slower).
+    much slower).
     """
     if len(starts) == 0:
         return
@@ -403,7 +403,7 @@ def _gather_rows(records, starts: np.ndarray, n_bytes: int, out: np.ndarray) -> 
     if len(gaps) == 0 or np.all(gaps == gaps[0]):
         stride = int(gaps[0]) if len(gaps) else n_bytes
         target[:] = np.ndarray((len(starts),), dtype=row, buffer=records, offset=int(starts[0]), strides=(stride,))
-    else:  # record sizes differ by a few bytes (varint timestamps): slice copies, ~50 us/episode
+    else:  # record sizes differ by a few bytes (varint timestamps): slice copies
         source, rows = memoryview(records), memoryview(out.reshape(-1))
         for k, start in enumerate(starts.tolist()):
             rows[k * n_bytes:(k + 1) * n_bytes] = source[start:start + n_bytes]

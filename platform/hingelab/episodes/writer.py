@@ -86,8 +86,9 @@ class EpisodeWriter:
         compression: of the chunks of the other topics and the columns: ``"zstd"`` (default),
             ``"lz4"`` or ``"none"``.
         cloud_compression: of the cloud chunks; default: ``compression``. ``"zstd"`` keeps
-            files smaller than h5py/parquet (float32 clouds shrink ~10%); ``"none"`` reads
-            faster on one core but makes files ~11% larger (see datasets/README.md).
+            files smaller than h5py/parquet (float32 clouds shrink a little); ``"none"`` reads
+            faster on one core but makes files larger (see datasets/README.md; measured in
+            analysis/bench/datasets.md).
         cloud_chunk_bytes: a block's clouds are split into equal chunks of at most this many
             point bytes (320 KiB: two chunks for a 200-step episode of 256-point clouds), so
             that readers decompress them on several cores.

@@ -2,8 +2,9 @@
 
 ``PrivilegedHeuristic`` opens to the object's width, grips at its mid-height and closes the hinge
 to its contact angle minus a squeeze: all three come from the object's size, which the high level
-never observes. Behaviour cloning of it on mixed sizes learns their average and picks none of the
-large ones (issue 26's note). ``FeedbackHeuristic`` decides only from what a high level can see:
+never observes. Behaviour cloning of it on mixed sizes learns their average and misses the large
+ones (``analysis/high-level/README.md``). ``FeedbackHeuristic`` decides only from what a high level
+can see:
 
     open     to one width for every object (``open_width``: the largest, 25 mm, plus the margin;
              at most the finger synergy's widest, 0.262 rad)
@@ -16,9 +17,9 @@ large ones (issue 26's note). ``FeedbackHeuristic`` decides only from what a hig
     carry,   as the heuristic's, with the hinge command kept
     hold
 
-The squeeze was chosen on ``eval high --seed 6000`` over the shipped low level, pooled over the 12
-shape-size sets: 0.08 rad 0.78 and 0.07 rad 0.79 (10 episodes a set), 0.06 rad 0.72 (missed grasps
-of the small objects) and 0.10 rad 0.67 (slips and tool drops) (6 a set).
+The squeeze is chosen among several tried on ``eval high`` over the shipped low level: a smaller
+one misses grasps of the small objects, a larger one lets objects slip and drops the tool (the
+figures are in ``analysis/high-level/README.md``).
 """
 
 from __future__ import annotations

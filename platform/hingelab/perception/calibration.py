@@ -11,10 +11,10 @@ millimetres: ``z_for_tip_gap_mm(12.0)`` is a latent goal.
 **Reading** an opening off a latent: the projection minimizes the distance in latent space,
 not the opening's error, and noisy latents scatter off the curve unevenly along it. A
 calibration may also carry a *reader*: the opening as a cubic polynomial of z fitted by least
-squares (``with_reader``); ``opening_rad`` then uses it (clipped to the fitted range). On the
-shipped encoder's held-out 5 mm clouds it gave R^2 0.951 where the projection gave 0.947. The
-curve is unchanged by it: goals (``z_for_opening``) and the env's success threshold
-(``project_opening``) stay what they were, and so does ``ToolEncoder.fingerprint``.
+squares (``with_reader``); ``opening_rad`` then uses it (clipped to the fitted range). On held-out
+clouds it reads openings better than the projection (``assets/checkpoints/README.md``, "The
+reader"). It leaves the curve alone: goals (``z_for_opening``), the env's success threshold
+(``project_opening``) and ``ToolEncoder.fingerprint`` do not depend on it.
 
 The principal axis u of the latents (oriented so the opening grows along +u) gives a
 coordinate s = u . (z - mean) for plots and for the monotonicity check.
@@ -39,7 +39,7 @@ from hingelab.errors import ConfigError
 DEGREE = 5  # of the latent curve z(opening)
 GAP_DEGREE = 3  # of the tip gap as a function of the opening
 GRID = 1024  # openings searched when projecting a latent onto the curve
-READER_DEGREE = 3  # of the opening as a polynomial of z (4 and 5 gained < 0.001 R^2 on held-out clouds)
+READER_DEGREE = 3  # of the opening as a polynomial of z (higher degrees gain next to nothing held out)
 READER_FIELDS = ("reader_coef", "reader_r2_opening")  # not part of what a latent means (fingerprint)
 
 

@@ -302,7 +302,7 @@ class CloudSynthesizer:
         perturbation, noise and refill in one pass). Each cloud's distinct points are a uniform
         random draw of ``n_distinct`` bank points without replacement, in random order: the same
         distribution as drawing ``n_points`` and removing a random ``removal_fraction`` of them,
-        at a quarter of the cost (the draw was an argpartition of the whole bank). The batch's
+        at a fraction of the cost of an argpartition over the whole bank. The batch's
         draws come in a fixed order (points, then noise, then refill), so clouds of one seed
         share their points whatever their noise levels."""
         g, r, n = self.geometry, self.realism, self.n_points

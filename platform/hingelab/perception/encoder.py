@@ -50,7 +50,7 @@ class EncoderConfig:
     decoder_points: int = 256
     input_offset_m: tuple[float, float, float] = (0.06, 0.0, 0.0)  # middle of the tool, tool frame
     scale_m: float = 0.05  # coordinates are divided by this
-    beta: float = 0.0001  # KL weight (Chamfer is in scaled units squared; 1e-3 collapsed the latent)
+    beta: float = 0.0001  # KL weight (Chamfer is in scaled units squared; 1e-3 collapses the latent)
     target_points: int = 512  # clean surface points the reconstruction is compared with
     initial_logvar: float = -6.0  # offset of the encoder's log-variance output
 
@@ -128,9 +128,9 @@ def vae_loss(model: PointNetVAE, points: torch.Tensor, target: torch.Tensor, bet
 
 # An env encodes one cloud per step. Two threads on so small a product only wait on each
 # other, and in env worker processes (SubprocVecEnv, one per core) each worker's pool spins
-# against the others': 2 ToolShape-v0 workers ran 46 steps/s in all with torch's default
-# threads, 206 with one thread each (measured on the 2-core machine). Batches up to this size
-# run in numpy on one OpenBLAS thread (``_small_batch_latent_mean``), larger ones in torch.
+# against the others' and slows every worker down several times over (measured in
+# analysis/bench/history/README.md). Batches up to this size run in numpy on one OpenBLAS
+# thread (``_small_batch_latent_mean``), larger ones in torch.
 ONE_THREAD_BATCH = 8
 
 
@@ -263,8 +263,8 @@ class ToolEncoder:
 
     def _small_batch_latent_mean(self, scaled: np.ndarray) -> np.ndarray:
         """``_latent_mean`` in numpy for a few scaled clouds (B, N, 3) float32 -> (B, 2) float64.
-        One cloud per env step spent ~0.1 ms of its ~0.4 ms in torch's per-call cost and its
-        slower kernel on this CPU; OpenBLAS on one thread does the products at its peak rate.
+        For one cloud per env step torch's per-call cost and its slower kernel on this CPU are a
+        large share of the encoding; OpenBLAS on one thread does the products at its peak rate.
         The last point layer's ReLU comes after the max pool: max_i relu(x_i + b) = relu(max_i x_i
         + b), exactly. Bias and ReLU are one compiled pass over each layer's output (the same
         float32 operations as numpy's). The same numbers as torch to float32 rounding (~1e-7)."""
@@ -281,9 +281,9 @@ class ToolEncoder:
         return out
 
     def _latent_mean(self, scaled: torch.Tensor) -> torch.Tensor:
-        """``PointNetVAE.encode``'s mean of scaled clouds (B, N, 3) without nn.Module dispatch (~0.15
-        of an env step's encode went to it): ReLU after every point layer, max pool, head; the same
-        numbers."""
+        """``PointNetVAE.encode``'s mean of scaled clouds (B, N, 3) without nn.Module dispatch (a
+        noticeable share of an env step's encode): ReLU after every point layer, max pool, head; the
+        same numbers."""
         point_layers, (head_in, head_out) = self._layers
         x = scaled
         for layer in point_layers:

@@ -1,7 +1,7 @@
 """The encoder's element-wise passes for one cloud, compiled (numba).
 
 ``ToolEncoder._small_batch_latent_mean`` runs the point MLP's products in OpenBLAS; between
-them numpy took two passes per layer (add the bias, then ReLU) and three for the max pool
+them numpy takes two passes per layer (add the bias, then ReLU) and three for the max pool
 (max, bias, ReLU), each a few microseconds of call cost on arrays of ~200 x 128. One pass
 each here, with the same float32 operations in the same order, so the same numbers.
 """

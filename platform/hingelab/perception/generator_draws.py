@@ -2,11 +2,11 @@
 
 A cloud per env step draws its distinct bank points (``rng.choice(pop, k, replace=False)``)
 and its occlusion refill (``rng.integers(0, k, size)``); numpy's Python-level argument
-handling made those two calls ~30 us of a ~70 us cloud. These kernels take the generator's
+handling makes those two calls a large share of a cloud's time. These kernels take the generator's
 bit generator (``rng.bit_generator.ctypes``: its ``next_uint32`` function and state) and run
 numpy 2's algorithms on it: Lemire's bounded integers, Floyd's sampling without replacement
 followed by a Fisher-Yates shuffle (``Generator.choice`` for populations up to 10,000), so a
-seed gives the same clouds as before, draw for draw (tests/test_perception_clouds.py compares
+seed gives the same clouds as numpy's calls, draw for draw (tests/test_perception_clouds.py compares
 them with numpy's own calls), and the generator's state moves on exactly as numpy's would.
 """
 

@@ -2,8 +2,8 @@
 
 An env step turns one cloud into a tool state: a handful of 3x3 rotations, a 256-point
 transform, a mean over 256 displacements. In numpy each of these is a chain of ~10 array
-operations on tiny arrays, and the per-operation cost (a few microseconds) summed to ~0.3 ms
-per step, a quarter of the step's physics. These kernels do the same formulas in plain loops
+operations on tiny arrays, and the per-operation cost (a few microseconds) sums to a sizeable
+share of the step's physics. These kernels do the same formulas in plain loops
 (the callers in ``registration``, ``clouds`` and ``envs.rewards`` keep their numpy contracts;
 tests hold them to scipy and to the numpy formulas). Cached on disk like the registration
 kernels (``cache=True``).

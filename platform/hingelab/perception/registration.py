@@ -31,14 +31,14 @@ many clouds at once. What makes it reliable and fast on the tweezer:
   cell lists seeded by the voxel map); ``numpy_reference()`` gives the same results in numpy.
 * **Tracking** (``track``, used by ``ToolState`` between resets): one hypothesis, started at
   the pose predicted from the previous frame, with a motion prior. A single frame pins the
-  roll about the long axis down only to ~3-4 degrees (the legs are 16 mm tall, the noise 3 mm),
+  roll about the long axis down only to a few degrees (the legs are 16 mm tall, the noise 3 mm),
   so independent registrations of a resting tool differ by that much from frame to frame;
   with the prior each update is a MAP estimate, which holds the poorly observed directions
   (the roll, the slide along the legs) near the prediction and leaves the well observed ones
   to the data. Its iterations are point-to-plane Gauss-Newton steps (model normals by PCA
   over the surface bank): point-to-point ICP slides along the legs only a fraction of the
   way per iteration. ``TrackingConfig`` holds its settings, apart from ``RegistrationConfig``
-  (which the encoder checkpoint records for the fresh registration, left as it was).
+  (which the encoder checkpoint records for the fresh registration; tracking leaves it alone).
 
 Frames and units: clouds (N, 3) or (B, N, 3) metres in ``hand_base``; the result's
 ``rotation`` R and ``translation`` t map tool-frame points into hand_base
@@ -59,7 +59,7 @@ from hingelab.errors import ConfigError
 from hingelab.perception import pose_kernels, registration_kernels
 from hingelab.perception.clouds import ToolGeometry, _even_subset
 
-EXACT_CELL_M = 0.005  # cells of the compiled loops' exact nearest-neighbour search (2 and 3 mm were slower)
+EXACT_CELL_M = 0.005  # cells of the compiled loops' exact nearest-neighbour search (smaller ones are slower)
 CORE_MARGIN_M = 0.01  # the voxel map's block that tracking looks in first (_GridNearest.core): 3 sigma of noise
 MIN_POINTS = 32  # fewer points than this cannot pin down a 6-DoF pose of a long thin tool
 EULER_SEQUENCE = "xyz"  # scipy's lower case: extrinsic axes
@@ -81,8 +81,8 @@ class RegistrationConfig:
     coarse_iterations: int = 6
     fine_iterations: int = 8  # voxel-grid nearest neighbours
     exact_iterations: int = 2  # k-d tree nearest neighbours, last
-    trim_fraction: float = 0.0  # worst cloud -> model pairs left out of each SVD (0.1 biased the
-    # closed tweezer by millimetres and doubled the median rotation error on the bench clouds)
+    trim_fraction: float = 0.0  # worst cloud -> model pairs left out of each SVD (trimming biases the
+    # closed tweezer by millimetres and worsens the median rotation error on the bench clouds)
     reverse_trim_fraction: float = 0.25  # worst model -> cloud pairs left out (occluded model parts)
     reverse_weight: float = 0.0  # weight of the model -> cloud pairs relative to the cloud -> model ones
     grid_resolution_m: float = 0.0015
@@ -107,11 +107,12 @@ class TrackingConfig:
     the other two, 12 mm holds the roll (the noisy direction) and leaves pitch and yaw to the
     data; likewise 0.05 holds the slide along the legs (only the ~8% of points on faces across
     the legs see it) and leaves the other two directions to the data.
-    The defaults were chosen on 3 mm / 20% clouds of a resting and of a moving tool: at rest the
-    per-step rotation change fell from ~4 to ~0.8 degrees (median; p95 ~10 -> ~1.4), and a tool
-    turning at 0.5 rad/s about any axis and moving at 5 cm/s still gets omega within ~0.05 rad/s
-    and v within ~5 mm/s (mean over steps, tests/test_perception_tool_state.py). The price is lag:
-    a sudden 3 mm slide along the legs shows about half in the first step.
+    The defaults are chosen on 3 mm / 20% clouds of a resting and of a moving tool: at rest the
+    prior cuts the per-step rotation change to a fraction of frame-by-frame registration's
+    (``analysis/bench/perception.md``, tracking at rest), and a tool turning at 0.5 rad/s about any
+    axis and moving at 5 cm/s still gets omega and v close to the truth (mean over steps,
+    tests/test_perception_tool_state.py). The price is lag: a sudden slide along the legs shows
+    only in part in the first step (``analysis/perception/history/README.md``).
     """
 
     rotation_prior_m: float = 0.012
@@ -119,7 +120,7 @@ class TrackingConfig:
     predict_motion: float = 0.7  # fraction of the last step's motion carried into the prediction
     # (1: constant velocity, no lag but noisier at rest; 0: a tool at rest, the pose lags a moving tool)
     max_iterations: int = 3  # grid nearest neighbours from the warm start; later iterations only move
-    # the pose by the grid's ~0.1 degree noise
+    # the pose within the grid's own noise
     tolerance_rad: float = 1e-3  # stop early when no tool's pose changed more than this in an iteration
     tolerance_m: float = 3e-5
 
@@ -175,7 +176,7 @@ class _GridNearest:
     its first voxel): tracking looks cloud points up there and goes to the whole map only for a
     point outside it, the same voxels and answers. The whole map (~0.7 MB per leg at 1.5 mm with
     a 3 cm margin) falls out of the cache during the physics of every env step, and its misses
-    cost ~40% of a tracking step; the core (~0.1 MB) is what tracked points touch.
+    cost a large share of a tracking step; the core (~0.1 MB) is what tracked points touch.
     """
 
     def __init__(self, points: np.ndarray, resolution: float, margin: float):
@@ -256,7 +257,7 @@ class CanonicalRegistration:
 
     Each iteration pairs every cloud point with its nearest model point. With
     ``reverse_weight > 0`` a fixed subset of model points is also paired with its nearest
-    cloud points (bidirectional ICP); measured on the bench clouds it did not help
+    cloud points (bidirectional ICP); on the bench clouds it does not help
     (more flips chosen, larger median error), so it is off by default.
     """
 
@@ -404,7 +405,7 @@ class CanonicalRegistration:
 
     def tracking_arguments(self) -> tuple:
         """The model arrays and settings ``registration_kernels.track_batch`` takes, in its argument
-        order (made once: assembling them cost ~10 us of a ~0.1 ms tracking step)."""
+        order (made once: assembling them is a noticeable share of a tracking step)."""
         if self._tracking_arguments is None:
             normals_a, normals_b = self._model_normals()
             ga, gb = self._grid_a, self._grid_b
@@ -679,7 +680,7 @@ def _plane_step(points, model, normals, w, rot, pos, rot_p, pos_p, k_r: float, k
 
 def _batch_copy(value, shape: tuple) -> np.ndarray:
     """A float64 copy of ``value`` in ``shape``, broadcast if it has another (np.broadcast_to costs
-    ~10 us a call, a plain copy ~1: tracking's inputs have the batch's shape already)."""
+    several times a plain copy: tracking's inputs have the batch's shape already)."""
     arr = np.array(value, dtype=float)
     return arr if arr.shape == shape else np.broadcast_to(arr, shape).copy()
 
@@ -702,7 +703,7 @@ def _check_prior(rot: np.ndarray, pos: np.ndarray) -> None:
 
 def euler_xyz(rot: np.ndarray) -> np.ndarray:
     """Extrinsic x-y-z Euler angles (rad) of rotations (B, 3, 3): scipy's ``as_euler("xyz")``,
-    in closed form (a scipy Rotation costs ~0.1 ms per call, a tenth of a tracking step;
+    in closed form (a scipy Rotation's per-call cost is a sizeable share of a tracking step;
     compiled: ``pose_kernels``); near gimbal lock (pitch within ~0.8 degrees of +-90) scipy's
     convention is used."""
     rot = np.ascontiguousarray(rot, dtype=float)

@@ -1,19 +1,20 @@
 """The registration's iterations, compiled (numba): the tracking loop and the fresh ICP loop.
 
-numpy spent these loops in per-call overhead, not arithmetic: each iteration is ~100 small array
-operations on 256 points (grid lookups, the articulated pairing, the 6x6 point-to-plane normal
-equations or the 3x3 SVD, the hinge's 2-D Procrustes), and at a few microseconds each tracking
-took ~1.9 ms per env step, more than the step's 25 physics steps (1.2 ms), and one fresh
-registration ~5 ms. These kernels do the same arithmetic in plain loops: the same pairs, weights,
-steps and priors (the numpy versions stay, ``CanonicalRegistration.numpy_reference()``, and tests
-hold the two to 1e-9). ``track_one``/``track_batch``: ``CanonicalRegistration.track``;
-``icp_iterations``: the coarse, fine and exact stages of ``register`` (without reverse pairs).
+In numpy these loops spend their time in per-call overhead, not arithmetic: each iteration is
+~100 small array operations on 256 points (grid lookups, the articulated pairing, the 6x6
+point-to-plane normal equations or the 3x3 SVD, the hinge's 2-D Procrustes), at a few microseconds
+each, so numpy's tracking costs more per env step than the step's 25 physics steps (measured in
+``analysis/bench/history/README.md``). These kernels do the same arithmetic in plain loops: the
+same pairs, weights, steps and priors (the numpy versions stay,
+``CanonicalRegistration.numpy_reference()``, and tests hold the two to 1e-9).
+``track_one``/``track_batch``: ``CanonicalRegistration.track``; ``icp_iterations``: the coarse,
+fine and exact stages of ``register`` (without reverse pairs).
 
 One difference on batches: the numpy loop stops when no tool in the batch moved more than the
 tolerances; here each tool stops on its own (the same on one tool, which is what an env tracks).
 
 Compiled on first use and cached on disk next to this file (numba ``cache=True``): the first
-call in a new checkout takes ~10-30 s, later processes load the cache in well under a second.
+call in a new checkout compiles them (tens of seconds), later processes load the cache.
 """
 
 from __future__ import annotations
@@ -24,7 +25,7 @@ from numba import njit
 from hingelab.perception.pose_kernels import euler_angles_xyz, rotvecs_to_matrices
 
 
-@njit(cache=True, inline="always")  # a call with array arguments costs ~30 ns of reference counting
+@njit(cache=True, inline="always")  # a call with array arguments costs reference counting
 def _grid_lookup(q, origin, resolution, index, points):
     """Nearest model point by the voxel map: (distance, model index) of one query point."""
     c0 = min(max(np.int64(np.floor((q[0] - origin[0]) / resolution)), 0), index.shape[0] - 1)

@@ -5,9 +5,9 @@ at the training data's noise (2-6 mm for the shipped encoder). The envs see 3 mm
 tracked from step to step by ``ToolState``. A PointNet's max pool reads a cloud's extremes, so
 the latent of a given opening depends on the noise and on the registration, and the training
 curve is off the envs' latents where the tweezer is nearly shut: a shut tweezer in
-ToolShape-v0 sits 0.074 from the shipped curve's closed end (the success threshold is 0.094), and
-the reader takes it for 0.017 rad open; goals drawn as ``z_for_opening(small opening)`` ask for a
-latent that only a tweezer ~0.02 rad open shows. (The shipped encoder keeps its curve: its policy
+ToolShape-v0 sits off the shipped curve's closed end by most of a success threshold, and the
+reader takes it for slightly open; goals drawn as ``z_for_opening(small opening)`` ask for a
+latent that only a slightly open tweezer shows. (The shipped encoder keeps its curve: its policy
 learned on those goals; assets/checkpoints/README.md has the measurements.)
 
 Here the curve (and the reader) are fitted on what ``ToolPerception`` produces: per sweep, one
@@ -39,7 +39,7 @@ from hingelab.provenance import code_version
 from hingelab.tasks import TOOL_SHAPE_SUCCESS_GAP_MM as SUCCESS_GAP_MM
 
 SWEEP_STEPS = 60  # control steps from one end of the range to the other (~0.005 rad a step: tracking holds)
-DWELL_STEPS = 5  # steps held at each end before and after the sweep (the ends are where the old fit was off)
+DWELL_STEPS = 5  # steps held at each end before and after the sweep (where a training-cloud curve is off)
 LOWEST_OPENING = -0.0012  # rad: the fingers squeeze the hinge this far past shut (FingerSynergy.theta_range)
 
 

@@ -7,8 +7,8 @@ scene) turned by up to ``max_angle_deg`` about each axis and shifted by up to
 with ``noise_std_max_m`` set, a noise level drawn per cloud uniformly between
 ``noise_std_m`` and ``noise_std_max_m``. A PointNet's max pool reads the cloud's extremes,
 which grow with the noise, so an encoder trained at one noise level reads clouds at
-another as a different opening: trained at 5 mm only, it read the sim's 3 mm clouds
-20-57 mrad too closed.
+another as a different opening: trained at 5 mm only, it reads the sim's 3 mm clouds as
+too closed (``analysis/low-level-ablation/README.md``).
 
 Episode layout (the episode contract, datasets/README.md): ``clouds_per_episode``
 clouds per episode file, one per step (log times 50 ms apart, no dynamics implied):

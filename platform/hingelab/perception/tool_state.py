@@ -6,7 +6,7 @@ Per control step and per cloud (hand_base, metres):
    (with the registration's roll hypotheses), then tracking (``CanonicalRegistration.track``):
    one hypothesis, started at the previous pose moved by part of the last step's motion,
    with a motion prior that holds the roll about the tool's long axis (a single noisy
-   frame fixes it only to ~3-4 degrees, and differencing would turn that into ~1 rad/s of
+   frame fixes it only to a few degrees, and differencing would turn that into a large
    omega at rest); a tool whose residual exceeds ``lost_rmse_m`` is registered afresh:
    tool pose t (3,), R (3, 3), Euler angles theta (3,);
 2. velocities by differencing consecutive poses over ``dt``: v (3,) m/s, omega (3,) rad/s,
@@ -60,7 +60,7 @@ class ToolStateSample:
     registration_rmse_m: np.ndarray  # (B,)
     calibration: object | None = field(default=None, repr=False)  # the encoder's OpeningCalibration, if any
 
-    # read from z_bar on first use: no env step reads them, and the two readers cost ~20 us a step
+    # read from z_bar on first use: no env step reads them, and reading both every step costs time
     @functools.cached_property
     def opening_rad(self) -> np.ndarray | None:
         """(B,) opening (rad) read from z_bar, if the encoder is calibrated."""
@@ -157,7 +157,7 @@ class ToolState:
         ``n_distinct``: only the first n_distinct points of each cloud are distinct and the rest
         repeat some of them (the synthesizer's occlusion refill, ``CloudSynthesizer.n_distinct``):
         the encoder reads just those, the same latent (its max pool does not see repeats) for ~20%
-        less arithmetic. The registration weighs every point, repeats included, as before.
+        less arithmetic. The registration weighs every point, repeats included.
         """
         points, _ = check_clouds(clouds)
         if n_distinct is not None and not 1 <= n_distinct <= points.shape[1]:

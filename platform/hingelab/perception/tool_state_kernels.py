@@ -1,15 +1,15 @@
 """``ToolState.update``'s step between two resets, compiled (numba): one call per env step.
 
-Between resets every tool is tracked from its predicted pose. In numpy that step was ~40
+Between resets every tool is tracked from its predicted pose. In numpy that step is ~40
 small array operations (the prediction, tracking's argument checks, Euler angles, the
 differencing, the move into the tool frame, the encoder's input scaling); right after the
-physics step each of them ran at a few microseconds, ~0.2 ms in all. Here they are one pass
-over the same formulas, calling the tracking loop itself (``registration_kernels.track_one``)
-and the pose kernels. The 3x3 rotation products and the cloud's move into the tool frame are
-plain sums here where numpy used BLAS, so results can differ from the numpy path in the
-last bit (1e-16 relative); the tracking, the hinge and the encoder's input are otherwise
-the same arithmetic. Anything unusual (a bad prior, a lost tool, a turn near 180 degrees,
-gimbal lock) is flagged for ``ToolState`` to redo in its general path.
+physics step each of them costs a few microseconds, a noticeable share of the step in all.
+Here they are one pass over the same formulas, calling the tracking loop itself
+(``registration_kernels.track_one``) and the pose kernels. The 3x3 rotation products and the
+cloud's move into the tool frame are plain sums here where numpy uses BLAS, so results can
+differ from the numpy path in the last bit (1e-16 relative); the tracking, the hinge and the
+encoder's input are otherwise the same arithmetic. Anything unusual (a bad prior, a lost tool,
+a turn near 180 degrees, gimbal lock) is flagged for ``ToolState`` to redo in its general path.
 """
 
 from __future__ import annotations

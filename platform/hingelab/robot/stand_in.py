@@ -13,8 +13,8 @@ object's centre (the middle of its resting height) and its bounding box, each wi
 Latency: a rig's readings are old when the controller gets them (exposure, transfer, the cloud
 pipeline). The stand-in delivers each reading ``latency_steps`` control periods late, drawn per
 trial as the env's observation delay (0 to 150 ms, ``RandomizationConfig``) rounded to whole 50 ms
-periods; the policies were trained under those delays (on 20 trials of the 2 cm sphere the shipped
-hierarchy picked 15 with them and 10 without).
+periods; the policies were trained under those delays and pick more often with them than without
+(``analysis/stand-in-trials/README.md``).
 """
 
 from __future__ import annotations

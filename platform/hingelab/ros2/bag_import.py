@@ -183,7 +183,8 @@ class _Camera:
         if self.kind == "points":
             scene = M.cloud_xyz(msg, where)
             points = near_crop_box(scene, rot, pos, self.config)
-            # the scene's size counts as the frame's points: a frame of table alone is "too_few_points", as before
+            # the scene's size counts as the frame's points: a frame of table alone is "too_few_points",
+            # not the "no_tool_pixels" that counting only the pre-cropped points would give
             result = tool_cloud_from_points(transform(points, rot, pos), self.config, rng,
                                             counts={"tool_pixels": len(scene)})
         else:

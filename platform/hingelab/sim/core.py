@@ -176,7 +176,7 @@ class SimCore:
         return self.reader.read(self.data)
 
     def _instability_warnings(self) -> int:
-        number = self.data.warning.number  # one array read (indexing the warning list per kind cost 4x)
+        number = self.data.warning.number  # one array read (indexing the warning list per kind is slower)
         return int(number[_INSTABILITY_WARNINGS].sum())
 
     def _divergence(self) -> str:

@@ -1,6 +1,6 @@
 """Send ``Series`` to a Rerun recording in bulk: one ``send_columns`` call per entity.
 
-Per-step logging (``rec.set_time`` + ``rec.log`` per step) is 10 to 20 times slower
+Per-step logging (``rec.set_time`` + ``rec.log`` per step) is an order of magnitude slower
 (ECOSYSTEM.md); columns let a whole episode, or the same entity of a whole dataset,
 go out in one call. Styling that does not change over time (colors, radii, series
 names) is logged once as static components of the same entity.
