@@ -20,6 +20,7 @@ import numpy as np
 
 from hingelab.errors import ConfigError
 from hingelab.sim import names
+from hingelab.sim.scene import load_scene
 
 
 class ArmKinematics:
@@ -27,8 +28,6 @@ class ArmKinematics:
 
     def __init__(self, model: mujoco.MjModel | None = None):
         if model is None:
-            from hingelab.sim.scene import load_scene
-
             model = load_scene("tool_pick")
         self.model = model
         self.data = mujoco.MjData(model)

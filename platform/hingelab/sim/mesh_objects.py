@@ -96,7 +96,7 @@ def load_unit_hull(shape: str) -> UnitHull:
 
 @lru_cache(maxsize=32)
 def _load(path: str, mtime_ns: int, size: int) -> UnitHull:
-    import trimesh
+    import trimesh  # slow to import (over a second) and only mesh: objects need it
 
     data = Path(path).read_bytes()
     sha = hashlib.sha256(data).hexdigest()

@@ -10,6 +10,7 @@ from hingelab.errors import AssetError, ConfigError
 from hingelab.paths import SCENES_DIR
 from hingelab.sim import names
 from hingelab.sim.objects import ObjectSpec, add_object_geom
+from hingelab.sim.rig_camera import add_rig_camera
 
 REBUILD_HINT = "restore it from git or rebuild the scenes with `python -m hingelab.sim.scene_builder`"
 
@@ -52,8 +53,6 @@ def load_scene(scene: str = "tool_pick", obj: ObjectSpec | None = None, camera=N
             spec.delete(geom)
         add_object_geom(spec, body, obj)
     if camera is not None:
-        from hingelab.sim.rig_camera import add_rig_camera
-
         add_rig_camera(spec, scene_path(scene).stem, camera)
     try:
         model = spec.compile()
