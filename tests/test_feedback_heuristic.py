@@ -9,7 +9,7 @@ import pytest
 
 from hingelab.envs import TOOL_PICK_ID
 from hingelab.policies.baselines import FeedbackScriptedPolicy
-from hingelab.rollouts.high_level import episode_seed
+from hingelab.seeds import eval_high_seed
 from hingelab.training.prior import PICK_SETS, prior_parts
 
 
@@ -37,7 +37,7 @@ def _run(object: str, size: float, seed: int):
 
 @pytest.mark.parametrize("object,size", [("cylinder", 0.015), ("cylinder", 0.025)])
 def test_feedback_heuristic_picks_without_the_size(object, size):
-    heuristic, close, info = _run(object, size, episode_seed(3, 0))
+    heuristic, close, info = _run(object, size, eval_high_seed(3, 0))
     assert info["is_success"] == 1.0
     # one opening for every object
     assert heuristic.open_theta == pytest.approx(min(np.arcsin(heuristic.config.open_width / 0.124),
@@ -54,8 +54,8 @@ def test_feedback_heuristic_picks_without_the_size(object, size):
 
 def test_the_settled_command_follows_the_object_width():
     """Closed on a wide object the command settles higher than on a narrow one."""
-    small = _run("cylinder", 0.015, episode_seed(3, 1))[1][-1, 1]
-    large = _run("cylinder", 0.025, episode_seed(3, 1))[1][-1, 1]
+    small = _run("cylinder", 0.015, eval_high_seed(3, 1))[1][-1, 1]
+    large = _run("cylinder", 0.025, eval_high_seed(3, 1))[1][-1, 1]
     assert large > small + 0.04
 
 

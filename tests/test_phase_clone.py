@@ -16,7 +16,8 @@ import pandas as pd
 import pytest
 
 from hingelab.errors import ConfigError
-from hingelab.policies.phase_clone import PHASES, PhaseClone, PhaseDemos, fit_phase_clone, is_phase_clone
+from hingelab.learners.phase_clone.fit import PhaseDemos, fit_phase_clone
+from hingelab.policies.phase_clone import PHASES, PhaseClone, is_phase_clone
 
 
 def _timer_demos(episodes: int = 40, seed: int = 0) -> PhaseDemos:
@@ -94,7 +95,7 @@ def test_the_zip_round_trips_without_pickles(timer_clone, tmp_path):
 
 
 def test_an_ensemble_acts_on_its_members_mean_and_round_trips(tmp_path):
-    from hingelab.policies.phase_clone import fit_phase_clone_members
+    from hingelab.learners.phase_clone.fit import fit_phase_clone_members
 
     nets, fit = fit_phase_clone_members(_timer_demos(), 2, (32, 32), 300, 64, 1e-2, seed=0)
     assert len(nets) == 2 and fit["members"] == 2 and len(fit["member_fits"]) == 2
@@ -200,12 +201,13 @@ def test_noisy_demos_execute_a_perturbed_velocity_and_label_the_clean_action(tmp
     """--prior-action-noise: the scripted demonstrator's executed hand velocity carries the noise, its latent
     goal does not, and the clone's demos take the clean action from the step's labels."""
     from hingelab.episodes.dataset import Dataset
+    from hingelab.learners.phase_clone.config import PhaseCloneConfig
     from hingelab.learners.sac.high_level_config import HighLevelTrainConfig
     from hingelab.training.high_level_demos import high_level_transitions
     from hingelab.training.prior import generate_prior
 
-    config = HighLevelTrainConfig(low_level="privileged", randomize=False, max_episode_steps=30, prior_episodes=1,
-                                  prior_action_noise=0.2, learner="phase-clone", seed=3)
+    config = PhaseCloneConfig(low_level="privileged", randomize=False, max_episode_steps=30, prior_episodes=1,
+                              prior_action_noise=0.2, seed=3)
     root, = generate_prior(tmp_path / "prior", config, "noisy", progress=False)
     assert Dataset(root).card.config["action_noise"] == 0.2
     transitions = high_level_transitions([root], actions="recorded")

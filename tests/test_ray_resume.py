@@ -113,12 +113,13 @@ def test_an_episode_still_being_written_when_resume_starts_cannot_land(tmp_path)
     from hingelab.episodes import create_dataset
     from hingelab.episodes.synthetic import synthetic_step, write_synthetic_episode
     from hingelab.episodes.writer import EpisodeWriter
-    from hingelab.rollouts.heuristic_demos import HeuristicRunConfig, _seeds_to_run, episode_seed
+    from hingelab.rollouts.heuristic_demos import HeuristicRunConfig, _seeds_to_run
+    from hingelab.seeds import demo_seed
 
     config = HeuristicRunConfig(episodes=4, seed=2)
     out = tmp_path / "demos"
     create_dataset(out, name="demos", source="heuristic", config=asdict(config), seed=config.seed)
-    seeds = [episode_seed(config.seed, k) for k in range(config.episodes)]
+    seeds = [demo_seed(config.seed, k) for k in range(config.episodes)]
     for seed in seeds[:2]:
         write_synthetic_episode(out, seed, n_steps=5, source="heuristic")
     ghost = EpisodeWriter(out, source="heuristic", seed=seeds[2])  # the killed run's worker, mid-episode

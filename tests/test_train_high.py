@@ -186,21 +186,21 @@ def test_bad_input_gets_one_line_errors(tmp_path):
 def test_cli_flags_come_from_the_config(capsys):
     from hingelab.cli.main import build_parser
 
-    parser = build_parser()
+    parser = build_parser([])
     args = parser.parse_args(["train", "high", "--gamma", "0.95", "--net-arch", "64", "64", "--no-prior",
                               "--c-h1", "50", "--demo-share", "0"])
     from hingelab.training.run_config import config_from_args
 
-    config = config_from_args(args.config_class, args)
+    config = config_from_args(args.learner_class.config_class, args)
     assert config.gamma == 0.95 and config.net_arch == (64, 64) and not config.prior and config.c_h1 == 50
     assert config.reward.c_h1 == 50
     flat = parser.parse_args(["train", "flat", "--tau", "0.01"])
-    assert config_from_args(flat.config_class, flat).tau == 0.01
+    assert config_from_args(flat.learner_class.config_class, flat).tau == 0.01
     with pytest.raises(SystemExit):
         parser.parse_args(["train", "flat", "--from", "x"])
     # a negating flag and its opposite: the high level's default is no Q-filter
     on = parser.parse_args(["train", "high", "--demo-q-filter"])
-    assert config_from_args(on.config_class, on).demo_q_filter is True
+    assert config_from_args(on.learner_class.config_class, on).demo_q_filter is True
     assert parser.parse_args(["train", "low", "--bc-no-q-filter"]).demo_q_filter is False
     from hingelab.learners.sac.low_level_config import LowLevelTrainConfig
 

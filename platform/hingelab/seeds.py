@@ -1,12 +1,84 @@
-"""The seed plan: every stream of episode seeds the platform draws from, in one place.
+"""The seed plan: every stream of episode seeds the platform resets its envs with, in one place.
 
-(Being completed: the streams still defined beside their commands move here.)
+A command's ``--seed S`` picks a block of a stream; episode ``k`` of the block gets its own reset seed,
+so an episode is the same wherever and in whatever order it runs (workers, Ray, a resume).
+
+=====================  ===========================================  =================================
+stream                 episode k of seed S                          used by
+=====================  ===========================================  =================================
+demos                  S * STRIDE + k                               generate heuristic, the camera gap
+trials                 TRIALS_BASE + S * STRIDE + k                 hingelab trial
+high-level evaluation  EVAL_HIGH_BASE + S * STRIDE + k              eval high, the pick table, the demo
+prior                  the demos' or the high-level evaluation's    train high's generated prior
+                       stream at block prior_block(S, part)
+training evaluation    the high-level evaluation's block            train high / flat / phase clone
+                       TRAINING_EVALUATION_SEED                     (held out during training)
+training rollouts      training_episode_seed(S, env, k)             train low / high / flat rollouts
+low-level held out     HELD_OUT_BASE + k (fixed goals);             train low's evaluations; eval low
+                       HELD_OUT_BASE + SAMPLED_OFFSET + S * 10_007 + k
+=====================  ===========================================  =================================
+
+Within the user-facing domain (``S`` below ``SEED_LIMIT``, ``k`` below ``EPISODE_LIMIT``) the demos,
+trials, high-level evaluation, prior and low-level held-out streams are disjoint (``tests/test_seeds.py``).
+The training rollouts' stream keeps below the trials, the evaluations and the held-out goals for run seeds
+below ``TRAINING_SEED_LIMIT`` with up to 16 envs of ``TRAINING_EPISODE_LIMIT`` episodes each, but it shares
+numbers with the demos' stream: a training run's rollouts can start where a ``generate heuristic`` dataset's
+demos start (both are training data; no evaluation sees them). It is kept as it is because every trained
+checkpoint was made with it: changing it changes what a seed trains.
 """
 
 from __future__ import annotations
 
-HELD_OUT_BASE = 2_000_000_000  # low-level held-out goals' episode seeds, above every training episode's
+STRIDE = 100_003  # episodes per block (a prime: blocks of neighbouring seeds do not line up)
+SEED_LIMIT = 1_000  # the --seed values the plan keeps apart ...
+EPISODE_LIMIT = 10_000  # ... for this many episodes per command
+TRAINING_SEED_LIMIT = 700  # training run seeds whose rollouts keep below the trials ...
+TRAINING_EPISODE_LIMIT = 12_000  # ... with this many episodes per env
+TRIALS_BASE = 800_000_000
+EVAL_HIGH_BASE = 900_000_000
+PRIOR_BASE = 700_000  # the prior's blocks: far above any --seed of generate heuristic
+PRIOR_PART_STRIDE = 1_000
+TRAINING_EVALUATION_SEED = 77  # train's held-out evaluations: `hingelab eval high --seed 77`'s episodes
+HELD_OUT_BASE = 2_000_000_000  # low-level held-out goals, above every training rollout's seed
+SAMPLED_OFFSET = 1_000_000  # eval low's sampled goals, apart from train low's fixed ones
+SAMPLED_STRIDE = 10_007
 MEMBER_STRIDE = 1_000_003
+
+
+def demo_seed(seed: int, index: int) -> int:
+    """Episode ``index`` of ``hingelab generate heuristic --seed seed`` (and of a prior's heuristic demos)."""
+    return int(seed) * STRIDE + int(index)
+
+
+def trial_seed(seed: int, index: int) -> int:
+    """Trial ``index`` of ``hingelab trial --seed seed``."""
+    return TRIALS_BASE + int(seed) * STRIDE + int(index)
+
+
+def eval_high_seed(seed: int, index: int) -> int:
+    """Episode ``index`` of ``hingelab eval high --seed seed``: paired across policies and baselines."""
+    return EVAL_HIGH_BASE + int(seed) * STRIDE + int(index)
+
+
+def prior_block(run_seed: int, part: int) -> int:
+    """The block (a ``--seed`` of the demos' stream) of part ``part`` of run ``run_seed``'s generated prior."""
+    return PRIOR_BASE + int(run_seed) + PRIOR_PART_STRIDE * int(part)
+
+
+def training_episode_seed(run_seed: int, env_index: int, episode: int) -> int:
+    """Episode ``episode`` of rollout env ``env_index`` of a training run: determined by the count, so a
+    resumed run and 1 or N envs replay the same episodes."""
+    return (int(run_seed) * 1_000_003 + int(env_index) * STRIDE + int(episode) * 7919) % HELD_OUT_BASE
+
+
+def held_out_goal_seed(index: int) -> int:
+    """The ``index``-th fixed held-out goal of a low-level run's evaluations."""
+    return HELD_OUT_BASE + int(index)
+
+
+def sampled_goal_seed(seed: int, index: int) -> int:
+    """Goal ``index`` of ``hingelab eval low --seed seed``."""
+    return HELD_OUT_BASE + SAMPLED_OFFSET + int(seed) * SAMPLED_STRIDE + int(index)
 
 
 def ensemble_member_seed(seed: int, member: int) -> int:
@@ -14,4 +86,6 @@ def ensemble_member_seed(seed: int, member: int) -> int:
     return int(seed) + int(member) * MEMBER_STRIDE
 
 
-__all__ = ["HELD_OUT_BASE", "MEMBER_STRIDE", "ensemble_member_seed"]
+__all__ = ["STRIDE", "SEED_LIMIT", "EPISODE_LIMIT", "TRAINING_SEED_LIMIT", "TRAINING_EPISODE_LIMIT", "TRIALS_BASE", "EVAL_HIGH_BASE", "PRIOR_BASE", "TRAINING_EVALUATION_SEED",
+           "HELD_OUT_BASE", "demo_seed", "trial_seed", "eval_high_seed", "prior_block", "training_episode_seed",
+           "held_out_goal_seed", "sampled_goal_seed", "ensemble_member_seed"]

@@ -98,7 +98,8 @@ def _workloads(root: Path, quick: bool):
     from hingelab.envs.low_level import PolicyLowLevel
     from hingelab.policies.low_level import SHIPPED_LOW_LEVEL
     from hingelab.episodes import create_dataset
-    from hingelab.rollouts.heuristic_demos import HeuristicEpisodes, HeuristicRunConfig, episode_seed
+    from hingelab.rollouts.heuristic_demos import HeuristicEpisodes, HeuristicRunConfig
+    from hingelab.seeds import demo_seed
     from hingelab.rollouts.on_ray import LowLevelEpisodes
     from hingelab.rollouts.low_level import evaluation_env_arguments
     from hingelab.rollouts.low_level import make_eval_env, sampled_goals
@@ -108,7 +109,7 @@ def _workloads(root: Path, quick: bool):
     goals = sampled_goals(env.unwrapped.calibration, env.unwrapped.reachable_range, 8 if quick else 40, seed=0)
     env.close()
     config = HeuristicRunConfig(episodes=4 if quick else 12, seed=0, workers=WORKERS)
-    seeds = [episode_seed(0, k) for k in range(config.episodes)]
+    seeds = [demo_seed(0, k) for k in range(config.episodes)]
 
     def evaluation(folder: Path):
         create_dataset(folder, name=folder.name, source="low_level_evaluation", seed=0, config={})

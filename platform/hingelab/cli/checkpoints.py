@@ -4,6 +4,11 @@ from __future__ import annotations
 
 import argparse
 from pathlib import Path
+from hingelab.errors import ConfigError
+from hingelab.policies.sb3_zip import read_plain_data
+from hingelab.perception.encoder import SHIPPED_CHECKPOINT, convert_checkpoint
+from hingelab.training.checkpoints import convert_pickled
+from hingelab.policies.phase_clone import PhaseClone, is_phase_clone
 
 
 def add_parser(subparsers) -> None:
@@ -27,13 +32,9 @@ def add_parser(subparsers) -> None:
 
 
 def run_convert(args: argparse.Namespace) -> int:
-    from hingelab.errors import ConfigError
-    from hingelab.policies.sb3_zip import read_plain_data
-    from hingelab.perception.encoder import SHIPPED_CHECKPOINT, convert_checkpoint
 
     for path in args.files or [SHIPPED_CHECKPOINT]:
         if path.is_dir():
-            from hingelab.training.checkpoints import convert_pickled
 
             rewritten = convert_pickled(path)
             print(f"{path}: {len(rewritten)} pickled checkpoint(s) rewritten as state.json and replay_buffer.npz"
@@ -42,7 +43,6 @@ def run_convert(args: argparse.Namespace) -> int:
         if not path.is_file():
             raise ConfigError(f"{path} does not exist")
         if path.suffix == ".zip":
-            from hingelab.policies.phase_clone import PhaseClone, is_phase_clone
 
             if is_phase_clone(path):
                 PhaseClone.load(path)

@@ -10,6 +10,8 @@ import argparse
 from pathlib import Path
 
 from hingelab.errors import ConfigError
+from hingelab.policies.goal_experts import load_experts, write_experts
+from hingelab.paths import refuse_to_replace_shipped
 
 
 def add_parser(subparsers) -> None:
@@ -49,9 +51,6 @@ def parse_expert(text: str) -> tuple[Path, float | None]:
 
 
 def run_low(args: argparse.Namespace) -> int:
-    from hingelab.policies.goal_experts import load_experts, write_experts
-
-    from hingelab.paths import refuse_to_replace_shipped
 
     refuse_to_replace_shipped(args.out, args.force)
     experts = [parse_expert(text) for text in args.expert]

@@ -9,6 +9,16 @@ from pathlib import Path
 from hingelab.cli.options import add_on_corrupt
 from hingelab.episodes.errors import DatasetError
 from hingelab.paths import DATASETS_DIR
+from hingelab.ros2 import bag_export  # noqa: F401  (registers the ros2 export format)
+from hingelab.episodes.export import EXPORTERS
+from hingelab.ros2.topics import KINDS
+from hingelab.episodes.dataset import open_dataset
+from hingelab.episodes.verify import verify_dataset
+from hingelab.episodes.recover import recover_episode, recover_folder
+from hingelab.errors import ConfigError
+from hingelab.episodes.export import export_dataset
+from hingelab.ros2.bag_import import import_bags
+from hingelab.ros2.topics import topic_names
 
 
 def add_parser(subparsers) -> None:
@@ -64,7 +74,7 @@ def add_parser(subparsers) -> None:
             "and renames it into place at the end."),
     )
     export.add_argument("dir", type=Path, help="dataset folder")
-    export.add_argument("--format", choices=["minari", "lerobot", "ros2"], required=True, help="target layout")
+    export.add_argument("--format", choices=tuple(EXPORTERS), required=True, help="target layout")
     export.add_argument("--out", type=Path, required=True,
                         help="minari: the datasets root (MINARI_DATASETS_PATH); lerobot: the new dataset folder; "
                              "ros2: the new folder of bags")
@@ -73,8 +83,6 @@ def add_parser(subparsers) -> None:
                              "must not exist under --out")
     add_on_corrupt(export)
     export.set_defaults(func=run_export)
-
-    from hingelab.ros2.topics import KINDS
 
     kinds = "\n".join(f"  {k.kind}={k.default}  ({k.msgtype}{'' if k.required else ', optional'}): {k.meaning}"
                       for k in KINDS.values())
@@ -101,7 +109,6 @@ def add_parser(subparsers) -> None:
 
 
 def _open(root: Path):
-    from hingelab.episodes.dataset import open_dataset
 
     return open_dataset(root)
 
@@ -134,7 +141,6 @@ def run_index(args: argparse.Namespace) -> int:
 
 
 def run_verify(args: argparse.Namespace) -> int:
-    from hingelab.episodes.verify import verify_dataset
 
     _open(args.dir)
     good, problems = verify_dataset(args.dir, progress=True)
@@ -149,8 +155,6 @@ def run_verify(args: argparse.Namespace) -> int:
 
 
 def run_recover(args: argparse.Namespace) -> int:
-    from hingelab.episodes.recover import recover_episode, recover_folder
-    from hingelab.errors import ConfigError
 
     if args.file.is_dir():
         if args.out is not None:
@@ -171,18 +175,9 @@ def run_recover(args: argparse.Namespace) -> int:
 
 
 def run_export(args: argparse.Namespace) -> int:
-    from hingelab.episodes.export import export_dataset
 
     dataset = _open(args.dir)
-    if args.format == "ros2":
-        from hingelab.errors import ConfigError
-        from hingelab.ros2.bag_export import export_ros2
-
-        if args.dataset_id is not None:
-            raise ConfigError("--dataset-id names a Minari dataset; a ros2 export is one bag folder per episode")
-        result = export_ros2(dataset, args.out, progress=True)
-    else:
-        result = export_dataset(dataset, args.format, args.out, dataset_id=args.dataset_id, progress=True)
+    result = export_dataset(dataset, args.format, args.out, dataset_id=args.dataset_id, progress=True)
     skipped = "".join(f"; skipped {len(files)} ({reason}): {', '.join(files[:3])}{' ...' if len(files) > 3 else ''}"
                       for reason, files in result.skipped.items())
     notes = "".join(f"; {note}" for note in result.notes)
@@ -192,8 +187,6 @@ def run_export(args: argparse.Namespace) -> int:
 
 
 def run_import_ros2(args: argparse.Namespace) -> int:
-    from hingelab.ros2.bag_import import import_bags
-    from hingelab.ros2.topics import topic_names
 
     topic_names(args.topic)  # a malformed --topic is refused before anything is read
     summaries = import_bags(args.bags, args.out, topics=args.topic, progress=not args.no_progress)

@@ -1,6 +1,6 @@
 """``hingelab demo``: the README's main job, a short end-to-end run on shipped defaults.
 
-Each step prints what it measured; later issues add their steps (generate demos,
+Each step prints what it measured; a command that a new feature adds gets its step (generate demos,
 evaluate the shipped policies, report, Rerun recording) to ``STEPS``.
 """
 
@@ -15,9 +15,28 @@ from pathlib import Path
 import numpy as np
 
 from hingelab.paths import ANALYSIS_DIR, DATASETS_DIR
+from hingelab.policies.high_level import SHIPPED_HIGH_LEVEL
+from hingelab.policies.loading import baseline_names
+from hingelab.policies.low_level import SHIPPED_LOW_LEVEL
+from hingelab.rollouts.evaluation import evaluate_high, evaluate_low
 from hingelab.sim import scripted
 from hingelab.sim.core import SimCore
 from hingelab.sim.finger_synergy import FingerSynergy
+from hingelab.rollouts.heuristic_demos import HeuristicRunConfig, generate_heuristic_dataset, summarize
+from hingelab.episodes import create_dataset
+from hingelab.robot.controller import CheckpointHighLevel, HierarchicalController
+from hingelab.robot.stand_in import StandInRobot
+from hingelab.robot.trial import TrialConfig, run_trials
+from hingelab.episodes.dataset import Dataset
+from hingelab.ros2.bag_export import export_ros2
+from hingelab.ros2.bag_import import import_bags
+from hingelab.ros2.rig_bag import RigBagSpec, write_rig_bag
+from hingelab.sweeps.runner import SWEEP_CSV, run_sweep, summary
+from hingelab.sweeps.spec import load_sweep
+from hingelab.analysis import build_report
+from hingelab.viewers.view import view
+import os
+import pandas as pd
 
 
 def add_parser(subparsers) -> None:
@@ -46,7 +65,7 @@ def add_parser(subparsers) -> None:
 
 
 def step_platform(seed: int) -> dict:
-    """Issue 2: the robot platform."""
+    """the robot platform."""
     synergy = FingerSynergy.load()
     sim = SimCore("tool_pick", seed=seed)
     sim.reset()
@@ -92,8 +111,7 @@ DEMO_OUT = ANALYSIS_DIR / "demo"
 
 
 def step_heuristic_demos(seed: int) -> dict:
-    """Issue 5: heuristic demos on ToolPick-v0, recorded as an MCAP dataset."""
-    from hingelab.rollouts.heuristic_demos import HeuristicRunConfig, generate_heuristic_dataset, summarize
+    """heuristic demos on ToolPick-v0, recorded as an MCAP dataset."""
 
     shutil.rmtree(DEMO_DATASET, ignore_errors=True)  # the demo's own output: remade each run
     config = HeuristicRunConfig(episodes=3, seed=seed)
@@ -108,30 +126,20 @@ DEMO_LOW_LEVEL_DATASET = DATASETS_DIR / "demo_low_level"
 
 
 def step_low_level_policy(seed: int) -> dict:
-    """Issue 7: the shipped low-level policy shapes the tweezer to latent goals (ToolShape-v0)."""
-    from hingelab.envs.low_level import PolicyLowLevel
-    from hingelab.policies.low_level import SHIPPED_LOW_LEVEL
-    from hingelab.episodes import create_dataset
-    from hingelab.rollouts.low_level import evaluation_env_arguments
-    from hingelab.rollouts.low_level import evaluate_sampled_goals, make_eval_env, region_table
-
+    """The shipped low-level policy shapes the tweezer to latent goals (ToolShape-v0), as `eval low` runs it."""
     shutil.rmtree(DEMO_LOW_LEVEL_DATASET, ignore_errors=True)
-    policy = PolicyLowLevel(SHIPPED_LOW_LEVEL).model
-    create_dataset(DEMO_LOW_LEVEL_DATASET, name="demo-low-level", source="low_level_evaluation",
-                   config={"checkpoint": str(SHIPPED_LOW_LEVEL), "episodes": 3}, seed=seed,
-                   description="hingelab demo: the shipped low-level policy toward 3 reachable goals")
-    env = make_eval_env(evaluation_env_arguments(policy), record_dir=DEMO_LOW_LEVEL_DATASET)
-    threshold = env.unwrapped.success_threshold
     started = time.perf_counter()
-    episodes = evaluate_sampled_goals(policy, env, 3, seed)
-    env.close()
-    rows = episodes.to_dict("records")
+    result = evaluate_low(SHIPPED_LOW_LEVEL, out=DEMO_LOW_LEVEL_DATASET, episodes=3, seed=seed, progress=False,
+                          name="demo-low-level",
+                          description="hingelab demo: the shipped low-level policy toward 3 reachable goals")
+    threshold = result.details["success_threshold"]
+    rows = result.episodes.to_dict("records")
     for row in rows:
         print(f"  goal opening {row['goal_opening_rad']:.3f} rad: hinge reached {row['final_hinge_rad']:.3f} rad, "
               f"tip-gap error {row['tip_gap_error_mm']:.1f} mm, latent distance over the last 0.5 s "
               f"{row['settled_latent_distance']:.3f} (threshold {threshold:.3f}): "
               f"{'success' if row['success'] else 'failure'}, tool moved at most {row['tool_drift_mm_max']:.1f} mm")
-    overall = region_table(episodes).iloc[-1]
+    overall = result.table.iloc[-1]
     # the env's verdict (settled over the last 0.5 s), as each episode records it: report counts the same
     print(f"  {SHIPPED_LOW_LEVEL.name}: success {int(overall['successes'])}/{len(rows)} (settled over the last 0.5 s) "
           f"in {time.perf_counter() - started:.1f} s, recorded in {DEMO_LOW_LEVEL_DATASET}")
@@ -146,23 +154,16 @@ DEMO_LEARNED_DATASET = DATASETS_DIR / "demo_learned_hierarchy"
 HIERARCHY_EPISODES = 2
 
 
-def _pick_sphere(policy, label: str, dataset, seed: int, name: str, description: str,
-                 observe_extent: bool = False) -> dict:
-    """``HIERARCHY_EPISODES`` episodes of ``policy`` on ToolPick-v0 (2 cm sphere) over the shipped
-    low-level policy, recorded into ``dataset`` as `hingelab eval high` records them."""
-    from hingelab.episodes import create_dataset
-    from hingelab.rollouts import high_level as H
-
-    create_dataset(dataset, name=name, source="high_level_evaluation",
-                   config={"policy": label, "low_level": "policy", "object": "sphere", "size": 0.02,
-                           "episodes": HIERARCHY_EPISODES}, seed=seed, description=description)
-    env = H.make_eval_env("sphere", 0.02, "policy", record_dir=dataset, observe_extent=observe_extent,
-                          extra_metadata={"policy": Path(label).name, "low_level": "policy"})
+def _pick_sphere(policy, label: str, dataset, seed: int, name: str, description: str) -> dict:
+    """``HIERARCHY_EPISODES`` episodes of ``policy`` (a checkpoint or a baseline's name) on ToolPick-v0 (2 cm
+    sphere) over the shipped low-level policy, as `hingelab eval high` runs them, recorded into ``dataset``."""
+    shutil.rmtree(dataset, ignore_errors=True)
+    baseline = policy if policy in baseline_names("high") else None
     started = time.perf_counter()
-    try:
-        episodes = H.evaluate(policy, env, HIERARCHY_EPISODES, seed)
-    finally:
-        env.close()
+    result = evaluate_high(None if baseline else policy, baseline=baseline, out=dataset, object="sphere", size=0.02,
+                           episodes=HIERARCHY_EPISODES, seed=seed, low_level="policy", progress=False, name=name,
+                           description=description)
+    episodes = result.episodes
     for row in episodes.itertuples():
         outcome = "picked and lifted to the target" if row.success else f"failed ({row.failure_reason})"
         print(f"  episode {row.episode}: {outcome} in {row.length} steps, {row.attempts} attempt(s)")
@@ -174,44 +175,30 @@ def _pick_sphere(policy, label: str, dataset, seed: int, name: str, description:
 
 
 def step_scripted_hierarchy(seed: int) -> dict:
-    """Issue 26's reference: the hierarchy with a scripted high level (the heuristic's arm motion, its
-    hinge command as a latent goal) over the shipped low-level policy."""
-    from hingelab.rollouts import high_level as H
-
-    shutil.rmtree(DEMO_HIERARCHY_DATASET, ignore_errors=True)
-    return _pick_sphere(load_policy("scripted"), "scripted high level", DEMO_HIERARCHY_DATASET, seed,
-                        "demo-scripted-hierarchy",
+    """The hierarchy with a scripted high level (the heuristic's arm motion, its hinge command as a latent
+    goal) over the shipped low-level policy: the reference for the learned high level."""
+    return _pick_sphere("scripted", "scripted high level", DEMO_HIERARCHY_DATASET, seed, "demo-scripted-hierarchy",
                         "hingelab demo: hingelab eval high --baseline scripted over the shipped low level")
 
 
 def step_learned_hierarchy(seed: int) -> dict:
-    """Issue 26: the shipped high-level policy (assets/checkpoints/high_level.zip) over the shipped
-    low-level policy picks the sphere, as `hingelab eval high` runs it."""
-    from hingelab.policies import ModelPolicy
-    from hingelab.policies.high_level import SHIPPED_HIGH_LEVEL, load_high_level_checkpoint, observes_extent
-
-    shutil.rmtree(DEMO_LEARNED_DATASET, ignore_errors=True)
+    """The shipped high-level policy (assets/checkpoints/high_level.zip) over the shipped low-level policy
+    picks the sphere, as `hingelab eval high` runs it."""
     if not SHIPPED_HIGH_LEVEL.exists():
+        shutil.rmtree(DEMO_LEARNED_DATASET, ignore_errors=True)
         print(f"  no shipped high-level policy ({SHIPPED_HIGH_LEVEL}) yet: step skipped")
         return {"skipped": True}
-    model = load_high_level_checkpoint(SHIPPED_HIGH_LEVEL, low_level="policy")
-    return _pick_sphere(ModelPolicy(model), SHIPPED_HIGH_LEVEL.name, DEMO_LEARNED_DATASET, seed,
+    return _pick_sphere(SHIPPED_HIGH_LEVEL, SHIPPED_HIGH_LEVEL.name, DEMO_LEARNED_DATASET, seed,
                         "demo-learned-hierarchy",
-                        "hingelab demo: the shipped high-level policy over the shipped low-level policy",
-                        observe_extent=observes_extent(model))
+                        "hingelab demo: the shipped high-level policy over the shipped low-level policy")
 
 
 DEMO_TRIAL_DATASET = DATASETS_DIR / "demo_stand_in_trial"
 
 
 def step_stand_in_trial(seed: int) -> dict:
-    """Issue 28: one `hingelab trial` on the MuJoCo stand-in of the rig: the depth camera's frames through
+    """one `hingelab trial` on the MuJoCo stand-in of the rig: the depth camera's frames through
     the camera cloud pipeline, the shipped hierarchy acting through the robot interface."""
-    from hingelab.episodes import create_dataset
-    from hingelab.policies.high_level import SHIPPED_HIGH_LEVEL
-    from hingelab.robot.controller import CheckpointHighLevel, HierarchicalController
-    from hingelab.robot.stand_in import StandInRobot
-    from hingelab.robot.trial import TrialConfig, run_trials
 
     shutil.rmtree(DEMO_TRIAL_DATASET, ignore_errors=True)
     if not SHIPPED_HIGH_LEVEL.exists():
@@ -241,12 +228,8 @@ DEMO_REAL_EXPORT = DATASETS_DIR / "demo_real_ros2"
 
 
 def step_ros2_bags(seed: int) -> dict:
-    """Issue 29: a rig's ROS 2 bag (synthetic here: what `ros2 bag record` writes on the rig) imported as
+    """a rig's ROS 2 bag (synthetic here: what `ros2 bag record` writes on the rig) imported as
     real episodes (hingelab datasets import-ros2), and those episodes exported back as ROS 2 bags."""
-    from hingelab.episodes.dataset import Dataset
-    from hingelab.ros2.bag_export import export_ros2
-    from hingelab.ros2.bag_import import import_bags
-    from hingelab.ros2.rig_bag import RigBagSpec, write_rig_bag
 
     for path in (DEMO_RIG_BAG, DEMO_REAL_DATASET, DEMO_REAL_EXPORT):  # the demo's own outputs: remade each run
         shutil.rmtree(path, ignore_errors=True)
@@ -273,12 +256,8 @@ DEMO_SWEEP_ARGS = ["--steps", "40", "--max-episode-steps", "10", "--learning-sta
 
 
 def step_sweep(seed: int) -> dict:
-    """Issue 30: `hingelab sweep`, a grid of 2 conditions (effort reward on and off) x 1 seed of a tiny
+    """`hingelab sweep`, a grid of 2 conditions (effort reward on and off) x 1 seed of a tiny
     `train low`, as Ray tasks on a local one-node Ray with this machine's cores."""
-    import os
-
-    from hingelab.sweeps.runner import SWEEP_CSV, run_sweep, summary
-    from hingelab.sweeps.spec import load_sweep
 
     shutil.rmtree(DEMO_SWEEP, ignore_errors=True)  # the demo's own output: remade each run
     try:
@@ -302,7 +281,6 @@ def step_sweep(seed: int) -> dict:
     started = time.perf_counter()
     records = run_sweep(spec, DEMO_SWEEP, num_cpus=cpus, progress=False)
     seconds = time.perf_counter() - started
-    import pandas as pd
 
     table = pd.read_csv(DEMO_SWEEP / SWEEP_CSV)  # what the sweep wrote, shown as a user would read it
     print(f"  {DEMO_SWEEP / SWEEP_CSV}:")
@@ -317,9 +295,7 @@ def step_sweep(seed: int) -> dict:
 
 
 def step_report_and_recording(seed: int) -> dict:
-    """Issue 6: a success-rate report and a Rerun recording of the demo dataset."""
-    from hingelab.analysis import build_report
-    from hingelab.viewers.view import view
+    """a success-rate report and a Rerun recording of the demo dataset."""
 
     datasets = [DEMO_DATASET, DEMO_LOW_LEVEL_DATASET, DEMO_HIERARCHY_DATASET]
     datasets += [d for d in (DEMO_LEARNED_DATASET, DEMO_TRIAL_DATASET, DEMO_REAL_DATASET)

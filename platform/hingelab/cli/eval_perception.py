@@ -11,6 +11,11 @@ from __future__ import annotations
 import argparse
 import json
 from pathlib import Path
+from hingelab.errors import ConfigError
+from hingelab.perception.camera_gap import GapConfig, run_gap, summarize
+from hingelab.perception.clouds import CloudRealism, CloudSynthesizer
+from hingelab.provenance import code_version, require_clean_for
+import numpy as np
 
 
 def add_parser(what) -> None:
@@ -31,10 +36,6 @@ def add_parser(what) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from hingelab.errors import ConfigError
-    from hingelab.perception.camera_gap import GapConfig, run_gap, summarize
-    from hingelab.perception.clouds import CloudRealism, CloudSynthesizer
-    from hingelab.provenance import code_version, require_clean_for
 
     if args.episodes < 1 or args.steps <= GapConfig.warmup_steps:
         raise ConfigError(f"--episodes must be >= 1 and --steps > {GapConfig.warmup_steps}")
@@ -77,7 +78,6 @@ def draw_frame(snapshot: dict, path: Path) -> None:
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
-    import numpy as np
 
     frame = snapshot["frame"]
     mask = frame.tool_mask

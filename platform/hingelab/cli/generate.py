@@ -15,6 +15,8 @@ import time
 from pathlib import Path
 
 from hingelab.paths import DATASETS_DIR
+from hingelab.perception.synthetic_dataset import CloudDatasetConfig
+from hingelab.perception.synthetic_dataset import CloudDatasetConfig, generate_cloud_dataset
 
 # source name -> "module:function" adding its sub-subcommand to the ``generate`` subparsers
 SOURCES = {
@@ -38,7 +40,6 @@ def add_parser(subparsers) -> None:
 
 # ---------------------------------------------------------------------------- clouds
 def add_clouds_parser(sources) -> None:
-    from hingelab.perception.synthetic_dataset import CloudDatasetConfig
 
     d = CloudDatasetConfig()
     p = sources.add_parser(
@@ -68,7 +69,6 @@ def add_clouds_parser(sources) -> None:
 
 
 def run_clouds(args: argparse.Namespace) -> int:
-    from hingelab.perception.synthetic_dataset import CloudDatasetConfig, generate_cloud_dataset
 
     config = CloudDatasetConfig(n_clouds=args.n, clouds_per_episode=args.per_episode, seed=args.seed,
                                 noise_std_m=args.noise, noise_std_max_m=args.noise_max,

@@ -7,10 +7,11 @@ from pathlib import Path
 
 from hingelab.cli.options import add_ray_argument
 from hingelab.paths import DATASETS_DIR
+from hingelab.rollouts.heuristic_demos import HeuristicRunConfig
+from hingelab.rollouts.heuristic_demos import HeuristicRunConfig, generate_heuristic_dataset, summarize, timed
 
 
 def add_heuristic_parser(sources) -> None:
-    from hingelab.rollouts.heuristic_demos import HeuristicRunConfig
 
     d = HeuristicRunConfig()
     p = sources.add_parser(
@@ -44,7 +45,6 @@ def add_heuristic_parser(sources) -> None:
 
 
 def run_heuristic(args: argparse.Namespace) -> int:
-    from hingelab.rollouts.heuristic_demos import HeuristicRunConfig, generate_heuristic_dataset, summarize, timed
 
     config = HeuristicRunConfig(episodes=args.episodes, object=args.object, size=args.size, mass=args.mass,
                                 seed=args.seed, workers=args.workers, randomize=not args.no_randomize)

@@ -15,6 +15,7 @@ import os
 import sys
 
 from hingelab.errors import HingelabError
+from hingelab.episodes.dataset import corrupt_policy
 
 # Verb modules in the order ``hingelab --help`` lists them.
 VERB_MODULES = [
@@ -84,7 +85,6 @@ def main(argv: list[str] | None = None) -> int:
         parser.print_help()
         return 2
     try:
-        from hingelab.episodes.dataset import corrupt_policy
 
         with corrupt_policy(getattr(args, "on_corrupt", "stop")):
             result = args.func(args)

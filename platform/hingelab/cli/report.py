@@ -9,6 +9,13 @@ import time
 from pathlib import Path
 
 from hingelab.cli.options import add_on_corrupt
+import pandas as pd
+from hingelab.analysis.pooled import DEFAULT_BAND_EDGES, write_pooled
+from hingelab.errors import ConfigError
+from hingelab.provenance import require_clean_for
+from hingelab.analysis.pick_table import write_picks
+from hingelab.analysis.run_report import build_run_report
+from hingelab.analysis import build_report
 
 
 def add_parser(subparsers) -> None:
@@ -72,11 +79,6 @@ def pool_command(args: argparse.Namespace) -> str:
 
 
 def run_pool(args: argparse.Namespace) -> int:
-    import pandas as pd
-
-    from hingelab.analysis.pooled import DEFAULT_BAND_EDGES, write_pooled
-    from hingelab.errors import ConfigError
-    from hingelab.provenance import require_clean_for
 
     if args.datasets or args.runs:
         raise ConfigError("give DATASET... (with --runs) or --pool DIR..., not both")
@@ -104,9 +106,6 @@ def run_pool(args: argparse.Namespace) -> int:
 
 
 def run_picks(args: argparse.Namespace) -> int:
-    from hingelab.analysis.pick_table import write_picks
-    from hingelab.errors import ConfigError
-    from hingelab.provenance import require_clean_for
 
     if args.datasets or args.pool or args.runs:
         raise ConfigError("give --picks DIR... alone (not with DATASETs, --runs or --pool)")
@@ -124,8 +123,6 @@ def run_picks(args: argparse.Namespace) -> int:
 
 def run_runs(args: argparse.Namespace) -> int:
     """Training runs alone: curves grouped by run label (a sweep's condition), success at the end across seeds."""
-    from hingelab.analysis.run_report import build_run_report
-    from hingelab.provenance import require_clean_for
 
     require_clean_for(args.out, args.allow_dirty, "hingelab report --runs")
     command = "hingelab report --runs " + " ".join(map(str, args.runs)) + f" --out {args.out}"
@@ -140,9 +137,6 @@ def run_runs(args: argparse.Namespace) -> int:
 
 
 def run(args: argparse.Namespace) -> int:
-    from hingelab.analysis import build_report
-    from hingelab.errors import ConfigError
-    from hingelab.provenance import require_clean_for
 
     if args.picks:
         return run_picks(args)

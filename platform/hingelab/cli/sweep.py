@@ -5,6 +5,9 @@ from __future__ import annotations
 import argparse
 import time
 from pathlib import Path
+from hingelab.sweeps.runner import run_sweep, summary
+from hingelab.sweeps.spec import load_sweep
+from hingelab.errors import ConfigError
 
 
 def add_parser(subparsers) -> None:
@@ -41,9 +44,6 @@ def add_parser(subparsers) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from hingelab.sweeps.runner import run_sweep, summary
-    from hingelab.sweeps.spec import load_sweep
-    from hingelab.errors import ConfigError
 
     if args.address is not None and args.cpus is not None:
         raise ConfigError("--cpus sizes a local Ray; a cluster joined with --address has its own CPUs")

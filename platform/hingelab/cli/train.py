@@ -15,6 +15,13 @@ from pathlib import Path
 from hingelab.errors import ConfigError
 from hingelab.learners import registry
 from hingelab.training.run_config import config_from_args, given_settings
+from hingelab.paths import REPO_ROOT, refuse_to_replace_shipped
+from hingelab.training.run_folder import resumed_config
+from hingelab.perception.encoder import EncoderConfig
+from hingelab.perception.train_encoder import TrainEncoderConfig
+from hingelab.perception.train_encoder import TrainEncoderConfig, train_encoder
+from hingelab.perception.train_encoder import recalibrate_encoder
+from hingelab.perception.sim_calibration import recalibrate_curve
 
 
 def add_parser(subparsers, argv: list[str] = ()) -> None:
@@ -63,8 +70,6 @@ def add_policy_parser(levels, level: str, name: str) -> None:
 
 
 def run_policy(args: argparse.Namespace) -> int:
-    from hingelab.paths import REPO_ROOT, refuse_to_replace_shipped
-    from hingelab.training.run_folder import resumed_config
 
     learner = args.learner_class
     if args.learner != learner.name:  # argparse took a --learner the pre-scan did not see (an abbreviation)
@@ -98,8 +103,6 @@ def run_policy(args: argparse.Namespace) -> int:
 
 # ---------------------------------------------------------------------------- encoder
 def add_encoder_parser(learners) -> None:
-    from hingelab.perception.encoder import EncoderConfig
-    from hingelab.perception.train_encoder import TrainEncoderConfig
 
     d = TrainEncoderConfig()
     p = learners.add_parser(
@@ -139,9 +142,6 @@ def add_encoder_parser(learners) -> None:
 
 
 def run_encoder(args: argparse.Namespace) -> int:
-    from hingelab.paths import REPO_ROOT, refuse_to_replace_shipped
-    from hingelab.perception.encoder import EncoderConfig
-    from hingelab.perception.train_encoder import TrainEncoderConfig, train_encoder
 
     if args.recalibrate or args.recalibrate_curve:
         if args.out is None:
@@ -152,7 +152,6 @@ def run_encoder(args: argparse.Namespace) -> int:
     if args.data is None:
         raise ConfigError("hingelab train encoder needs --data DATASET (a cloud dataset: hingelab generate clouds)")
     if args.recalibrate:
-        from hingelab.perception.train_encoder import recalibrate_encoder
 
         encoder, m = recalibrate_encoder(args.data, args.out, progress=not args.no_progress)
         print(f"Fitted the latent -> opening reader of {args.out} on {args.data} in {m['wall_time_s']:.0f} s: "
@@ -177,7 +176,6 @@ def run_encoder(args: argparse.Namespace) -> int:
 
 
 def run_curve_recalibration(args: argparse.Namespace) -> int:
-    from hingelab.perception.sim_calibration import recalibrate_curve
 
     encoder, m = recalibrate_curve(args.out, sweeps=args.sweeps, seed=args.seed, progress=not args.no_progress)
     before = ", ".join(f"{r['band_rad']} rad {r['offset']:.3f}" for r in m["offsets_before"])

@@ -6,7 +6,18 @@ import argparse
 import sys
 from pathlib import Path
 
-ROBOTS = ("sim",)  # hingelab.robot.interface says how a real driver joins this list
+from hingelab.robot import stand_in  # noqa: F401  (registers the "sim" robot)
+from hingelab.robot.interface import ROBOTS
+from hingelab.policies.high_level import SHIPPED_HIGH_LEVEL
+from hingelab.robot.controller import CheckpointHighLevel, ScriptedStandInHighLevel
+from hingelab.analysis.pick_table import FAILURE_REASONS, pick_rates
+from hingelab.episodes import create_dataset
+from hingelab.errors import ConfigError
+from hingelab.robot.controller import HierarchicalController
+from hingelab.robot.trial import TrialConfig, run_trials
+from hingelab.seeds import STRIDE, TRIALS_BASE
+import pandas as pd
+
 
 
 def add_parser(subparsers) -> None:
@@ -20,16 +31,17 @@ def add_parser(subparsers) -> None:
                     "--operator the simulation judges each trial (object within 1 cm of the target); with it you "
                     "are asked after each attempt. Writes trials.csv and a table with Wilson intervals "
                     "(table.csv); `hingelab report DIR` gives the paper's Fig. 7 layout.")
-    p.add_argument("--robot", choices=ROBOTS, default="sim",
-                   help="sim: the MuJoCo stand-in of the rig (default; the only robot this install drives)")
+    p.add_argument("--robot", choices=tuple(ROBOTS), default="sim",
+                   help="the robot (registered in hingelab.robot.interface): sim is the MuJoCo stand-in of the rig "
+                        "(the default)")
     p.add_argument("--object", default="sphere",
                    help="object shape: sphere, cube, cylinder, tetrahedron or mesh:PATH (default sphere)")
     p.add_argument("--size", type=float, default=0.02, help="object size in m (default 0.02)")
     p.add_argument("--trials", type=int, default=12, help="trials (default 12, the paper's per shape)")
     p.add_argument("--out", type=Path, required=True, help="dataset folder to write (must be new or empty)")
     p.add_argument("--seed", type=int, default=0,
-                   help="seed of the trials (default 0): trial k resets the stand-in with 800000000 + seed * "
-                        "100003 + k")
+                   help=f"seed of the trials (default 0): trial k resets the stand-in with {TRIALS_BASE} + seed * "
+                        f"{STRIDE} + k (hingelab.seeds)")
     p.add_argument("--policy", type=Path, default=None,
                    help="a high-level checkpoint (default: the shipped assets/checkpoints/high_level.zip; without "
                         "one, the stand-in runs the scripted high level and says so)")
@@ -47,8 +59,6 @@ def add_parser(subparsers) -> None:
 
 
 def _high_level(args, robot):
-    from hingelab.policies.high_level import SHIPPED_HIGH_LEVEL
-    from hingelab.robot.controller import CheckpointHighLevel, ScriptedStandInHighLevel
 
     path = args.policy or SHIPPED_HIGH_LEVEL
     if args.policy is None and not SHIPPED_HIGH_LEVEL.exists():
@@ -59,24 +69,18 @@ def _high_level(args, robot):
 
 
 def run(args: argparse.Namespace) -> int:
-    from hingelab.analysis.pick_table import FAILURE_REASONS, pick_rates
-    from hingelab.episodes import create_dataset
-    from hingelab.errors import ConfigError
-    from hingelab.robot.controller import HierarchicalController
-    from hingelab.robot.stand_in import StandInRobot
-    from hingelab.robot.trial import SEED_BASE, SEED_STRIDE, TrialConfig, run_trials
 
     config = TrialConfig(object=args.object, size=args.size, trials=args.trials, seed=args.seed,
                          max_steps=args.max_steps, depth_every=args.depth_every, operator=args.operator)
     if args.out.exists() and any(args.out.iterdir()):
         raise ConfigError(f"{args.out} exists and is not empty; give a new folder to --out")
-    robot = StandInRobot(args.object, args.size, max_steps=args.max_steps)  # a bad object: an error before files
+    robot = ROBOTS[args.robot](args.object, args.size, args.max_steps)  # a bad object: an error before files
     try:
         high = _high_level(args, robot)
         controller = HierarchicalController(high)
         card = {"robot": args.robot, "policy": high.label, "low_level": high.low_level, "object": args.object,
                 "size": args.size, "trials": args.trials, "max_steps": args.max_steps, "operator": args.operator,
-                "depth_every": args.depth_every, "seeds": f"{SEED_BASE} + seed * {SEED_STRIDE} + trial"}
+                "depth_every": args.depth_every, "seeds": f"{TRIALS_BASE} + seed * {STRIDE} + trial"}
         create_dataset(args.out, name=f"trial-{args.object}-{args.size * 100:g}cm", source=robot.source,
                        config=card, seed=args.seed,
                        description=f"hingelab trial on the {args.robot} robot: {high.label} over {high.low_level}, "
@@ -95,7 +99,6 @@ def run(args: argparse.Namespace) -> int:
         robot.close()
     rows.to_csv(args.out / "trials.csv", index=False)
     row = {"object": args.object, "size_cm": 100 * args.size, "trials": len(rows), **pick_rates(rows)}
-    import pandas as pd
 
     pd.DataFrame([row]).to_csv(args.out / "table.csv", index=False)
     failures = ", ".join(f"{r} {row[f'failures_{r}']}" for r in FAILURE_REASONS if row[f"failures_{r}"])

@@ -7,6 +7,10 @@ import sys
 from pathlib import Path
 
 from hingelab.cli.options import add_on_corrupt
+from hingelab.errors import ConfigError
+from hingelab.viewers import view
+from hingelab.viewers.web_server import bind_warning
+import signal
 
 
 def add_parser(subparsers) -> None:
@@ -41,12 +45,9 @@ def add_parser(subparsers) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from hingelab.errors import ConfigError
-    from hingelab.viewers import view
 
     if args.cloud_every < 1:
         raise ConfigError(f"--cloud-every must be at least 1, not {args.cloud_every}")
-    from hingelab.viewers.web_server import bind_warning
 
     if args.save is not None and args.web:
         raise ConfigError("give either --save FILE.rrd or --web, not both")
@@ -65,7 +66,6 @@ def run(args: argparse.Namespace) -> int:
     elif result.server is not None:
         print(f"Logged {what} in {result.seconds:.2f} s; Rerun's web viewer is serving it at {result.url} "
               "(Ctrl-C stops).", flush=True)
-        import signal
 
         def stop_on_signal(signum, frame):
             raise KeyboardInterrupt  # a kill or a closed terminal stops the server too, not only Ctrl-C

@@ -65,7 +65,7 @@ class PolicyLowLevel:
         if path == "privileged":
             raise ConfigError("PolicyLowLevel needs a checkpoint; the privileged low level is PrivilegedLowLevel")
         self.path = path
-        self.model = load_policy(path, encoder=encoder)
+        self.model = load_policy(path, level="low", encoder=encoder)
         if not isinstance(getattr(self.model, "observation_space", None), gym.spaces.Dict):
             raise ConfigError(f"{path} is not a low-level policy (ToolShape-v0's goal-conditioned observation); "
                               "give a checkpoint from `hingelab train low` or `hingelab compose low`")

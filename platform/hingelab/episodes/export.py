@@ -1,6 +1,7 @@
 """Export a hingelab dataset to the layouts neighbouring libraries load, and import them back.
 
-``export_dataset(dataset, "minari" | "lerobot", out)`` dispatches to one module per format:
+``export_dataset(dataset, FORMAT, out)`` dispatches to the exporter registered under FORMAT
+(``register_exporter``; ``hingelab.ros2.bag_export`` registers ``ros2``), one module per format:
 
 - ``export_minari.py``: a Minari 0.5 dataset (``OUT/NAMESPACE/NAME-vN/data/main_data.hdf5`` and
   ``metadata.json``) that ``minari.load_dataset("NAMESPACE/NAME-vN")`` opens with
@@ -20,19 +21,31 @@ from hingelab.episodes.export_lerobot import export_lerobot, import_lerobot
 from hingelab.episodes.export_minari import export_minari, import_minari
 from hingelab.episodes.export_output import ExportResult, atomic_folder
 
-FORMATS = ("minari", "lerobot")
+# name -> export(dataset, out, dataset_id=None, progress=False) -> ExportResult; a layer above episodes adds its
+# format with register_exporter (hingelab.ros2.bag_export adds "ros2")
+EXPORTERS: dict = {}
+
+
+def register_exporter(name: str, export) -> None:
+    EXPORTERS[name] = export
+
+
+def _lerobot(dataset, out, dataset_id=None, progress=False) -> ExportResult:
+    if dataset_id is not None:
+        raise DatasetError("--dataset-id names a Minari dataset; a LeRobot export is the --out folder itself")
+    return export_lerobot(dataset, out, progress=progress)
+
+
+register_exporter("minari", export_minari)
+register_exporter("lerobot", _lerobot)
 
 
 def export_dataset(dataset, fmt: str, out, dataset_id: str | None = None, progress: bool = False) -> ExportResult:
-    """Export ``dataset`` (a ``Dataset``) as ``fmt`` into ``out`` (see the format modules)."""
-    if fmt == "minari":
-        return export_minari(dataset, out, dataset_id=dataset_id, progress=progress)
-    if dataset_id is not None:
-        raise DatasetError("--dataset-id names a Minari dataset; a LeRobot export is the --out folder itself")
-    if fmt == "lerobot":
-        return export_lerobot(dataset, out, progress=progress)
-    raise DatasetError(f"unknown export format {fmt!r}; choose one of {', '.join(FORMATS)}")
+    """Export ``dataset`` (a ``Dataset``) as ``fmt`` (a name of ``EXPORTERS``) into ``out``."""
+    if fmt not in EXPORTERS:
+        raise DatasetError(f"unknown export format {fmt!r}; choose one of {', '.join(EXPORTERS)}")
+    return EXPORTERS[fmt](dataset, out, dataset_id=dataset_id, progress=progress)
 
 
-__all__ = ["ExportResult", "FORMATS", "atomic_folder", "export_dataset", "export_minari", "export_lerobot",
-           "import_minari", "import_lerobot"]
+__all__ = ["ExportResult", "EXPORTERS", "atomic_folder", "export_dataset", "export_minari", "export_lerobot",
+           "import_minari", "import_lerobot", "register_exporter"]

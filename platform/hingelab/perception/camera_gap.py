@@ -24,6 +24,7 @@ import numpy as np
 import pandas as pd
 
 from hingelab.perception.calibration import r_squared
+from hingelab.seeds import demo_seed
 
 PERCEPTIONS = ("synthesized", "camera")
 
@@ -64,7 +65,7 @@ def run_gap(config: GapConfig = GapConfig(), progress: bool = True, frame_hook=N
     bar = tqdm(total=config.episodes * config.steps, desc="perception gap", unit="step", disable=not progress)
     try:
         for episode in range(config.episodes):
-            seed = config.seed * 100_003 + episode
+            seed = demo_seed(config.seed, episode)
             rng = np.random.default_rng(seed)
             period = rng.uniform(40, 80)  # steps per open-close cycle
             phase = rng.uniform(0, 2 * np.pi)

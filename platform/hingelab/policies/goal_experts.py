@@ -168,7 +168,12 @@ def is_experts_manifest(path) -> bool:
         return False
 
 
-register_policy_format(FORMAT, is_experts_manifest, lambda path, encoder=None, low_level=None:
-                       load_experts(path, encoder))
+def _load(path, encoder=None, low_level=None, level=None):
+    if level == "high":
+        raise ConfigError(f"{path} is a low-level experts manifest; give a high-level checkpoint")
+    return load_experts(path, encoder)
+
+
+register_policy_format(FORMAT, is_experts_manifest, _load)
 
 __all__ = ["FORMAT", "GoalRegionExperts", "load_experts", "write_experts"]

@@ -120,14 +120,17 @@ def load_high_level_checkpoint(path, low_level: str | None = None):
     return model
 
 
-def _load_phase_clone(path, encoder=None, low_level=None):
+def _load_phase_clone(path, encoder=None, low_level=None, level=None):
+    if level == "low":
+        raise ConfigError(f"{path} is a high-level policy (a phase clone); give a low-level checkpoint")
     return load_high_level_checkpoint(path, low_level=low_level)
 
 
-def _load_sac_zip(path, encoder=None, low_level=None):
-    """A SAC zip of either level: ToolShape-v0's (a Dict observation) or ToolPick-v0's."""
+def _load_sac_zip(path, encoder=None, low_level=None, level=None):
+    """A SAC zip of either level: ToolShape-v0's (a Dict observation) or ToolPick-v0's; with ``level``, checked
+    against that level's task."""
     _, described = read_plain_data(path)
-    if (described.get("observation_space") or {}).get("spaces"):
+    if level == "low" or (level is None and (described.get("observation_space") or {}).get("spaces")):
         return load_sac_checkpoint(path, encoder)
     return load_high_level_checkpoint(path, low_level=low_level)
 

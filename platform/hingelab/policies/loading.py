@@ -21,7 +21,7 @@ from hingelab.errors import ConfigError
 class PolicyFormat:
     name: str
     matches: Callable[[Path], bool]  # is this file of the format (cheap: reads a header or a zip's entry list)
-    load: Callable[..., object]  # load(path, encoder=None, low_level=None) -> Policy
+    load: Callable[..., object]  # load(path, *, encoder, low_level, level) -> Policy (context it may ignore)
 
 
 @dataclass(frozen=True)
@@ -74,15 +74,20 @@ def checkpoint_file(path) -> Path:
     return path
 
 
-def load_policy(spec, *, encoder=None, low_level: str | None = None, env=None):
+def load_policy(spec, *, level: str | None = None, encoder=None, low_level: str | None = None, env=None):
     """The policy ``spec`` names: a baseline's name (``env``: the env it acts in, for the baselines that
-    read it) or a checkpoint path, loaded by its format. ``encoder``: the tool encoder the env perceives
-    with (a low-level checkpoint is checked against it); ``low_level``: the low level a high-level policy
-    will act over (checked against the one it learned beside)."""
+    read it) or a checkpoint path, loaded by its format. ``level``: ``"low"`` (ToolShape-v0) or ``"high"``
+    (ToolPick-v0), the task the policy must fit (None: whichever the file is of); ``encoder``: the tool
+    encoder the env perceives with (a low-level checkpoint is checked against it); ``low_level``: the low
+    level a high-level policy will act over (checked against the one it learned beside)."""
     if isinstance(spec, str) and spec in BASELINES:
-        return BASELINES[spec].make(env=env)
+        baseline = BASELINES[spec]
+        if level is not None and baseline.level != level:
+            raise ConfigError(f"{spec} is a {baseline.level}-level baseline; the {level} level's: "
+                              f"{', '.join(baseline_names(level))}")
+        return baseline.make(env=env)
     path = checkpoint_file(spec)
-    return policy_format(path).load(path, encoder=encoder, low_level=low_level)
+    return policy_format(path).load(path, encoder=encoder, low_level=low_level, level=level)
 
 
 __all__ = ["PolicyFormat", "Baseline", "FORMATS", "BASELINES", "register_policy_format", "register_baseline",

@@ -27,6 +27,11 @@ from pathlib import Path
 import torch as th
 
 from hingelab.errors import ConfigError
+from gymnasium import spaces
+from stable_baselines3 import SAC
+from stable_baselines3.common.type_aliases import TrainFreq, TrainFrequencyUnit
+from stable_baselines3.common.utils import ConstantSchedule, FloatSchedule
+from stable_baselines3.common.save_util import recursive_setattr
 
 ACTIVATIONS = {name: getattr(th.nn, name) for name in ("ReLU", "Tanh", "ELU", "LeakyReLU", "SiLU", "GELU")}
 # settings the loader rebuilds itself, or that only a training run uses; never taken from the file
@@ -100,10 +105,6 @@ def _learning_rate(plain: dict, described: dict) -> float:
 
 def load_sac_zip_safely(path, observation_space, action_space, device: str = "cpu"):
     """A SAC model with the zip's weights for these spaces; nothing of the zip is unpickled."""
-    from gymnasium import spaces
-    from stable_baselines3 import SAC
-    from stable_baselines3.common.type_aliases import TrainFreq, TrainFrequencyUnit
-    from stable_baselines3.common.utils import ConstantSchedule, FloatSchedule
 
     path = Path(path)
     plain, described = read_plain_data(path)
@@ -124,7 +125,6 @@ def load_sac_zip_safely(path, observation_space, action_space, device: str = "cp
 def set_weights_from_zip(model, path, device: str = "cpu") -> None:
     """Give ``model`` the zip's tensors (policy, optimizers, entropy coefficient), read with
     ``torch.load(weights_only=True)``; tensors that do not fit its nets are a one-line ConfigError."""
-    from stable_baselines3.common.save_util import recursive_setattr
 
     path = Path(path)
     try:

@@ -16,15 +16,16 @@ the reading the controller saw).
 A real driver plugs in here: a class with these methods (``start_trial``, ``command``, ``verdict``,
 ``close`` and the attributes below), built from the rig's ROS 2 topics or vendor SDKs (Jaka's
 SDK for the arm, SCHUNK's SVH driver for the hand, the Azure Kinect SDK for the camera), with
-``source = "real"``; ``hingelab trial --robot`` then needs one line in ``ROBOTS``
-(``hingelab.robot.trial``) naming it. ``verdict`` returns None on a real rig: the operator
+``source = "real"``, registered under a name with ``register_robot(name, make)`` (``make(object,
+size, max_steps)`` builds it; the stand-in registers ``sim`` this way): ``hingelab trial --robot NAME``
+then drives it. ``verdict`` returns None on a real rig: the operator
 judges each attempt (``hingelab trial --operator``).
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Protocol
+from typing import Callable, Protocol
 
 import numpy as np
 
@@ -76,3 +77,11 @@ class Robot(Protocol):
 
     def close(self) -> None:
         """Release the robot (stop the arm, close the camera)."""
+
+
+# name -> make(object, size, max_steps) -> Robot: what `hingelab trial --robot NAME` drives
+ROBOTS: dict[str, Callable[..., Robot]] = {}
+
+
+def register_robot(name: str, make: Callable[..., Robot]) -> None:
+    ROBOTS[name] = make

@@ -23,7 +23,7 @@ import numpy as np
 
 from collections import deque
 
-from hingelab.robot.interface import RobotReadings, Verdict
+from hingelab.robot.interface import RobotReadings, Verdict, register_robot
 from hingelab.sim import names
 
 OBJECT_NOISE_M = 0.002
@@ -98,3 +98,6 @@ class StandInRobot:
             hand_rotation=data.xmat[self.pick._hand_body].reshape(3, 3).copy(),
             hand_translation=data.xpos[self.pick._hand_body].copy(), frame=self.pick.perception.camera.frame,
             object_centre=centre, object_extent=extent)
+
+
+register_robot("sim", lambda object, size, max_steps: StandInRobot(object, size, max_steps=max_steps))

@@ -31,15 +31,10 @@ import pandas as pd
 from hingelab.errors import ConfigError
 from hingelab.robot.controller import HierarchicalController, Step
 from hingelab.robot.interface import Robot, RobotReadings
+from hingelab.seeds import trial_seed
 
 FLUSH_EVERY = 20  # steps: what a crash can lose at most
-SEED_BASE = 800_000_000  # trial k of --seed S resets with SEED_BASE + S * SEED_STRIDE + k: not the eval seeds
-SEED_STRIDE = 100_003
 ANSWERS = {"s": "success", "success": "success", "f": "failure", "failure": "failure", "a": "abort", "abort": "abort"}
-
-
-def trial_seed(seed: int, index: int) -> int:
-    return SEED_BASE + int(seed) * SEED_STRIDE + int(index)
 
 
 @dataclass(frozen=True)

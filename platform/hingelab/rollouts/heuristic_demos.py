@@ -1,7 +1,7 @@
 """Heuristic demos: run the privileged heuristic on ToolPick-v0 and record every episode.
 
 ``generate_heuristic_dataset`` is what ``hingelab generate heuristic`` runs. Episode k of a
-dataset made with seed S is reset with seed ``S * 100_003 + k``, so the same seed gives the
+dataset made with seed S is reset with seed ``hingelab.seeds.demo_seed(S, k)``, so the same seed gives the
 same episodes whatever the number of worker processes (each worker writes its episodes
 into the one dataset folder; the writer's unique names and atomic renames make that safe), and
 whether they run in local worker processes or as Ray tasks (``ray_address``: one task per episode,
@@ -20,9 +20,21 @@ import numpy as np
 from hingelab.episodes import create_dataset
 from hingelab.errors import ConfigError
 from hingelab.provenance import differing_settings
+from hingelab.seeds import demo_seed
 from hingelab.sim.mesh_objects import is_mesh, mesh_sha256, object_label
+import gymnasium as gym
+from hingelab.envs import TOOL_PICK_ID
+from hingelab.envs.recording import RecordingWrapper
+from hingelab.heuristic.controller import PrivilegedHeuristic
+from hingelab.sim.finger_synergy import FingerSynergy
+import torch
+from hingelab.episodes.card import load_card
+from hingelab.episodes.dataset import Dataset
+from hingelab.disk_full import disk_full_error, is_disk_full
+from tqdm import tqdm
+import functools
+from hingelab.workers.ray_fan_out import fan_out
 
-SEED_STRIDE = 100_003
 
 
 @dataclass(frozen=True)
@@ -50,16 +62,10 @@ class EpisodeSummary:
     failure_reason: str | None
 
 
-def episode_seed(base_seed: int, index: int) -> int:
-    return base_seed * SEED_STRIDE + index
 
 
 def make_env(config: HeuristicRunConfig, dataset_dir: Path | None = None):
     """ToolPick-v0 for ``config`` (privileged low level), recorded into ``dataset_dir`` if given."""
-    import gymnasium as gym
-
-    from hingelab.envs import TOOL_PICK_ID
-    from hingelab.envs.recording import RecordingWrapper
 
     env = gym.make(TOOL_PICK_ID, object=config.object, size=config.size, mass=config.mass,
                    randomize=config.randomize, max_episode_steps=config.max_episode_steps)
@@ -74,8 +80,6 @@ def make_env(config: HeuristicRunConfig, dataset_dir: Path | None = None):
 
 def run_episode(env, seed: int) -> EpisodeSummary:
     """One heuristic episode on a (recorded) ToolPick-v0 env."""
-    from hingelab.heuristic.controller import PrivilegedHeuristic
-    from hingelab.sim.finger_synergy import FingerSynergy
 
     env.reset(seed=seed)
     pick = env.unwrapped
@@ -100,7 +104,6 @@ _WORKER: dict = {}
 
 
 def _init_worker(config: HeuristicRunConfig, dataset_dir: str) -> None:
-    import torch
 
     torch.set_num_threads(1)  # one core per worker process
     _WORKER["env"] = make_env(config, Path(dataset_dir))
@@ -119,7 +122,6 @@ class HeuristicEpisodes:
 
     def __call__(self, seed: int) -> EpisodeSummary:
         if self.env is None:
-            import torch
 
             torch.set_num_threads(1)  # one core per task
             self.env = make_env(self.config, Path(self.dataset_dir))
@@ -136,10 +138,8 @@ RESUMABLE = ("episodes", "workers")  # what --resume may change; any other setti
 
 def _seeds_to_run(out: Path, config: HeuristicRunConfig, resume: bool) -> list[int]:
     """The episode seeds this run writes: all of them, or (``resume``) those the folder lacks."""
-    from hingelab.episodes.card import load_card
-    from hingelab.episodes.dataset import Dataset
 
-    seeds = [episode_seed(config.seed, k) for k in range(config.episodes)]
+    seeds = [demo_seed(config.seed, k) for k in range(config.episodes)]
     existing = list((out / "episodes").glob("*.mcap")) if (out / "episodes").is_dir() else []
     if not resume:
         if existing:
@@ -168,7 +168,6 @@ def generate_heuristic_dataset(out: Path, config: HeuristicRunConfig, progress: 
     uninterrupted run's would. A full disk stops with ``DiskFullError`` (the finished episodes kept).
     ``ray_address``: episodes as Ray tasks on that cluster (``"local"``: a local Ray of
     ``config.workers`` CPUs, or of every core when ``config.workers`` is 1)."""
-    from hingelab.disk_full import disk_full_error, is_disk_full
 
     if config.episodes < 1:
         raise ConfigError(f"--episodes must be at least 1, not {config.episodes}")
@@ -196,7 +195,6 @@ def generate_heuristic_dataset(out: Path, config: HeuristicRunConfig, progress: 
 
 
 def _generate(out: Path, config: HeuristicRunConfig, seeds: list[int], progress: bool) -> list[EpisodeSummary]:
-    from tqdm import tqdm
 
     bar = tqdm(total=len(seeds), desc=f"heuristic {object_label(config.object)}", unit="episode",
                disable=not progress)
@@ -223,9 +221,6 @@ def _generate(out: Path, config: HeuristicRunConfig, seeds: list[int], progress:
 
 def _generate_on_ray(out: Path, config: HeuristicRunConfig, seeds: list[int], progress: bool,
                      address: str) -> list[EpisodeSummary]:
-    import functools
-
-    from hingelab.workers.ray_fan_out import fan_out
 
     summaries = fan_out(functools.partial(HeuristicEpisodes, config, str(out)), seeds, address=address,
                         num_cpus=config.workers if config.workers > 1 else None, progress=progress,

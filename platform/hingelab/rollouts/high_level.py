@@ -4,10 +4,10 @@ Every episode is an MCAP episode (``RecordingWrapper``, source ``high_level_eval
 its ``success`` is the env's one verdict (object within 1 cm of the target, ``info["is_success"]``
 at the last step), ``first_attempt_success`` and ``attempt`` are the env's (``_count_attempts``).
 
-Seeds (paired): episode i of ``--seed K`` is reset with ``episode_seed(K, i) = SEED_BASE + K *
-SEED_STRIDE + i`` (SEED_BASE = 900_000_000, SEED_STRIDE = 100_003), the same for every baseline
+Seeds (paired): episode i of ``--seed K`` is reset with ``hingelab.seeds.eval_high_seed(K, i)``, the same
+for every baseline
 and checkpoint, so their episodes start from the same object placement, randomization and
-noise. (``hingelab generate heuristic`` uses ``K * 100_003 + i``: the evaluation seeds are other ones.)
+noise (``hingelab generate heuristic``'s demos are another stream of the plan).
 The random baseline draws its actions from ``numpy.random.default_rng(episode seed)``.
 
 Failure reasons (``FailureReasonWrapper``, recorded as the episode's ``failure_reason``): the env
@@ -38,15 +38,17 @@ import numpy as np
 import pandas as pd
 
 from hingelab.analysis.pick_table import FAILURE_REASONS, pick_rates
+from hingelab.seeds import EVAL_HIGH_BASE, STRIDE, eval_high_seed
+from hingelab.envs import TOOL_PICK_ID
+from hingelab.envs.recording import RecordingWrapper
+from hingelab.sim.mesh_objects import object_label
+from tqdm import tqdm
+from hingelab.sim import scripted
 
-SEED_BASE = 900_000_000
-SEED_STRIDE = 100_003
+SEED_BASE, SEED_STRIDE = EVAL_HIGH_BASE, STRIDE  # what the evaluations' cards quote
 MISSED_GRASP_DISTANCE_M = 0.02
 
 
-def episode_seed(seed: int, index: int) -> int:
-    """The reset seed of episode ``index`` of an evaluation with ``--seed seed`` (paired across policies)."""
-    return SEED_BASE + int(seed) * SEED_STRIDE + int(index)
 
 
 class FailureReasonWrapper(gym.Wrapper):
@@ -57,7 +59,6 @@ class FailureReasonWrapper(gym.Wrapper):
         return self.env.reset(**kwargs)
 
     def step(self, action):
-        from hingelab.sim import scripted
 
         obs, reward, terminated, truncated, info = self.env.step(action)
         pick = self.env.unwrapped
@@ -89,9 +90,6 @@ def make_eval_env(object: str, size: float, low_level: str, record_dir: Path | N
     """ToolPick-v0 (randomized as in training), failure reasons refined, recorded into ``record_dir``;
     ``observe_extent`` as the policy was trained (its checkpoint's ``env_kwargs``); ``perception``:
     synthesized clouds or the depth camera."""
-    from hingelab.envs import TOOL_PICK_ID
-    from hingelab.envs.recording import RecordingWrapper
-    from hingelab.sim.mesh_objects import object_label
 
     env = FailureReasonWrapper(gym.make(TOOL_PICK_ID, object=object, size=size, low_level=low_level,
                                         max_episode_steps=max_episode_steps, observe_extent=observe_extent,
@@ -139,10 +137,9 @@ def run_episode(policy, env, seed: int) -> dict:
 
 def evaluate(policy, env, episodes: int, seed: int, progress: bool = False, label: str = "eval high",
              journal=None) -> pd.DataFrame:
-    """``episodes`` episodes, episode i from ``episode_seed(seed, i)``; one row each. ``journal`` (an
+    """``episodes`` episodes, episode i from ``eval_high_seed(seed, i)``; one row each. ``journal`` (an
     ``eval_journal.EpisodeJournal``): its rows are kept and their episodes not run again; each new row
     goes into it as its episode finishes."""
-    from tqdm import tqdm
 
     rows = list(journal.rows) if journal is not None else []
     done = {int(r["episode"]) for r in rows}
@@ -152,7 +149,7 @@ def evaluate(policy, env, episodes: int, seed: int, progress: bool = False, labe
                 continue
             if hasattr(env, "extra_metadata"):
                 env.extra_metadata = {**env.extra_metadata, "episode_index": str(i)}
-            row = {"episode": i, **run_episode(policy, env, episode_seed(seed, i))}
+            row = {"episode": i, **run_episode(policy, env, eval_high_seed(seed, i))}
             if journal is not None:
                 journal.append(row)
             rows.append(row)
@@ -166,5 +163,5 @@ def success_table(episodes: pd.DataFrame, object: str, size: float) -> pd.DataFr
     return pd.DataFrame([{"object": object, "size_cm": round(100 * size, 3), **pick_rates(episodes)}])
 
 
-__all__ = ["FAILURE_REASONS", "SEED_BASE", "SEED_STRIDE", "DemonstratorLabels", "FailureReasonWrapper", "episode_seed",
+__all__ = ["FAILURE_REASONS", "SEED_BASE", "SEED_STRIDE", "DemonstratorLabels", "FailureReasonWrapper",
            "evaluate", "make_eval_env", "run_episode", "success_table"]

@@ -14,6 +14,9 @@ from pathlib import Path
 
 from hingelab.errors import ConfigError
 from hingelab.provenance import differing_settings
+from hingelab.episodes.card import load_card
+from hingelab.episodes.dataset import Dataset
+import shlex
 
 JOURNAL_FILE = "episodes.partial.jsonl"
 
@@ -52,8 +55,6 @@ class EpisodeJournal:
 def prepare_resume(out: Path, config: dict, resume: bool) -> EpisodeJournal:
     """The journal of an evaluation into ``out``: empty for a new folder; with ``resume``, the stopped run's
     (its dataset card must hold the same ``config``), its stray files removed."""
-    from hingelab.episodes.card import load_card
-    from hingelab.episodes.dataset import Dataset
 
     out = Path(out)
     journal = EpisodeJournal(out)
@@ -87,7 +88,6 @@ def prepare_resume(out: Path, config: dict, resume: bool) -> EpisodeJournal:
 
 def command_line(argv: list[str] | None) -> str:
     """The command that ran, ``--resume`` left out (``disk_full_error`` adds it)."""
-    import shlex
 
     return "hingelab " + shlex.join([a for a in (argv or []) if a != "--resume"])
 

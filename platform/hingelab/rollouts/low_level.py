@@ -22,7 +22,10 @@ from hingelab.analysis.wilson import wilson_interval
 from hingelab.envs.rewards import LowLevelRewardConfig
 from hingelab.envs.tool_shape import SETTLE_STEPS
 from hingelab.tasks import TOOL_SHAPE_ID as ENV_ID
-from hingelab.rollouts.low_level_goals import EVAL_SEED_BASE, REGIONS, region_of
+from hingelab.rollouts.low_level_goals import REGIONS, region_of
+from hingelab.seeds import sampled_goal_seed
+from tqdm import tqdm
+from hingelab.envs.recording import RecordingWrapper
 
 
 def recorded_env_arguments(model) -> dict:
@@ -145,7 +148,6 @@ def evaluate_sampled_goals(policy, env: gym.Env, episodes: int, seed: int, progr
     """``episodes`` reachable goals (``sampled_goals``), one episode each, in order; each episode's goal
     region and opening go into a recording env's metadata. One row per episode (``run_episode``).
     ``journal`` (``eval_journal.EpisodeJournal``): its rows are kept, their goals not run again."""
-    from tqdm import tqdm
 
     unwrapped = env.unwrapped
     goals = sampled_goals(unwrapped.calibration, unwrapped.reachable_range, episodes, seed)
@@ -173,13 +175,12 @@ def sampled_goals(calibration, reachable_range, n: int, seed: int) -> list[dict]
     rng.shuffle(openings)
     return [{"region": region_of(o, reachable_range), "opening_rad": float(o),
              "z_goal": np.asarray(calibration.z_for_opening(o), float),
-             "seed": EVAL_SEED_BASE + 1_000_000 + seed * 10_007 + i} for i, o in enumerate(openings)]
+             "seed": sampled_goal_seed(seed, i)} for i, o in enumerate(openings)]
 
 
 def make_eval_env(env_arguments: dict, record_dir: Path | None = None, source: str = "low_level_evaluation"):
     env = gym.make(ENV_ID, **env_arguments)
     if record_dir is not None:
-        from hingelab.envs.recording import RecordingWrapper
 
         env = RecordingWrapper(env, record_dir, source=source, action_level="low")
     return env

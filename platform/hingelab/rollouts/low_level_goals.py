@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from hingelab.seeds import HELD_OUT_BASE as EVAL_SEED_BASE
+from hingelab.seeds import held_out_goal_seed
 
 # ---------------------------------------------------------------------------- evaluation goals
 REGIONS = ("closed", "middle", "open")  # thirds of the reachable opening range
@@ -26,7 +26,7 @@ def evaluation_goals(calibration, reachable_range: tuple[float, float], per_regi
             opening = float(edges[r] + (j + 0.5) * step)
             goals.append({"region": region, "opening_rad": opening,
                           "z_goal": np.asarray(calibration.z_for_opening(opening), float),
-                          "seed": EVAL_SEED_BASE + len(goals)})
+                          "seed": held_out_goal_seed(len(goals))})
     return goals
 
 

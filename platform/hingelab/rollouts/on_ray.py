@@ -17,9 +17,9 @@ import torch
 
 from hingelab.envs.low_level import PolicyLowLevel
 from hingelab.policies import ModelPolicy, load_policy
-from hingelab.policies.high_level import load_high_level_checkpoint
 from hingelab.rollouts import high_level as H
 from hingelab.rollouts import low_level as L
+from hingelab.seeds import eval_high_seed
 from hingelab.workers.ray_fan_out import fan_out
 
 
@@ -81,10 +81,10 @@ class HighLevelEpisodes:
             if self.baseline:
                 self.policy = load_policy(self.baseline)
             else:
-                self.policy = ModelPolicy(load_high_level_checkpoint(Path(self.checkpoint)))
+                self.policy = ModelPolicy(load_policy(Path(self.checkpoint), level="high"))
             self.base_metadata = dict(self.env.extra_metadata)
         self.env.extra_metadata = {**self.base_metadata, "episode_index": str(index)}
-        return {"episode": index, **H.run_episode(self.policy, self.env, H.episode_seed(self.seed, index))}
+        return {"episode": index, **H.run_episode(self.policy, self.env, eval_high_seed(self.seed, index))}
 
     def close(self) -> None:
         if self.env is not None:

@@ -26,7 +26,9 @@ import numpy as np
 from tqdm.auto import tqdm
 
 from hingelab.episodes import schemas as S
+from hingelab.episodes.export import register_exporter
 from hingelab.episodes.export_output import ExportResult, atomic_folder
+from hingelab.errors import ConfigError
 from hingelab.ros2.rig_bag import _header, _tf, point_cloud2
 from hingelab.ros2.topics import ARM_JOINT_NAMES, HAND_JOINTS, KINDS
 
@@ -146,5 +148,13 @@ def export_ros2(dataset, out, progress: bool = False) -> ExportResult:
     result.notes.append(f"{messages} messages in {result.episodes} rosbag2 folders (MCAP storage)")
     return result
 
+
+def _export(dataset, out, dataset_id=None, progress=False) -> ExportResult:
+    if dataset_id is not None:
+        raise ConfigError("--dataset-id names a Minari dataset; a ros2 export is one bag folder per episode")
+    return export_ros2(dataset, out, progress=progress)
+
+
+register_exporter("ros2", _export)
 
 __all__ = ["export_ros2", "export_episode", "TOOL_POINTS_TOPIC"]

@@ -101,7 +101,7 @@ def write_sim_rig_bag(path, spec: SimRigBagSpec = SimRigBagSpec()) -> dict:
     from scipy.spatial.transform import Rotation
 
     from hingelab.envs import TOOL_PICK_ID
-    from hingelab.rollouts.heuristic_demos import episode_seed
+    from hingelab.seeds import demo_seed
     from hingelab.perception.clouds import CloudRealism, CloudSynthesizer
 
     ts = get_typestore(Stores.ROS2_HUMBLE)
@@ -113,7 +113,7 @@ def write_sim_rig_bag(path, spec: SimRigBagSpec = SimRigBagSpec()) -> dict:
     env = gym.make(TOOL_PICK_ID, object=spec.object, size=spec.size, randomize=spec.randomize,
                    max_episode_steps=spec.max_episode_steps, low_level="privileged")
     try:
-        trials = [_run_trial(env, episode_seed(spec.seed, i)) for i in range(spec.episodes)]
+        trials = [_run_trial(env, demo_seed(spec.seed, i)) for i in range(spec.episodes)]
     finally:
         env.close()
     messages = []  # (log ns, order, topic, message)

@@ -33,6 +33,10 @@ from hingelab.workers.ray_runtime import LOCAL, cluster_cpus, describe, ray_sess
 from hingelab.sweeps.spec import SweepSpec, Trial
 from hingelab.errors import ConfigError, HingelabError
 from hingelab.provenance import code_version
+from hingelab.training.run_folder import MetricsLog
+from hingelab.training import checkpoints as ckpt
+from hingelab.sweeps.trial_task import run_trial
+import numpy as np
 
 SWEEP_CSV, SWEEP_JSON, SWEEP_TOML, LOGS_DIR = "sweep.csv", "sweep.json", "sweep.toml", "logs"
 REFRESH_S = 5.0  # how often the live table looks at the run folders
@@ -64,14 +68,12 @@ class TrialRecord:
 
 # ---------------------------------------------------------------------------- the folder
 def _metrics_rows(run_dir: Path) -> list[dict]:
-    from hingelab.training.run_folder import MetricsLog
 
     return MetricsLog(run_dir / "metrics.csv").rows()
 
 
 def _progress(record: TrialRecord, run_dir: Path) -> None:
     """Steps done and planned, from the run folder (readable from any node: shared storage)."""
-    from hingelab.training import checkpoints as ckpt
 
     config = run_dir / "config.json"
     if config.exists() and not record.steps:
@@ -136,7 +138,6 @@ def _start_folder(spec: SweepSpec, out: Path, resume: bool, address: str | None)
 
 def _plan(spec: SweepSpec, out: Path, resume: bool) -> tuple[list[TrialRecord], dict[str, list[str]]]:
     """The trials' records (the previous session's kept) and the command line of every trial to run."""
-    from hingelab.training import checkpoints as ckpt
 
     previous = read_sweep_csv(out) if resume else {}
     records, to_run = [], {}
@@ -201,7 +202,6 @@ def run_sweep(spec: SweepSpec, out: Path, address: str | None = None, resume: bo
               num_cpus: int | None = None, progress: bool = True) -> list[TrialRecord]:
     """Run (or resume) the sweep into ``out``; returns the trials' records. Raises ``HingelabError`` if a
     trial failed (the others ran to their end)."""
-    from hingelab.sweeps.trial_task import run_trial
 
     out = Path(out)
     _start_folder(spec, out, resume, address)
@@ -281,7 +281,6 @@ def _last_line(out: Path, trial: str) -> str:
 
 
 def summary(spec: SweepSpec, out: Path, records: list[TrialRecord], seconds: float, address: str | None) -> str:
-    import numpy as np
 
     per_condition = []
     for condition in spec.conditions:

@@ -20,6 +20,9 @@ from pathlib import Path
 
 from hingelab.errors import ConfigError
 from hingelab.training import resume_state as plain_state
+from hingelab.policies.sb3_zip import set_weights_from_zip
+import pickle
+from hingelab.policies.sb3_zip import read_plain_data
 
 CHECKPOINTS_DIR = "checkpoints"
 MODEL_FILE = "model.zip"
@@ -91,7 +94,6 @@ def read_state(path: Path) -> dict:
 def load_checkpoint(path: Path, model) -> dict:
     """Give ``model``, built by the run from its config, the checkpoint's weights, optimizer states,
     counters and replay buffer; return the state dict. The RNG states are restored by the caller, last."""
-    from hingelab.policies.sb3_zip import set_weights_from_zip
 
     path = Path(path)
     state = read_state(path)
@@ -108,9 +110,6 @@ def load_checkpoint(path: Path, model) -> dict:
 def convert_pickled(run_dir: Path) -> list[Path]:
     """Rewrite the pickled checkpoints of a trusted run of an older hingelab in plain formats
     (this unpickles them: only for runs you trust). Returns the checkpoints rewritten."""
-    import pickle
-
-    from hingelab.policies.sb3_zip import read_plain_data
 
     rewritten = []
     root = Path(run_dir) / CHECKPOINTS_DIR

@@ -14,15 +14,17 @@ from pathlib import Path
 
 import gymnasium as gym
 
-from hingelab.seeds import HELD_OUT_BASE as EVAL_SEED_BASE  # held-out episode seeds, far from any training seed
+from hingelab.seeds import training_episode_seed
+import torch
+from hingelab.envs.recording import RecordingWrapper
+from stable_baselines3.common.vec_env import DummyVecEnv
+from hingelab.envs.vec_env import PinnedVecEnv
 
 
-def episode_seed(run_seed: int, env_index: int, episode: int) -> int:
-    return (run_seed * 1_000_003 + env_index * 100_003 + episode * 7919) % EVAL_SEED_BASE
 
 
 class SeededEpisodes(gym.Wrapper):
-    """Resets with ``episode_seed(run_seed, env_index, episodes_started)``; ``episodes_started`` is the state."""
+    """Resets with ``training_episode_seed(run_seed, env_index, episodes_started)``; ``episodes_started`` is the state."""
 
     def __init__(self, env: gym.Env, run_seed: int, env_index: int, episodes_started: int = 0):
         super().__init__(env)
@@ -30,16 +32,14 @@ class SeededEpisodes(gym.Wrapper):
         self.episodes_started = episodes_started
 
     def reset(self, *, seed: int | None = None, options: dict | None = None):
-        seed = episode_seed(self.run_seed, self.env_index, self.episodes_started)
+        seed = training_episode_seed(self.run_seed, self.env_index, self.episodes_started)
         self.episodes_started += 1
         return self.env.reset(seed=seed, options=options)
 
 
 def _make_training_env(config_class, config_dict: dict, dataset_dir: str | None, env_index: int) -> gym.Env:
-    import torch
 
     import hingelab  # noqa: F401  (registers the envs in a spawned worker)
-    from hingelab.envs.recording import RecordingWrapper
 
     torch.set_num_threads(1)  # the encoder is small; one thread per env process
     config = config_class.from_dict(config_dict)
@@ -53,9 +53,6 @@ def _make_training_env(config_class, config_dict: dict, dataset_dir: str | None,
 def make_training_vec_env(config, dataset_dir: Path | None):
     """``config.n_envs`` seeded envs: one process each (spawned, each held to a core, arrays through
     shared memory: ``PinnedVecEnv``), or all in this process (one env, or asked to)."""
-    from stable_baselines3.common.vec_env import DummyVecEnv
-
-    from hingelab.envs.vec_env import PinnedVecEnv
 
     factories = [functools.partial(_make_training_env, type(config), config.to_dict(),
                                    None if dataset_dir is None else str(dataset_dir), i)
@@ -74,5 +71,4 @@ def set_episode_counts(vec_env, counts: list[int]) -> None:
         vec_env.set_attr("episodes_started", int(count), indices=[i])
 
 
-__all__ = ["episode_seed", "SeededEpisodes", "make_training_vec_env", "episode_counts", "set_episode_counts",
-           "EVAL_SEED_BASE"]
+__all__ = ["SeededEpisodes", "make_training_vec_env", "episode_counts", "set_episode_counts"]

@@ -71,6 +71,8 @@ from hingelab.episodes.errors import DatasetError
 from hingelab.episodes.transitions import Transitions, concat_transitions, episode_transitions, fill_replay_buffer
 from hingelab.errors import ConfigError
 from hingelab.training import real_demos as real_prefill
+from hingelab.perception.encoder import load_encoder
+from hingelab.training.buffer_fill import _check_shapes, insert_transitions
 
 OBSERVATION_DIM = observation_dim()  # 14
 OBSERVATION_DIMS = (observation_dim(False), observation_dim(True))  # without and with observe_extent
@@ -224,7 +226,6 @@ def high_level_transitions(datasets, reward_config: HighLevelRewardConfig | None
                 continue
             n_real += 1
             if calibration is None:
-                from hingelab.perception.encoder import load_encoder
 
                 calibration = load_encoder(encoder_path).calibration
             try:
@@ -280,7 +281,6 @@ def fill_high_level_buffer(buffer, transitions: Transitions, method: str = "add"
     fewer than n_envs is left out). The demos must fit in the room left: pre-filling past the
     end would overwrite the first demos with the last.
     """
-    from hingelab.training.buffer_fill import _check_shapes, insert_transitions
 
     if getattr(buffer.observation_space, "spaces", None) is not None or hasattr(buffer, "ep_length"):
         raise ConfigError("the high-level pre-fill takes a plain ReplayBuffer (ToolPick-v0 has flat observations), "

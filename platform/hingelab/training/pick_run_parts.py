@@ -6,7 +6,7 @@ the privileged prior's demos (``PriorData``) and the held-out evaluation (``Pick
   the run's reward (``high_level_transitions``; the demo action is the recorded command, or the reached
   latent ``--demo-lookahead`` steps on, and the recorded hand velocity); what filled them goes into
   config.json under ``prior``.
-* ``PickEvaluation``: ``--eval-episodes`` held-out episodes (seeds ``episode_seed(EVAL_SEED, i)`` of
+* ``PickEvaluation``: ``--eval-episodes`` held-out episodes (seeds ``eval_high_seed(TRAINING_EVALUATION_SEED, i)`` of
   ``hingelab eval high``, never a training or pick-table seed), deterministic actions; a metrics row
   of the pick table's rates, the return, the length and the final object-target distance.
 """
@@ -25,12 +25,13 @@ from hingelab.errors import ConfigError
 from hingelab.policies import ModelPolicy
 from hingelab.policies.low_level import resolve_low_level
 from hingelab.rollouts.high_level import FailureReasonWrapper, evaluate
+from hingelab.seeds import TRAINING_EVALUATION_SEED
 from hingelab.tasks import observation_dim
 from hingelab.training.high_level_demos import concat_demos, high_level_transitions, look_ahead
 from hingelab.training.prior import generate_prior, prior_parts
 
 PRIOR_DIR = "prior"
-EVAL_SEED = 77  # held-out evaluations during training: `hingelab eval high --seed 77`'s episodes
+EVAL_SEED = TRAINING_EVALUATION_SEED
 
 
 def summarize_pick(episodes) -> dict:

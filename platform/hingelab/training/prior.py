@@ -26,8 +26,8 @@ with the reached latent 5 steps on (8 missed grasps), and 0 of 10 with the step'
 cloning of 100 scripted episodes (their commands) picked 9 of 10 (``issues`` note of issue 26).
 
 Seeds: episode i of the k-th dataset (``prior_parts``) of a prior for run seed S is
-``high_level_eval.episode_seed(K, i)`` (scripted, scripted-feedback) or ``generate heuristic``'s
-``K * 100_003 + i`` (heuristic), K = PRIOR_SEED_BASE + S + 1000 k.
+``hingelab.seeds.eval_high_seed(K, i)`` (scripted, scripted-feedback) or ``demo_seed(K, i)`` (heuristic), with
+K = ``hingelab.seeds.prior_block(S, k)``.
 """
 
 from __future__ import annotations
@@ -35,8 +35,15 @@ from __future__ import annotations
 import shutil
 from dataclasses import replace
 from pathlib import Path
+import gymnasium as gym
+from hingelab.episodes import create_dataset
+from hingelab.envs.recording import RecordingWrapper
+from hingelab.policies import load_policy
+from hingelab.rollouts.high_level import DemonstratorLabels, FailureReasonWrapper, evaluate
+from hingelab.sim.mesh_objects import object_label
+from hingelab.rollouts.heuristic_demos import HeuristicRunConfig, generate_heuristic_dataset
+from hingelab.seeds import prior_block
 
-PRIOR_SEED_BASE = 700_000
 PRIOR_SOURCES = ("scripted", "scripted-feedback", "heuristic")
 PRIOR_OBJECTS = ("run", "all")
 # the pick table's shape-size sets (--prior-objects all)
@@ -62,7 +69,7 @@ def generate_prior(root: Path, config, name: str, progress: bool = True) -> list
     roots = []
     for index, (folder, object, size, episodes) in enumerate(prior_parts(config)):
         # the sets' seeds are apart (their episodes would otherwise share placements and noise)
-        seed = PRIOR_SEED_BASE + config.seed + 1000 * index
+        seed = prior_block(config.seed, index)
         part = replace(config, object=object, size=size, prior_episodes=episodes, prior_objects="run")
         roots.append(_generate(root / folder, part, seed, name, progress))
     return roots
@@ -70,19 +77,11 @@ def generate_prior(root: Path, config, name: str, progress: bool = True) -> list
 
 def _generate(root: Path, config, seed: int, name: str, progress: bool) -> Path:
     if config.prior_source == "heuristic":
-        from hingelab.rollouts.heuristic_demos import HeuristicRunConfig, generate_heuristic_dataset
 
         generate_heuristic_dataset(root, HeuristicRunConfig(
             episodes=config.prior_episodes, object=config.object, size=config.size, mass=config.mass, seed=seed,
             randomize=config.randomize, max_episode_steps=config.max_episode_steps), progress=progress, name=name)
         return root
-    import gymnasium as gym
-
-    from hingelab.episodes import create_dataset
-    from hingelab.envs.recording import RecordingWrapper
-    from hingelab.policies import load_policy
-    from hingelab.rollouts.high_level import DemonstratorLabels, FailureReasonWrapper, evaluate
-    from hingelab.sim.mesh_objects import object_label
 
     arguments = config.env_arguments()
     policy = config.prior_source  # scripted or scripted-feedback: eval high's baselines
@@ -106,4 +105,4 @@ def _generate(root: Path, config, seed: int, name: str, progress: bool) -> Path:
     return root
 
 
-__all__ = ["PICK_SETS", "PRIOR_OBJECTS", "PRIOR_SEED_BASE", "PRIOR_SOURCES", "generate_prior", "prior_parts"]
+__all__ = ["PICK_SETS", "PRIOR_OBJECTS", "PRIOR_SOURCES", "generate_prior", "prior_parts"]

@@ -61,6 +61,8 @@ from hingelab.episodes import schemas as S
 from hingelab.episodes.errors import DatasetError
 from hingelab.episodes.transitions import Transitions
 from hingelab.ros2.topics import ARM_JOINT_NAMES
+from hingelab.sim.arm_kinematics import default_kinematics
+from hingelab.perception.clouds import ToolGeometry
 
 SOURCE = "real"
 TOPICS = [S.TOPIC_STEP, S.TOPIC_TOOL_POSE, S.TOPIC_LATENT, S.TOPIC_OBJECT]
@@ -81,7 +83,6 @@ def is_real(episode) -> bool:
 
 
 def _arm_joints(episode, step: dict, n: int) -> np.ndarray:
-    from hingelab.sim.arm_kinematics import default_kinematics
 
     missing = [name for name in ARM_JOINT_NAMES if f"info.{name}" not in step]
     if missing:
@@ -127,7 +128,6 @@ def grip_points_world(tool_pos_hand, tool_rot_hand, z_bar, hand_rot, hand_pos, c
     """The grip point (world, m) of each step rebuilt from perception (module docstring), and the two
     tips (T, 3) each in the world: tips from the tool pose (T, 3), (T, 3, 3) in hand_base and the
     opening read off z_bar (T, 2); into the world by the hand's pose (T, 3, 3), (T, 3)."""
-    from hingelab.perception.clouds import ToolGeometry
 
     opening = calibration.opening_rad(z_bar)
     tips = []
@@ -156,7 +156,6 @@ def real_episode_transitions(episode, index: int, config: HighLevelRewardConfig,
     Infos per transition: ``is_success`` (the rig's), ``object_within_radius`` (the geometric one),
     ``tool_object_distance``, ``object_target_distance`` (m), ``table_collision``, ``demo_action_recorded``
     (1: the rig's recorded action, 0: the reached one)."""
-    from hingelab.sim.arm_kinematics import default_kinematics
 
     path = episode.path
     if observation_dim != OBSERVATION_DIM:

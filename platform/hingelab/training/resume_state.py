@@ -27,6 +27,7 @@ import numpy as np
 import torch
 
 from hingelab.errors import ConfigError
+from stable_baselines3.common.buffers import BaseBuffer
 
 COUNTERS = ("pos", "full")  # the buffer's scalars that change as it fills; the others are settings
 META_KEY = "__meta__"  # the buffer's counters and object arrays, as JSON bytes inside the npz
@@ -83,7 +84,6 @@ def restore_rng_states(states: dict) -> None:
 
 # ---------------------------------------------------------------------- replay buffers
 def _is_buffer(value) -> bool:
-    from stable_baselines3.common.buffers import BaseBuffer
 
     return isinstance(value, BaseBuffer)
 

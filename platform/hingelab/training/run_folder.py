@@ -24,6 +24,10 @@ from pathlib import Path
 
 from hingelab.errors import ConfigError
 from hingelab.provenance import code_version
+from dataclasses import fields
+from hingelab.training.run_config import flag_of
+from hingelab.analysis.learning_curves import old_metrics_renames
+from hingelab.episodes import create_dataset
 
 CONFIG_FILE = "config.json"
 RUN_FILE = "run.json"
@@ -49,7 +53,6 @@ class MetricsLog:
         """Drop rows past a checkpoint we resume from (they will be evaluated again). Rows written
         before episode schema 2 (success_rate = last step, settled_success_rate) get today's names,
         so that a resumed run's success_rate is one verdict throughout."""
-        from hingelab.analysis.learning_curves import old_metrics_renames
 
         rows = [r for r in self.rows() if int(float(r["env_steps"])) <= env_steps]
         renames = old_metrics_renames(rows[0]) if rows else {}
@@ -92,9 +95,6 @@ def resumed_config(run_dir: Path, config, given: set[str]):
     """The config a command line's ``--resume`` continues ``run_dir`` with: its ``config.json``, with
     the ``RESUME_SETTINGS`` among the ``given`` flags (``run_config.given_settings``). Any other given
     flag that differs from the run's is refused: the run goes on as it was started, or not at all."""
-    from dataclasses import fields
-
-    from hingelab.training.run_config import flag_of
 
     path = Path(run_dir) / CONFIG_FILE
     if not path.exists():
@@ -132,8 +132,10 @@ class RunFolder:
                 raise ConfigError(f"cannot resume: {config_path} does not exist; start the run without --resume")
             saved = type(config).load(config_path)
             # RESUME_SETTINGS come from the caller (a run may be extended, not shortened)
-            given = {name: getattr(config, name) for name in RESUME_SETTINGS}
-            self.config = replace(saved, **{**given, "steps": max(config.steps, saved.steps)})
+            given = {name: getattr(config, name) for name in RESUME_SETTINGS if hasattr(config, name)}
+            if "steps" in given:
+                given["steps"] = max(config.steps, saved.steps)
+            self.config = replace(saved, **given)
         else:
             if config_path.exists() and has_started(self.path):
                 raise ConfigError(f"{self.path} already holds a run; continue it with --resume or pass another --out")
@@ -174,7 +176,6 @@ class RunFolder:
         seeds). None when the config does not record."""
         if not self.config.record:
             return None
-        from hingelab.episodes import create_dataset
 
         root = self.dataset_path
         dataset_config = {k: v for k, v in self.config.to_dict().items() if k != "steps"}

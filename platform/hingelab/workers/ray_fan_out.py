@@ -19,6 +19,7 @@ import uuid
 from typing import Callable, Iterable
 
 from hingelab.workers.ray_runtime import describe, ray_session
+from tqdm import tqdm
 
 # per Ray worker process: the runner of the run it served last
 _RUNNERS: dict[str, object] = {}
@@ -47,7 +48,6 @@ def fan_out(factory: Callable[[], Callable], items: Iterable, *, address: str | 
     """Run ``factory()(item)`` for every item as a Ray task (1 CPU each) on ``address`` (None: a local
     Ray of ``num_cpus`` CPUs); returns the summaries in the order of ``items``. ``on_result(summary)``
     is called in this process as each task finishes (a journal, a progress bar)."""
-    from tqdm import tqdm
 
     items = list(items)
     if not items:

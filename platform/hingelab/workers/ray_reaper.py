@@ -41,6 +41,7 @@ import signal
 import subprocess
 import sys
 import time
+import psutil
 
 RELEASED = "released"
 GRACE_S = 5.0  # SIGTERM, then SIGKILL: Ray's processes shut down in well under a second
@@ -48,7 +49,6 @@ GRACE_S = 5.0  # SIGTERM, then SIGKILL: Ray's processes shut down in well under 
 
 def session_processes(session_dir: str, exclude: tuple[int, ...] = ()) -> list:
     """The live processes of the Ray session in ``session_dir`` and their descendants (``psutil.Process``)."""
-    import psutil
 
     prefix = os.path.join(os.path.realpath(session_dir), "")
     found: dict[int, psutil.Process] = {}
@@ -70,7 +70,6 @@ def session_processes(session_dir: str, exclude: tuple[int, ...] = ()) -> list:
 def stop_session(session_dir: str, grace_s: float = GRACE_S, exclude: tuple[int, ...] = ()) -> int:
     """Stop every process of the Ray session in ``session_dir`` (SIGTERM, then SIGKILL after ``grace_s``);
     returns how many there were."""
-    import psutil
 
     procs = session_processes(session_dir, exclude)
     for proc in procs:

@@ -21,6 +21,7 @@ from contextlib import contextmanager
 
 from hingelab.workers.ray_reaper import LocalRayReaper
 from hingelab.errors import ConfigError
+import socket
 
 LOCAL = "local"
 # small: tasks return summaries and paths only, never episode arrays
@@ -103,7 +104,6 @@ def _stop_cleanly_on_sigterm():
 
 def _require_reachable(address: str, timeout_s: float = 5.0) -> None:
     """A host:port that nothing answers on is refused at once (Ray itself retries for minutes)."""
-    import socket
 
     host, _, port = address.rpartition(":")
     if "://" in address or not host or not port.isdigit():

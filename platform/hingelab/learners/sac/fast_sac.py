@@ -36,6 +36,7 @@ from stable_baselines3.common.buffers import DictReplayBuffer, ReplayBuffer
 from stable_baselines3.common.type_aliases import DictReplayBufferSamples, ReplayBufferSamples
 
 from hingelab.training.torch_process import configure_torch  # noqa: F401  (re-exported: the bench applies it)
+from stable_baselines3.common.utils import polyak_update
 
 #: Every speed-up ``FastSAC`` applies by default; pass a subset as ``speedups=`` to ablate.
 ALL_SPEEDUPS = frozenset(
@@ -306,7 +307,6 @@ class FastSAC(SAC):
 
     def _polyak(self, params: list[th.Tensor], targets: list[th.Tensor], foreach: bool) -> None:
         """``polyak_update`` of SB3 (mul_ then add with alpha), for parameters and BN stats."""
-        from stable_baselines3.common.utils import polyak_update
 
         if not foreach:
             polyak_update(params, targets, self.tau)

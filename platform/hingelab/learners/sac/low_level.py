@@ -26,10 +26,17 @@ from hingelab.learners.sac.low_level_config import LowLevelTrainConfig
 from hingelab.rollouts.low_level_goals import evaluation_goals
 from hingelab.rollouts.low_level import evaluate, make_eval_env, summarize
 from hingelab.learners.sac.run import SACRun, algorithm_class, sac_arguments
+from stable_baselines3 import HerReplayBuffer
+import torch
+from hingelab.perception.encoder import shipped_encoder_fingerprint
+from hingelab.envs.low_level import PolicyLowLevel
+from hingelab.training.buffer_fill import fill_from_transitions, read_transitions
+from hingelab.learners.sac.demo_sac import Demonstrations
+from stable_baselines3.common.logger import configure
+from tqdm import tqdm
 
 
 def build_model(config: LowLevelTrainConfig, env):
-    from stable_baselines3 import HerReplayBuffer
 
     kwargs = {}
     if config.her:
@@ -43,7 +50,6 @@ def load_initial_weights(model, source) -> None:
     """Start ``model`` from a trained low-level policy (fine-tuning): the actor, critics and their
     targets, the optimizers and the entropy coefficient of ``source``, a ``PolicyLowLevel`` (it
     has refused another task's spaces or another encoder's latents)."""
-    import torch
 
     if not hasattr(source.model, "get_parameters"):
         raise ConfigError(f"--init-from {source.path} is a goal-region experts manifest; start from one of its "
@@ -85,7 +91,6 @@ class LowLevelRun(SACRun):
         return {**super().env_record(), "action_scale": float(self.eval_env.unwrapped.action_scale)}
 
     def provenance(self, extra: dict | None = None) -> dict:
-        from hingelab.perception.encoder import shipped_encoder_fingerprint
 
         # the envs perceive through the shipped encoder: its latents are what the policy learned
         return super().provenance({"encoder_fingerprint": shipped_encoder_fingerprint(), **(extra or {})})
@@ -96,7 +101,6 @@ class LowLevelRun(SACRun):
     def prepare_new_run(self) -> None:
         self.init_source = None
         if self.config.init_from:  # read (and a bad one refused) before the run folder is made
-            from hingelab.envs.low_level import PolicyLowLevel
 
             self.init_source = PolicyLowLevel(self.config.init_from)
 
@@ -110,13 +114,11 @@ class LowLevelRun(SACRun):
         demos = self.config.learns_from_demonstrations
         if not self.config.from_datasets or not (new_run or demos):
             return
-        from hingelab.training.buffer_fill import fill_from_transitions, read_transitions
 
         started = time.perf_counter()
         transitions, episodes = read_transitions(self.config.from_datasets, progress=self.progress)
         read_s = time.perf_counter() - started
         if demos:  # before the pre-fill relabels rewards: demonstrations need only observations and actions
-            from hingelab.learners.sac.demo_sac import Demonstrations
 
             self.model.set_demonstrations(Demonstrations.from_transitions(transitions))
             if new_run and self.config.bc_pretrain_updates:
@@ -137,8 +139,6 @@ class LowLevelRun(SACRun):
         return super().train()
 
     def _train_offline(self) -> dict:
-        from stable_baselines3.common.logger import configure
-        from tqdm import tqdm
 
         model, total = self.model, self.config.offline_updates
         model.set_logger(configure(folder=None, format_strings=[]))

@@ -24,6 +24,11 @@ from hingelab.training.run_folder import RunFolder
 from hingelab.training.envs import episode_counts, make_training_vec_env, set_episode_counts
 from hingelab.training.torch_process import configure_torch
 from hingelab.provenance import code_version
+from stable_baselines3 import SAC
+from hingelab.learners.sac.fast_sac import FastSAC
+from hingelab.learners.sac.demo_sac import DemoSAC
+import torch
+from hingelab.episodes.dataset import corrupt_policy
 
 PROVENANCE_ATTRIBUTE = "hingelab_provenance"  # saved inside every model.zip
 
@@ -32,17 +37,13 @@ def algorithm_class(config):
     """SB3's ``SAC``, ``FastSAC``, or ``DemoSAC`` when the run learns from demonstrations."""
     if config.algorithm == "fast_sac":
         if config.learns_from_demonstrations:
-            from hingelab.learners.sac.demo_sac import DemoSAC
             return DemoSAC
-        from hingelab.learners.sac.fast_sac import FastSAC
         return FastSAC
-    from stable_baselines3 import SAC
     return SAC
 
 
 def sac_arguments(config) -> dict:
     """Keyword arguments of the SAC constructor that every learner shares."""
-    import torch
 
     kwargs = {"learning_rate": config.learning_rate, "buffer_size": config.buffer_size,
               "learning_starts": config.learning_starts, "batch_size": config.batch_size, "tau": config.tau,
@@ -146,7 +147,6 @@ class SACRun:
             self.next_eval, self.next_checkpoint = 0, self.config.checkpoint_every
             self.mid_episode = False
             self._state_rng = None
-        from hingelab.episodes.dataset import corrupt_policy
 
         with corrupt_policy(self.config.on_corrupt):  # the --from datasets' unreadable files (recorded in config)
             self.use_datasets(new_run=state is None)
