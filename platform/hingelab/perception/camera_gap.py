@@ -20,11 +20,18 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
+import mujoco
 import numpy as np
 import pandas as pd
+from tqdm import tqdm
 
 from hingelab.perception.calibration import r_squared
+from hingelab.perception.encoder import load_encoder
+from hingelab.perception.tool_perception import ToolPerception, camera_for
 from hingelab.seeds import demo_seed
+from hingelab.sim.core import SimCore
+from hingelab.sim.finger_synergy import FingerSynergy
+from hingelab.sim.randomization import RandomizationConfig
 
 PERCEPTIONS = ("synthesized", "camera")
 
@@ -47,15 +54,6 @@ def run_gap(config: GapConfig = GapConfig(), progress: bool = True, frame_hook=N
     opening_est_rad, z0, z1, position_error_mm, rotation_error_deg, flag.
 
     ``frame_hook(episode, step, sim, perceptions)`` is called after every observation (the picture uses it)."""
-    import mujoco
-    from tqdm import tqdm
-
-    from hingelab.perception.tool_perception import ToolPerception, camera_for
-    from hingelab.perception.encoder import load_encoder
-    from hingelab.sim.core import SimCore
-    from hingelab.sim.finger_synergy import FingerSynergy
-    from hingelab.sim.randomization import RandomizationConfig
-
     sim = SimCore("tool_shape", randomization=RandomizationConfig(enabled=True), camera=camera_for("camera"))
     encoder = load_encoder()
     perceptions = {name: ToolPerception(encoder, dt=sim.control_dt, perception=name) for name in PERCEPTIONS}

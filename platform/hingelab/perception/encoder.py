@@ -28,11 +28,14 @@ from pathlib import Path
 
 import numpy as np
 import torch
+from threadpoolctl import ThreadpoolController
 from torch import nn
 
 from hingelab.errors import ConfigError
 from hingelab.paths import ASSETS_DIR
 from hingelab.perception import encoder_kernels
+from hingelab.perception.calibration import READER_FIELDS, OpeningCalibration
+from hingelab.perception.clouds import ToolGeometry
 
 CHECKPOINT_FORMAT = "hingelab.tool_encoder"
 CHECKPOINT_VERSION = 1
@@ -151,8 +154,6 @@ def one_torch_thread():
 @functools.cache
 def _openblas():
     """numpy's OpenBLAS thread control (threadpoolctl), or None where numpy uses another BLAS."""
-    from threadpoolctl import ThreadpoolController
-
     found = [c for c in ThreadpoolController().lib_controllers if c.internal_api == "openblas"]
     # scipy may load an OpenBLAS of its own: numpy's is the one in numpy's wheel folder
     numpys = [c for c in found if "numpy" in Path(c.filepath).parent.name]
@@ -204,8 +205,6 @@ class ToolEncoder:
             digest.update(name.encode())
             digest.update(tensor.detach().cpu().numpy().tobytes())
         if self.calibration is not None:  # the curve, not the reader (it changes no latent and no goal)
-            from hingelab.perception.calibration import READER_FIELDS
-
             curve = {k: v for k, v in self.calibration.to_dict().items() if k not in READER_FIELDS}
             digest.update(json.dumps(curve, sort_keys=True).encode())
         return digest.hexdigest()[:16]
@@ -335,8 +334,6 @@ def plain_payload(value):
 def rewrite_calibration(path, encoder: ToolEncoder, calibration: dict, **records) -> ToolEncoder:
     """Write ``encoder`` (its weights, registration config and provenance) to ``path`` with another
     calibration and more provenance ``records`` (e.g. ``reader=...``), and load it back."""
-    from hingelab.perception.clouds import ToolGeometry
-
     info = {k: v for k, v in encoder.info.items()
             if k not in ("format", "format_version", "geometry_hash", "registration_config")}
     save_checkpoint(path, encoder.model, geometry_hash=ToolGeometry.default().geometry_hash,
@@ -371,9 +368,6 @@ def load_encoder(path=None, geometry=None) -> ToolEncoder:
 
 
 def _encoder_from_raw(raw, path: Path, geometry=None) -> ToolEncoder:
-    from hingelab.perception.calibration import OpeningCalibration
-    from hingelab.perception.clouds import ToolGeometry
-
     if not isinstance(raw, dict) or raw.get("format") != CHECKPOINT_FORMAT:
         raise ConfigError(f"{path} is not a hingelab tool-encoder checkpoint (format "
                           f"{raw.get('format') if isinstance(raw, dict) else type(raw).__name__!r})")

@@ -28,6 +28,7 @@ import time
 from pathlib import Path
 
 import numpy as np
+from tqdm import tqdm
 
 from hingelab.errors import ConfigError
 from hingelab.perception.calibration import OpeningCalibration, latent_distance_for_gap
@@ -49,8 +50,6 @@ def tracked_sweep_latents(encoder: ToolEncoder, sweeps: int = 40, seed: int = 0,
 
     Sweep k draws its pose error from ``seed + k`` and runs closed -> open (k even) or open ->
     closed (k odd), so both directions of tracking are in the data."""
-    from tqdm import tqdm
-
     if sweeps < 2:
         raise ConfigError(f"a curve needs at least 2 sweeps (one each way), got {sweeps}")
     geometry = ToolGeometry.default()

@@ -30,11 +30,14 @@ from pathlib import Path
 
 import numpy as np
 from scipy.spatial.transform import Rotation
+from tqdm import tqdm
 
 from hingelab.episodes import EpisodeWriter, create_dataset
-from hingelab.episodes.dataset import Dataset
+from hingelab.episodes.dataset import Dataset, open_dataset
+from hingelab.episodes.schemas import TOPIC_PRIVILEGED
 from hingelab.errors import ConfigError
 from hingelab.perception.clouds import CloudRealism, CloudSynthesizer, ToolGeometry, random_rotations
+from hingelab.sim.core import SimCore
 
 SOURCE = "synthetic_clouds"
 TASK = "tool_clouds"
@@ -80,8 +83,6 @@ def nominal_tool_pose() -> tuple[np.ndarray, np.ndarray]:
     The prior registration starts from when nothing better is known (the tool starts in
     the hand in this grasp).
     """
-    from hingelab.sim.core import SimCore
-
     state = SimCore("tool_shape").reset(seed=0)
     w, x, y, z = state.tool_quat_hand
     return Rotation.from_quat([x, y, z, w]).as_matrix(), np.array(state.tool_pos_hand, float)
@@ -130,8 +131,6 @@ def write_cloud_episode(root: Path, config: CloudDatasetConfig, episode: int, ge
 
 def generate_cloud_dataset(root, config: CloudDatasetConfig, progress: bool = True) -> Dataset:
     """Create the dataset at ``root`` and write every episode (see the module docstring)."""
-    from tqdm import tqdm
-
     root = Path(root)
     geometry = ToolGeometry.default()
     card_config = {**asdict(config), "geometry_hash": geometry.geometry_hash,
@@ -155,9 +154,6 @@ def load_cloud_dataset(root, progress: bool = False) -> dict[str, np.ndarray]:
     Returns {points (M, N, 3) float32 hand_base, hinge_angle (M,) rad, tip_gap_m (M,),
     position (M, 3), orientation_xyzw (M, 4), episode (M,) int: rank of the episode's seed}.
     """
-    from hingelab.episodes.dataset import open_dataset
-    from hingelab.episodes.schemas import TOPIC_PRIVILEGED
-
     dataset = open_dataset(root)
     if len(dataset) == 0:
         raise ConfigError(f"{root} has no episodes; make one with `hingelab generate clouds --out {root}`")

@@ -19,6 +19,7 @@ reset, the canonical cloud at the nominal in-hand pose), and the env ends the ep
 from __future__ import annotations
 
 import numpy as np
+from scipy.spatial.transform import Rotation
 
 from hingelab.camera import AZURE_KINECT_NFOV_UNBINNED, CameraFrame, DepthIntrinsics
 from hingelab.errors import ConfigError
@@ -28,6 +29,7 @@ from hingelab.perception.encoder import ToolEncoder, load_encoder
 from hingelab.perception.tool_state import ALPHA, ToolState, ToolStateSample
 from hingelab.sim.core import SimCore
 from hingelab.sim.depth_noise import DepthNoise
+from hingelab.sim.depth_render import DepthRenderer
 
 PERCEPTIONS = ("synthesized", "camera")
 
@@ -79,8 +81,6 @@ class CameraClouds:
         self.result: ToolCloud | None = None
 
     def new_episode(self, seed: int | None) -> None:
-        from scipy.spatial.transform import Rotation
-
         # its own stream: the camera's noise does not shift the env's other draws
         self.rng = np.random.default_rng(None if seed is None else [seed, 28])
         offset, angle = self.extrinsic_error
@@ -89,8 +89,6 @@ class CameraClouds:
 
     def cloud(self, sim: SimCore) -> ToolCloud:
         if self.renderer is None:
-            from hingelab.sim.depth_render import DepthRenderer
-
             self.renderer = DepthRenderer(sim.model, self.intrinsics)
         frame = self.renderer.render(sim.data, stamp_s=float(sim.data.time))
         frame.depth = self.noise.apply(frame.depth, self.intrinsics, self.rng)

@@ -108,6 +108,7 @@ class ToolState:
         self.tracking = tracking
         self.lost_rmse_m = lost_rmse_m
         if isinstance(prior, str) and prior == "nominal":
+            # synthetic_dataset brings the episode stack (pandas, pyarrow, mcap) that an env's tracker does not use
             from hingelab.perception.synthetic_dataset import nominal_tool_pose
 
             prior = nominal_tool_pose()

@@ -19,12 +19,14 @@ from pathlib import Path
 
 import numpy as np
 import torch
+from tqdm import tqdm
 
+from hingelab.episodes import load_card
 from hingelab.errors import ConfigError
 from hingelab.perception.calibration import OpeningCalibration
-from hingelab.perception.clouds import ToolGeometry
-from hingelab.perception.encoder import (EncoderConfig, PointNetVAE, ToolEncoder, rewrite_calibration, save_checkpoint,
-                                         vae_loss)
+from hingelab.perception.clouds import ToolGeometry, _even_subset
+from hingelab.perception.encoder import (EncoderConfig, PointNetVAE, ToolEncoder, chamfer, load_encoder,
+                                         rewrite_calibration, save_checkpoint, vae_loss)
 from hingelab.perception.registration import CanonicalRegistration, RegistrationConfig
 from hingelab.perception.synthetic_dataset import load_cloud_dataset, nominal_tool_pose
 from hingelab.provenance import code_version
@@ -50,8 +52,6 @@ def register_to_tool_frame(points_hand: np.ndarray, registration: CanonicalRegis
                            batch: int = 250, progress: bool = False) -> tuple[np.ndarray, np.ndarray]:
     """Register clouds (M, N, 3) hand_base from the nominal in-hand pose: (clouds in the tool
     frame (M, N, 3) float32, registered rotations (M, 3, 3))."""
-    from tqdm import tqdm
-
     prior = nominal_tool_pose()
     out = np.empty(points_hand.shape, np.float32)
     rotations = np.empty((len(points_hand), 3, 3))
@@ -69,8 +69,6 @@ def surface_targets(geometry: ToolGeometry, hinge_angle: np.ndarray, n_points: i
     The same evenly spread subset of the sampled surface for every cloud, so the target is
     a function of the opening alone: nothing else in the input is worth encoding.
     """
-    from hingelab.perception.clouds import _even_subset
-
     index = _even_subset(geometry.bank_part, n_points)
     local = geometry.bank_points[index]
     is_b = geometry.bank_part[index] == 1
@@ -110,8 +108,6 @@ def encode_all(model: PointNetVAE, clouds: np.ndarray, batch: int = 512) -> np.n
 @torch.no_grad()
 def mean_chamfer_mm2(model: PointNetVAE, clouds: np.ndarray, targets: np.ndarray, batch: int = 512) -> float:
     """Mean Chamfer distance (decoded latent mean vs the clean surface), mm^2."""
-    from hingelab.perception.encoder import chamfer
-
     model.eval()
     total = 0.0
     for i in range(0, len(clouds), batch):
@@ -136,8 +132,6 @@ def recalibrate_encoder(data_dir, checkpoint, progress: bool = True) -> tuple[To
     The weights and the calibration curve are kept, so ``ToolEncoder.fingerprint`` and every
     latent goal stay the same; the reader's held-out R^2 and where it was fitted go into the
     checkpoint's ``reader`` record. Returns (encoder, metrics)."""
-    from hingelab.perception.encoder import load_encoder
-
     started = time.perf_counter()
     checkpoint = Path(checkpoint)
     encoder = load_encoder(checkpoint)
@@ -145,8 +139,6 @@ def recalibrate_encoder(data_dir, checkpoint, progress: bool = True) -> tuple[To
         raise ConfigError(f"{checkpoint} has no calibration to add a reader to; retrain it with `hingelab train encoder`")
     data = load_cloud_dataset(data_dir, progress=progress)
     trained_on = (encoder.info.get("data") or {}).get("config_hash")
-    from hingelab.episodes import load_card
-
     card = load_card(data_dir)
     if trained_on is not None and card.config_hash != trained_on:
         raise ConfigError(f"{data_dir} (config {card.config_hash}) is not the dataset {checkpoint} was trained on "
@@ -170,8 +162,6 @@ def train_encoder(data_dir, out_path, train: TrainEncoderConfig = TrainEncoderCo
                   encoder: EncoderConfig = EncoderConfig(), registration_config: RegistrationConfig = RegistrationConfig(),
                   progress: bool = True, log=print) -> tuple[ToolEncoder, dict]:
     """Train, fit the calibration, write the checkpoint; returns (encoder, summary metrics)."""
-    from tqdm import tqdm
-
     if train.epochs < 1 or train.batch_size < 2:
         raise ConfigError(f"epochs must be >= 1 and batch size >= 2, got {train.epochs}, {train.batch_size}")
     started = time.perf_counter()
@@ -224,8 +214,6 @@ def train_encoder(data_dir, out_path, train: TrainEncoderConfig = TrainEncoderCo
                "val_chamfer_mm2": history[-1]["val_chamfer_mm2"], "r2_opening_train": calibration.r2_opening,
                "r2_gap_train": calibration.r2_gap, **{f"{k}_val": v for k, v in held_out.items()},
                "wall_time_s": time.perf_counter() - started}
-    from hingelab.episodes import load_card
-
     card = load_card(data_dir)
     info = {"data": {"path": str(Path(data_dir).resolve()), "name": card.name, "source": card.source,
                      "config_hash": card.config_hash, "clouds": int(len(clouds))},
