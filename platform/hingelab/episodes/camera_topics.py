@@ -9,12 +9,13 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
+from scipy.spatial.transform import Rotation
 
 from hingelab.camera import DepthIntrinsics
 from hingelab.episodes import codec
 from hingelab.episodes import schemas as S
-from hingelab.episodes.reader import EpisodeFile, corrupt_error
 from hingelab.episodes.errors import DatasetError
+from hingelab.episodes.reader import EpisodeFile, corrupt_error
 
 
 @dataclass
@@ -31,8 +32,6 @@ class CameraRecord:
 
 def read_camera(path) -> CameraRecord | None:
     """The camera topics of an episode file, or None if it has none (schema 1-2 files, simulated rollouts)."""
-    from scipy.spatial.transform import Rotation
-
     try:
         with EpisodeFile(path) as episode:
             if S.TOPIC_DEPTH not in episode.channels:

@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import numpy as np
 from google.protobuf.timestamp_pb2 import Timestamp
+from scipy.spatial.transform import Rotation
 
 from hingelab.episodes import schemas as S
 
@@ -104,8 +105,6 @@ def encode_frame_transform(log_time_ns: int, position, orientation_xyzw) -> byte
 
 def encode_camera_transform(log_time_ns: int, rotation, position) -> bytes:
     """The depth camera's optical frame in hand_base: R (3, 3) camera -> hand_base, position (3,) m."""
-    from scipy.spatial.transform import Rotation
-
     quat = Rotation.from_matrix(np.asarray(rotation, float)).as_quat()  # x, y, z, w
     pose = _pose(position, quat)
     return S.FrameTransform(

@@ -40,6 +40,10 @@ import json
 from pathlib import Path
 
 import numpy as np
+import pandas as pd
+import pyarrow as pa
+import pyarrow.compute as pc
+import pyarrow.parquet as pq
 
 from hingelab.episodes import schemas as S
 from hingelab.episodes.card import create_dataset
@@ -99,8 +103,6 @@ def features(schema: ExportSchema) -> dict:
 
 def _arrow_type(feature: dict):
     """The arrow type LeRobot's ``get_hf_features_from_features`` gives: Value, fixed-size list, Array2D."""
-    import pyarrow as pa
-
     value = pa.from_numpy_dtype(np.dtype(feature["dtype"]))
     shape = feature["shape"]
     if shape == [1]:
@@ -112,8 +114,6 @@ def _arrow_type(feature: dict):
 
 def _column(values: np.ndarray, feature: dict, null: np.ndarray | None = None):
     """One column of ``_arrow_type(feature)`` from (rows, *shape) values; ``null``: rows that are null."""
-    import pyarrow as pa
-
     values = np.ascontiguousarray(values, dtype=feature["dtype"])
     shape = feature["shape"]
     if shape == [1]:
@@ -210,10 +210,6 @@ def _next_file(chunk: int, file: int) -> tuple[int, int]:
 def export_lerobot(dataset, out, data_files_size_in_mb: float = DATA_FILE_SIZE_IN_MB,
                    progress: bool = False) -> ExportResult:
     """Write ``dataset`` as a LeRobotDataset v3.0 folder ``out`` (a new folder)."""
-    import pandas as pd
-    import pyarrow as pa
-    import pyarrow.parquet as pq
-
     out = Path(out)
     if out.exists():
         raise DatasetError(f"{out} exists; export into a new folder (or delete that one first)")
@@ -298,9 +294,6 @@ def _numpy(table, name: str, feature: dict) -> np.ndarray:
 
 def import_lerobot(path, root) -> Path:
     """A LeRobot export back into a hingelab dataset at ``root``."""
-    import pyarrow.compute as pc
-    import pyarrow.parquet as pq
-
     path = Path(path)
     info_path = path / "meta" / "info.json"
     if not info_path.is_file():

@@ -41,6 +41,7 @@ import json
 import re
 from pathlib import Path
 
+import h5py
 import numpy as np
 
 from hingelab.episodes import schemas as S
@@ -102,8 +103,6 @@ def _dataset(group, name: str, data: np.ndarray) -> None:
 
 def export_minari(dataset, out, dataset_id: str | None = None, progress: bool = False) -> ExportResult:
     """Write ``dataset`` as the Minari dataset ``dataset_id`` under the datasets root ``out``."""
-    import h5py
-
     dataset_id = check_dataset_id(dataset_id or default_dataset_id(dataset.card.name))
     root = Path(out)
     if root.exists() and not root.is_dir():
@@ -201,8 +200,6 @@ def _minari_data_dir(path: Path, dataset_id: str | None) -> Path:
 
 def import_minari(path, root, dataset_id: str | None = None) -> Path:
     """A Minari export (its folder, or a datasets root holding it) back into a hingelab dataset at ``root``."""
-    import h5py
-
     data_dir = _minari_data_dir(Path(path), dataset_id)
     metadata = json.loads((data_dir / "metadata.json").read_text()) if (data_dir / "metadata.json").exists() else {}
     card = metadata.get("hingelab_card") or {"name": metadata.get("dataset_id", data_dir.parent.name),

@@ -32,17 +32,22 @@ so that a re-export aligns the clouds the same way).
 from __future__ import annotations
 
 import dataclasses
+import inspect
 import json
 from collections.abc import Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
 
+import gymnasium as gym
 import numpy as np
+from gymnasium.envs.registration import load_env_creator
 from tqdm import tqdm
 
 from hingelab.episodes import schemas as S
 from hingelab.episodes.errors import DatasetError
 from hingelab.episodes.reader import EpisodeFile, read_episode
+from hingelab.episodes.writer import EpisodeWriter
+from hingelab.tasks import register_envs
 
 OBS_KEYS = ("observation", "achieved_goal", "desired_goal")  # a flat observation, or a goal env's dict
 CONTROL_HZ = 20
@@ -301,10 +306,6 @@ def export_episodes(dataset, schema: ExportSchema, log: ExportLog, progress: boo
 # --- the environment the episodes were recorded with ---------------------------------------------------
 def _constructor_parameters(entry_point: str) -> set[str]:
     """Parameter names of an env class's constructor (imports its module), or none if it cannot load."""
-    import inspect
-
-    from gymnasium.envs.registration import load_env_creator
-
     try:
         return set(inspect.signature(load_env_creator(entry_point)).parameters)
     except (ImportError, AttributeError, ValueError, TypeError):
@@ -323,10 +324,6 @@ def recorded_env(dataset, schema: ExportSchema) -> dict | None:
     """
     if len(schema.tasks) != 1:
         return None
-    import gymnasium as gym
-
-    from hingelab.tasks import register_envs
-
     register_envs()
     env_id = schema.tasks[0]
     if env_id not in gym.registry:
@@ -347,8 +344,6 @@ def env_spec_json(env: dict | None) -> str | None:
     """gymnasium's ``EnvSpec.to_json()`` of ``recorded_env``'s result (what Minari stores), or None."""
     if env is None:
         return None
-    import gymnasium as gym
-
     spec = dataclasses.replace(gym.registry[env["id"]], kwargs=env["kwargs"],
                                max_episode_steps=env["max_episode_steps"])
     try:
@@ -362,8 +357,6 @@ def write_back(root, meta: dict, observations: dict[str, np.ndarray], final: dic
                actions, rewards, terminated, truncated, infos: dict[str, np.ndarray],
                points: np.ndarray | None = None, points_valid: np.ndarray | None = None) -> Path:
     """One episode from stacked arrays (``observations`` T rows, clouds T+1 rows) through EpisodeWriter."""
-    from hingelab.episodes.writer import EpisodeWriter
-
     n = len(rewards)
     dt = 1.0 / CONTROL_HZ
     flat = list(observations) == ["observation"]

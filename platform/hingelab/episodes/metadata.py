@@ -12,10 +12,15 @@ Formats (documented in ``datasets/README.md``):
 
 from __future__ import annotations
 
+import json
 import math
+import zlib
 from collections.abc import Mapping
 
+import numpy as np
+
 from hingelab.episodes import schemas as S
+from hingelab.episodes.schemas import DIGEST_COLUMNS
 
 INT_KEYS = frozenset({S.KEY_SEED, S.KEY_LENGTH, S.KEY_ATTEMPT, S.KEY_SCHEMA_VERSION})
 FLOAT_KEYS = frozenset({S.KEY_RETURN, S.KEY_START_TIME, S.KEY_END_TIME})
@@ -45,18 +50,11 @@ def format_metadata(values: Mapping) -> dict[str, str]:
 
 def metadata_digest(record: Mapping[str, str]) -> int:
     """CRC32 of a metadata record's keys and values (as stored), independent of their order."""
-    import json
-    import zlib
-
     return zlib.crc32(json.dumps(dict(record), sort_keys=True).encode())
 
 
 def digest_columns(records: Mapping[str, Mapping[str, str]]) -> dict:
     """The ``/episode/columns`` entries protecting ``records`` (name -> stored record) by CRC."""
-    import numpy as np
-
-    from hingelab.episodes.schemas import DIGEST_COLUMNS
-
     return {f"{DIGEST_COLUMNS}:{name}": np.array([metadata_digest(record)], dtype=np.uint32)
             for name, record in records.items()}
 

@@ -13,6 +13,7 @@ number of salvaged ``/step`` records and a ``failure_reason`` saying so.
 from __future__ import annotations
 
 import io
+import json
 import os
 import struct
 from dataclasses import dataclass
@@ -20,17 +21,19 @@ from pathlib import Path
 
 import lz4.frame
 import zstandard
+from mcap.data_stream import ReadDataStream
 from mcap.records import Channel, Chunk, Message, Metadata, Schema
 from mcap.stream_reader import StreamReader, breakup_chunk
 from mcap.writer import CompressionType, Writer
-from mcap.data_stream import ReadDataStream
+from mcap_protobuf.schema import register_schema
 
 from hingelab.episodes import codec
 from hingelab.episodes import schemas as S
+from hingelab.episodes.card import EPISODES_DIR, load_card
 from hingelab.episodes.errors import DatasetError
 from hingelab.episodes.metadata import digest_columns, format_metadata, parse_metadata
 from hingelab.episodes.reader import stack_messages
-from hingelab.episodes.writer import column_name
+from hingelab.episodes.writer import PARTIAL_SUFFIX, column_name
 
 _OPCODES = {0x03: Schema, 0x04: Channel, 0x05: Message}
 
@@ -183,7 +186,6 @@ def recover_episode(path, out_path) -> dict:
                     writer.add_message(channel_ids[m.channel_id], m.log_time, m.data, m.publish_time, m.sequence)
             writer.flush()
         if S.TOPIC_COLUMNS not in {c.topic for c in found.channels.values()}:
-            from mcap_protobuf.schema import register_schema
             columns_channel = writer.register_channel(S.TOPIC_COLUMNS, "protobuf",
                                                       register_schema(writer, S.EpisodeColumns))
         else:
@@ -201,8 +203,6 @@ def recover_episode(path, out_path) -> dict:
 
 
 def _json(text):
-    import json
-
     return json.loads(text) if text else None
 
 
@@ -212,9 +212,6 @@ def recover_folder(root, discard: bool = False) -> dict:
 
     Returns {"recovered": [paths written], "discarded": [paths removed], "failed": [(path, reason)]}.
     """
-    from hingelab.episodes.card import EPISODES_DIR, load_card
-    from hingelab.episodes.writer import PARTIAL_SUFFIX
-
     root = Path(root)
     load_card(root)
     out = {"recovered": [], "discarded": [], "failed": []}
