@@ -19,6 +19,7 @@ from __future__ import annotations
 from pathlib import Path
 
 import gymnasium as gym
+import mujoco
 import numpy as np
 
 from hingelab.episodes import EpisodeWriter
@@ -154,8 +155,6 @@ class RecordingWrapper(gym.Wrapper):
 
 
 def _rotation_to_xyzw(rotation: np.ndarray) -> np.ndarray:
-    import mujoco
-
     quat = np.zeros(4)
     mujoco.mju_mat2Quat(quat, np.asarray(rotation, float).ravel())
     return _xyzw(quat)

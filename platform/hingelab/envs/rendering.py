@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import mujoco
 import numpy as np
 
 
@@ -13,8 +14,6 @@ class SimRenderMixin:
     def render(self):
         if self.render_mode != "rgb_array":
             return None
-        import mujoco
-
         if self._renderer is None:
             self._renderer = mujoco.Renderer(self.sim.model, 240, 320)
         lookat, distance, azimuth, elevation = self._camera()

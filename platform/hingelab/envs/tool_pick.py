@@ -58,12 +58,13 @@ import numpy as np
 from gymnasium import spaces
 
 from hingelab.envs.low_level import PolicyLowLevel, PrivilegedLowLevel
-from hingelab.policies.low_level import SHIPPED_LOW_LEVEL
 from hingelab.envs.rendering import SimRenderMixin
 from hingelab.envs.rewards import HighLevelRewardConfig, high_level_terms
 from hingelab.envs.tool_shape import DROP_DISTANCE_M
-from hingelab.perception.tool_perception import ToolPerception, camera_for
 from hingelab.errors import ConfigError
+from hingelab.perception.encoder import load_encoder
+from hingelab.perception.tool_perception import ToolPerception, camera_for
+from hingelab.policies.low_level import SHIPPED_LOW_LEVEL
 from hingelab.sim import scripted
 from hingelab.sim.core import SimCore
 from hingelab.sim.delay import DelayLine
@@ -85,8 +86,6 @@ class ToolPickEnv(SimRenderMixin, gym.Env):
                  max_episode_steps: int = 200, encoder_path: str | None = None,
                  reward: HighLevelRewardConfig | None = None, render_mode: str | None = None,
                  terminate_on_drop: bool = True, observe_extent: bool = False, perception: str = "synthesized"):
-        from hingelab.perception.encoder import load_encoder
-
         self.object = ObjectSpec(object, size, mass)
         if max_episode_steps < 1:
             raise ConfigError(f"max_episode_steps must be positive, not {max_episode_steps}")

@@ -96,10 +96,11 @@ from gymnasium import spaces
 from hingelab.envs.rendering import SimRenderMixin
 from hingelab.envs.rewards import (LowLevelRewardConfig, drift_term, effort_from_info, effort_quantities,
                                    effort_terms, goal_reward)
-from hingelab.perception.tool_perception import ToolPerception, camera_for
 from hingelab.errors import ConfigError
-from hingelab.perception.clouds import ToolGeometry
 from hingelab.perception.calibration import latent_distance_for_gap
+from hingelab.perception.clouds import ToolGeometry
+from hingelab.perception.encoder import load_encoder
+from hingelab.perception.tool_perception import ToolPerception, camera_for
 from hingelab.sim.core import SimCore
 from hingelab.sim.finger_synergy import FingerSynergy
 from hingelab.sim.randomization import RandomizationConfig
@@ -129,8 +130,6 @@ class ToolShapeEnv(SimRenderMixin, gym.Env):
             raise ConfigError(f"goal_sampling {goal_sampling!r} is unknown; choose one of {GOAL_SAMPLERS}")
         if not 0 < action_scale <= 0.5:
             raise ConfigError(f"action_scale {action_scale} rad per step is out of range (0, 0.5]")
-        from hingelab.perception.encoder import load_encoder
-
         self.sim = SimCore("tool_shape", randomization=RandomizationConfig(enabled=randomize),
                            camera=camera_for(perception))
         self.perception = ToolPerception(load_encoder(encoder_path), realistic=realistic_clouds,

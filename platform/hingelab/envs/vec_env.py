@@ -30,7 +30,9 @@ import cloudpickle
 import gymnasium as gym
 import numpy as np
 from gymnasium import spaces
+from stable_baselines3.common.env_util import is_wrapped
 from stable_baselines3.common.vec_env.base_vec_env import CloudpickleWrapper, VecEnv
+from stable_baselines3.common.vec_env.patch_gym import _patch_env
 
 from hingelab.errors import ConfigError
 
@@ -86,9 +88,6 @@ class _Buffers:
 
 
 def _worker(remote, parent_remote, env_fn: CloudpickleWrapper, index: int, core: int | None) -> None:
-    from stable_baselines3.common.env_util import is_wrapped
-    from stable_baselines3.common.vec_env.patch_gym import _patch_env
-
     parent_remote.close()
     if core is not None:
         os.sched_setaffinity(0, {core})
