@@ -23,6 +23,9 @@ from __future__ import annotations
 from pathlib import Path
 
 import numpy as np
+from rosbags.rosbag2 import StoragePlugin, Writer
+from rosbags.typesys import Stores, get_typestore
+from scipy.spatial.transform import Rotation
 from tqdm.auto import tqdm
 
 from hingelab.episodes import schemas as S
@@ -55,9 +58,6 @@ def _events(episode, times: np.ndarray) -> list[tuple[int, str]]:
 
 def export_episode(episode, folder: Path) -> int:
     """Write one episode as the rosbag2 folder ``folder``; returns the number of messages written."""
-    from rosbags.rosbag2 import StoragePlugin, Writer
-    from rosbags.typesys import Stores, get_typestore
-
     ts = get_typestore(Stores.ROS2_HUMBLE)
     T = ts.types
     base = int(episode.metadata.get("ros2_trial_start_ns", 0) or 0)
@@ -87,8 +87,6 @@ def export_episode(episode, folder: Path) -> int:
         for k, t in enumerate(cloud["log_time_ns"]):
             add(base + t, TOOL_POINTS_TOPIC, point_cloud2(ts, base + t, S.FRAME_HAND, cloud["points"][k]))
     if S.TOPIC_TOOL_POSE in topics:
-        from scipy.spatial.transform import Rotation
-
         pose = topics[S.TOPIC_TOOL_POSE]
         for k, t in enumerate(pose["log_time_ns"]):
             rot = Rotation.from_quat(np.asarray(pose["orientation"][k], float)).as_matrix()

@@ -36,6 +36,8 @@ from hingelab.episodes.card import create_dataset
 from hingelab.episodes.errors import DatasetError
 from hingelab.episodes.writer import EpisodeWriter
 from hingelab.perception.camera_cloud import ToolCloudConfig, tool_cloud_from_frame, tool_cloud_from_points, transform
+from hingelab.perception.encoder import load_encoder
+from hingelab.perception.tool_state import ToolState
 from hingelab.ros2 import ros_messages as M
 from hingelab.ros2.bag_source import Bag, Stream, message_stamp, open_bag, sort_stamps
 from hingelab.ros2.tf_tree import TfTree
@@ -79,12 +81,8 @@ def import_config(names: dict, cloud: ToolCloudConfig) -> dict:
 def import_bags(bags, out, topics=(), progress: bool = False, encoder=None,
                 cloud: ToolCloudConfig = ToolCloudConfig()) -> list[BagSummary]:
     """Import every bag of ``bags`` into the dataset folder ``out`` (created, or reopened with the same topics)."""
-    from hingelab.perception.encoder import load_encoder
-
     names = topic_names(topics)
     out = Path(out)
-    from hingelab.perception.tool_state import ToolState
-
     state = ToolState(encoder=encoder or load_encoder(), n_tools=1, dt=STEP_NS / 1e9)  # reset per episode
     return [import_bag(bag, out, names, state, progress=progress, cloud=cloud) for bag in bags]
 

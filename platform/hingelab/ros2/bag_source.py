@@ -24,6 +24,11 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
+from mcap.records import Channel, Message, Schema
+from mcap.stream_reader import StreamReader
+from rosbags.highlevel import AnyReader
+from rosbags.typesys import Stores, get_types_from_idl, get_types_from_msg, get_typestore
+from ruamel.yaml import YAML
 
 from hingelab.episodes.errors import DatasetError
 
@@ -84,8 +89,6 @@ class Bag:
         if self.mcap_file is not None:
             yield from _stream_messages(self.mcap_file, topics)
             return
-        from rosbags.highlevel import AnyReader
-
         with AnyReader([self.path]) as reader:
             wanted = [c for c in reader.connections if c.topic in topics]
             if wanted:
@@ -141,8 +144,6 @@ def _promised_counts(path: Path) -> dict:
     meta = path / "metadata.yaml" if path.is_dir() else None
     if meta is None or not meta.exists():
         return {}
-    from ruamel.yaml import YAML
-
     try:
         info = YAML(typ="safe").load(meta.read_text())["rosbag2_bagfile_information"]
         return {t["topic_metadata"]["name"]: int(t["message_count"]) for t in info["topics_with_message_count"]}
@@ -152,8 +153,6 @@ def _promised_counts(path: Path) -> dict:
 
 def open_bag(path) -> Bag:
     """Open ``path`` (see the module docstring): topics, types, counts, time range; no message is kept."""
-    from rosbags.highlevel import AnyReader
-
     path = Path(path)
     if not path.exists():
         raise DatasetError(f"bag {path} does not exist; give a rosbag2 folder (with metadata.yaml) or a .mcap file")
@@ -174,8 +173,6 @@ def open_bag(path) -> Bag:
 
 def _records(mcap_file: Path):
     """Every complete record of an MCAP file in order, then (None, why) where it breaks off (or (None, None))."""
-    from mcap.stream_reader import StreamReader
-
     with open(mcap_file, "rb") as f:
         try:
             for record in StreamReader(f, validate_crcs=True).records:
@@ -187,8 +184,6 @@ def _records(mcap_file: Path):
 
 
 def _stream_messages(mcap_file: Path, topics: set):
-    from mcap.records import Channel, Message
-
     channels = {}
     for record, _ in _records(mcap_file):
         if isinstance(record, Channel):
@@ -199,9 +194,6 @@ def _stream_messages(mcap_file: Path, topics: set):
 
 def _open_cut_off(path: Path, mcap_file: Path, reason: str) -> Bag:
     """The topics, types and counts of an MCAP bag up to where it breaks off."""
-    from mcap.records import Channel, Message, Schema
-    from rosbags.typesys import Stores, get_types_from_idl, get_types_from_msg, get_typestore
-
     schemas, channels, counts, types = {}, {}, {}, {}
     first, last, cut = None, None, None
     for record, why in _records(mcap_file):

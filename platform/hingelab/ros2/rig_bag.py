@@ -24,6 +24,8 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
+from rosbags.rosbag2 import StoragePlugin, Writer
+from rosbags.typesys import Stores, get_typestore
 from scipy.spatial.transform import Rotation
 
 from hingelab.ros2.topics import ARM_JOINT_NAMES, HAND_JOINTS
@@ -114,9 +116,7 @@ def camera_in_hand(t_s: float):
 
 def write_rig_bag(path, spec: RigBagSpec = RigBagSpec()) -> dict:
     """Write the bag; returns what a test checks against: per trial its start/end (ns) and outcome."""
-    from rosbags.rosbag2 import StoragePlugin, Writer
-    from rosbags.typesys import Stores, get_typestore
-
+    # perception loads mujoco, trimesh and numba (about 2 s); bag_export uses the helpers here without them
     from hingelab.perception.clouds import CloudRealism, CloudSynthesizer
     from hingelab.perception.synthetic_dataset import nominal_tool_pose
 

@@ -27,11 +27,20 @@ from __future__ import annotations
 from dataclasses import dataclass
 from pathlib import Path
 
+import gymnasium as gym
 import numpy as np
+from rosbags.rosbag2 import StoragePlugin, Writer
+from rosbags.typesys import Stores, get_typestore
+from scipy.spatial.transform import Rotation
 
+from hingelab.envs import TOOL_PICK_ID
+from hingelab.heuristic.controller import PrivilegedHeuristic
+from hingelab.perception.clouds import CloudRealism, CloudSynthesizer
 from hingelab.ros2.rig_bag import CAMERA_IN_WORLD, CAMERA_OPTICAL, T0_NS, _header, _tf, point_cloud2
 from hingelab.ros2.topics import ARM_JOINT_NAMES, HAND_JOINTS
+from hingelab.seeds import demo_seed
 from hingelab.sim import names
+from hingelab.sim.finger_synergy import FingerSynergy
 
 STEP_S = 0.05
 
@@ -62,9 +71,6 @@ def _snapshot(pick) -> dict:
 
 
 def _run_trial(env, seed: int) -> dict:
-    from hingelab.heuristic.controller import PrivilegedHeuristic
-    from hingelab.sim.finger_synergy import FingerSynergy
-
     env.reset(seed=seed)
     pick = env.unwrapped
     heuristic = PrivilegedHeuristic(pick.sim, FingerSynergy.load(), pick.object)
@@ -95,15 +101,6 @@ def write_sim_rig_bag(path, spec: SimRigBagSpec = SimRigBagSpec()) -> dict:
     Returns ``{"trials": [...]}``: per trial its start (ns), the env's per-step ``rewards`` (T,),
     ``terms``, ``actions`` (T, 5), ``is_success`` (T,), ``table_collision`` (T,), ``success``,
     ``target_world`` and the T + 1 simulated ``states`` it published."""
-    import gymnasium as gym
-    from rosbags.rosbag2 import StoragePlugin, Writer
-    from rosbags.typesys import Stores, get_typestore
-    from scipy.spatial.transform import Rotation
-
-    from hingelab.envs import TOOL_PICK_ID
-    from hingelab.seeds import demo_seed
-    from hingelab.perception.clouds import CloudRealism, CloudSynthesizer
-
     ts = get_typestore(Stores.ROS2_HUMBLE)
     T = ts.types
     synth = CloudSynthesizer(realism=CloudRealism(noise_std_m=spec.camera_noise_m, removal_fraction=0.0,
