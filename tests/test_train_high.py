@@ -111,10 +111,10 @@ def test_plain_prefill_goes_through_the_ring_buffer(tmp_path):
                      prior_source="heuristic", prior_episodes=2)
     run = HighLevelRun(config, tmp_path / "plain", progress=False).setup()
     try:
-        assert run.demo_info["demo_actions"] == ["reached"]
+        assert run.prior.info["demo_actions"] == ["reached"]
         assert Dataset(tmp_path / "plain" / "prior").card.config.get("policy") is None  # generate heuristic's
         assert type(run.model.replay_buffer).__name__ == "ReplayBuffer"
-        assert run.model.replay_buffer.size() == run.demo_info["transitions"] > 0
+        assert run.model.replay_buffer.size() == run.prior.info["transitions"] > 0
         assert type(run.model).__name__ == "FastSAC"
     finally:
         run.env.close()

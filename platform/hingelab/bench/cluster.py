@@ -34,7 +34,7 @@ from hingelab.bench.table import BenchTable
 MEASURES = ("platform/hingelab/workers", "platform/hingelab/rollouts/on_ray.py",
             "platform/hingelab/rollouts/low_level.py", "platform/hingelab/policies/low_level.py",
             "platform/hingelab/heuristic", "platform/hingelab/rollouts/heuristic_demos.py", "platform/hingelab/envs",
-            "platform/hingelab/episodes")
+            "platform/hingelab/episodes", "platform/hingelab/seeds.py")
 
 WORKERS = 2
 ROUNDS = 3

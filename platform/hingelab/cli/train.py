@@ -15,7 +15,8 @@ from pathlib import Path
 from hingelab.errors import ConfigError
 from hingelab.learners import registry
 from hingelab.training.run_config import config_from_args, given_settings
-from hingelab.paths import REPO_ROOT, refuse_to_replace_shipped
+from hingelab import paths
+from hingelab.paths import refuse_to_replace_shipped
 from hingelab.training.run_folder import resumed_config
 from hingelab.perception.encoder import EncoderConfig
 from hingelab.perception.train_encoder import TrainEncoderConfig
@@ -86,7 +87,7 @@ def run_policy(args: argparse.Namespace) -> int:
     if args.out is None:
         default = learner.default_out_for(config) if hasattr(learner, "default_out_for") else \
             learner.default_out.format(SEED=config.seed)
-        out = REPO_ROOT / default
+        out = paths.REPO_ROOT / default
     else:
         out = args.out
     refuse_to_replace_shipped(out, args.force)
@@ -159,7 +160,7 @@ def run_encoder(args: argparse.Namespace) -> int:
               f"held-out ones (mean error {m['mae_opening_rad_val'] * 1000:.1f} mrad); fingerprint "
               f"{encoder.fingerprint} (unchanged).")
         return 0
-    args.out = args.out or REPO_ROOT / "runs" / f"encoder_seed{args.seed}" / "encoder.pt"
+    args.out = args.out or paths.REPO_ROOT / "runs" / f"encoder_seed{args.seed}" / "encoder.pt"
     refuse_to_replace_shipped(args.out, args.force)
     if args.out.exists() and not args.force:
         raise ConfigError(f"{args.out} exists: give --out a new checkpoint path, or --force to replace it")

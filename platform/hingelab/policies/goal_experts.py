@@ -1,7 +1,7 @@
 """A low-level policy made of experts, one per band of goal openings: the goal picks the expert.
 
-Policies of one recipe differ most by goal region, seed to seed (on 100 goals, within 1 cm:
-0.71-0.95 below 0.10 rad, 0.06-0.88 above 0.22 rad, ``analysis/low-level-encoder-v3``). The goal
+Policies of one recipe differ most by goal region, seed to seed (the per-region rates:
+``analysis/low-level-encoder-v3``), so an expert trained on one band can be chosen per band. The goal
 is part of the observation, so routing on it is a policy pi(a | s, g) like any other: each
 expert is an unchanged ``hingelab train low`` checkpoint, checked against the env's encoder as
 any checkpoint is, and the band is read from the goal latent by the encoder's calibration

@@ -58,8 +58,8 @@ def run_episode(policy, env: gym.Env, goal: dict) -> dict:
     over the last SETTLE_STEPS steps within the threshold; ``settled_latent_distance`` that
     mean's distance), the same the recording wrapper writes as the episode's ``success``;
     ``last_step_success`` and ``final_latent_distance`` are the last frame's alone (secondary:
-    one frame's z carries the perception's jitter, 0.04 to 0.10 latent rms at rest, about the
-    threshold itself); ``tip_gap_error_mm`` is the privileged truth: the tips' gap over the
+    one frame's z carries the perception's jitter, about as large as the threshold itself:
+    ``analysis/low-level-ablation/README.md``); ``tip_gap_error_mm`` is the privileged truth: the tips' gap over the
     last SETTLE_STEPS steps against the gap of the goal's calibrated opening.
     """
     obs, info = env.reset(seed=int(goal["seed"]), options={"goal": goal["z_goal"]})

@@ -18,7 +18,7 @@ trial per episode) and writes, through ``rosbags``' writer, the topics a lab rec
 Header stamps are the states' simulated times (from ``T0_NS``); log times follow by a driver's
 latency. It returns the simulator's truth per trial (the env's rewards and terms, successes, the
 executed actions), which the imported and relabelled episodes are compared against
-(tests/test_real_prefill.py): the real path's rewards come from perception and kinematics, these
+(tests/test_real_demos.py): the real path's rewards come from perception and kinematics, these
 from privileged state.
 """
 

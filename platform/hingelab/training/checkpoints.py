@@ -3,7 +3,7 @@ in formats that load without running code.
 
 ``RUNDIR/checkpoints/step_000010000/`` holds ``model.zip`` (SB3's file; on resume only its
 tensors are read, ``torch.load(weights_only=True)``, into a model the run builds from its
-config), ``replay_buffer.npz`` (``plain_state.save_buffer``) and ``state.json`` (torch, numpy
+config), ``replay_buffer.npz`` (``resume_state.save_buffer``) and ``state.json`` (torch, numpy
 and Python RNG states, SB3's step, update and episode counters, the envs' episode counts,
 elapsed wall time, evaluation bookkeeping). A checkpoint is written into a temporary folder
 and renamed when complete, so a crash or a full disk never leaves a half checkpoint that
@@ -19,7 +19,7 @@ from collections import deque
 from pathlib import Path
 
 from hingelab.errors import ConfigError
-from hingelab.training import resume_state as plain_state
+from hingelab.training import resume_state
 from hingelab.policies.sb3_zip import set_weights_from_zip
 import pickle
 from hingelab.policies.sb3_zip import read_plain_data
@@ -59,9 +59,9 @@ def save_checkpoint(run_dir: Path, model, state: dict, keep: int = 2) -> Path:
     try:
         tmp.mkdir(parents=True)
         model.save(tmp / MODEL_FILE)
-        plain_state.save_buffer(model.replay_buffer, tmp / BUFFER_FILE)
-        (tmp / STATE_FILE).write_text(plain_state.dumps(
-            {**state, "rng": plain_state.rng_states(), "model": counters, "episodes": episodes}))
+        resume_state.save_buffer(model.replay_buffer, tmp / BUFFER_FILE)
+        (tmp / STATE_FILE).write_text(resume_state.dumps(
+            {**state, "rng": resume_state.rng_states(), "model": counters, "episodes": episodes}))
         if final.exists():
             shutil.rmtree(final)
         tmp.rename(final)
@@ -85,7 +85,7 @@ def read_state(path: Path) -> dict:
                               "it in plain formats")
         raise ConfigError(f"{path} is not a complete checkpoint (no {STATE_FILE}); use another one or start anew")
     try:
-        return plain_state.loads((path / STATE_FILE).read_text())
+        return resume_state.loads((path / STATE_FILE).read_text())
     except (OSError, ValueError) as exc:
         raise ConfigError(f"{path / STATE_FILE} is not readable ({type(exc).__name__}: {exc}); resume from an "
                           "earlier checkpoint (delete this one) or start anew") from exc
@@ -103,7 +103,7 @@ def load_checkpoint(path: Path, model) -> dict:
     window = model._stats_window_size
     model.ep_info_buffer = deque(state["episodes"]["ep_info_buffer"], maxlen=window)
     model.ep_success_buffer = deque(state["episodes"]["ep_success_buffer"], maxlen=window)
-    plain_state.load_buffer(model.replay_buffer, path / BUFFER_FILE)
+    resume_state.load_buffer(model.replay_buffer, path / BUFFER_FILE)
     return state
 
 
@@ -121,11 +121,11 @@ def convert_pickled(run_dir: Path) -> list[Path]:
         with open(path / "replay_buffer.pkl", "rb") as f:
             buffer = pickle.load(f)  # noqa: S301
         plain, _ = read_plain_data(path / MODEL_FILE)
-        state["rng"] = plain_state.plain_rng_states(*(state["rng"][k] for k in ("torch", "numpy", "python")))
+        state["rng"] = resume_state.plain_rng_states(*(state["rng"][k] for k in ("torch", "numpy", "python")))
         state["model"] = {name: plain[name] for name in MODEL_COUNTERS if name in plain}
         state["episodes"] = {"ep_info_buffer": [], "ep_success_buffer": []}  # SB3 pickled these; not read
-        plain_state.save_buffer(buffer, path / BUFFER_FILE)
-        (path / STATE_FILE).write_text(plain_state.dumps(state))
+        resume_state.save_buffer(buffer, path / BUFFER_FILE)
+        (path / STATE_FILE).write_text(resume_state.dumps(state))
         for name in PICKLED_FILES:
             (path / name).unlink()
         rewritten.append(path)

@@ -35,12 +35,12 @@ weight relabels old demos. A different ``success_radius`` is refused: it would c
 step ends the episode, which a recording cannot relabel.
 
 Filling: ``fill_high_level_buffer`` adds through the buffer's own ``add`` (one transition
-at a time, n_envs 1) or in bulk through ``replay_prefill.insert_transitions`` (the
+at a time, n_envs 1) or in bulk through ``buffer_fill.insert_transitions`` (the
 platform's documented bulk path: whole rows of ``n_envs`` transitions, ``pos``/``full``
 advanced as ``add`` would).
 
-Kept demo share (``DemoShareReplayBuffer``; the issue chooses between it and plain pre-fill
-later). Plain pre-fill lets SAC's own transitions overwrite the demos once the buffer wraps,
+Kept demo share (``DemoShareReplayBuffer``, ``--demo-share``) or plain pre-fill (``--demo-share 0``,
+the paper's). Plain pre-fill lets SAC's own transitions overwrite the demos once the buffer wraps,
 and dilutes them before that. ``DemoShareReplayBuffer`` holds the demos in a separate fixed
 store (a plain ``ReplayBuffer`` of exactly ``len(demos)`` rows, filled once through
 ``fill_high_level_buffer``) next to the ordinary ring buffer that ``add`` writes;
@@ -70,7 +70,7 @@ from hingelab.episodes.dataset import Dataset
 from hingelab.episodes.errors import DatasetError
 from hingelab.episodes.transitions import Transitions, concat_transitions, episode_transitions, fill_replay_buffer
 from hingelab.errors import ConfigError
-from hingelab.training import real_demos as real_prefill
+from hingelab.training import real_demos
 from hingelab.perception.encoder import load_encoder
 from hingelab.training.buffer_fill import _check_shapes, insert_transitions
 
@@ -194,7 +194,7 @@ def high_level_transitions(datasets, reward_config: HighLevelRewardConfig | None
     not a ToolPick-v0 high-level recording is a one-line DatasetError naming its file.
 
     Real episodes (source ``real``, ``hingelab datasets import-ros2``) go through
-    ``real_prefill.real_episode_transitions``: rewards rebuilt from perception and the arm's
+    ``real_demos.real_episode_transitions``: rewards rebuilt from perception and the arm's
     kinematics, the opening read with the calibration of the encoder at ``encoder_path`` (default:
     the shipped one, which the import uses too). One that lacks what it needs raises its one-line
     error, or, with a list as ``skipped``, is left out and appended to it as (path, reason); a
@@ -219,8 +219,8 @@ def high_level_transitions(datasets, reward_config: HighLevelRewardConfig | None
         if len(dataset) == 0:
             raise DatasetError(f"dataset {root} has no finished episodes to learn from")
         left_out, n_real = [], 0
-        for episode in dataset.iter_episodes(topics=TOPICS + real_prefill.TOPICS, progress=progress):
-            if not real_prefill.is_real(episode):
+        for episode in dataset.iter_episodes(topics=TOPICS + real_demos.TOPICS, progress=progress):
+            if not real_demos.is_real(episode):
                 parts.append(_episode(episode, index, config, recorded, actions, observation_dim))
                 index += 1
                 continue
@@ -229,10 +229,10 @@ def high_level_transitions(datasets, reward_config: HighLevelRewardConfig | None
 
                 calibration = load_encoder(encoder_path).calibration
             try:
-                parts.append(real_prefill.real_episode_transitions(episode, index, config, calibration, actions,
+                parts.append(real_demos.real_episode_transitions(episode, index, config, calibration, actions,
                                                                    observation_dim))
                 index += 1
-            except real_prefill.RealEpisodeError as exc:
+            except real_demos.RealEpisodeError as exc:
                 if skipped is None:
                     raise
                 left_out.append((str(episode.path), str(exc)))
@@ -277,7 +277,7 @@ def fill_high_level_buffer(buffer, transitions: Transitions, method: str = "add"
     """Write ``transitions`` into an SB3 ``ReplayBuffer`` of ToolPick-v0's spaces; the number added.
 
     ``method``: "add" (the buffer's own ``add``, one transition at a time; n_envs 1) or "bulk"
-    (``replay_prefill.insert_transitions``: whole rows of n_envs transitions; a remainder of
+    (``buffer_fill.insert_transitions``: whole rows of n_envs transitions; a remainder of
     fewer than n_envs is left out). The demos must fit in the room left: pre-filling past the
     end would overwrite the first demos with the last.
     """

@@ -20,10 +20,9 @@ the phase clone learns: the demos visit states off the demonstrator's course and
 
 Why the default is not the paper's: the reached latent of a closed grasp is the latent of the
 object's width, which the privileged hinge servo holds with a built-in squeeze
-(``FINGER_SQUEEZE``) but a learned low level only reaches without pressing. Behaviour cloning of
-100 heuristic sphere episodes (20,000 updates) picked 1 of 10 over the shipped low-level policy
-with the reached latent 5 steps on (8 missed grasps), and 0 of 10 with the step's own; the same
-cloning of 100 scripted episodes (their commands) picked 9 of 10 (``issues`` note of issue 26).
+(``FINGER_SQUEEZE``) but a learned low level only reaches without pressing: a policy cloned from the
+heuristic's reached latents misses its grasps over the learned low level, one cloned from the scripted
+demonstrator's commands picks (the runs: ``analysis/high-level/README.md``).
 
 Seeds: episode i of the k-th dataset (``prior_parts``) of a prior for run seed S is
 ``hingelab.seeds.eval_high_seed(K, i)`` (scripted, scripted-feedback) or ``demo_seed(K, i)`` (heuristic), with

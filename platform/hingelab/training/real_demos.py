@@ -18,8 +18,8 @@ from what an imported episode holds, and then takes the reward from the env's ow
   the smoothed latent (``/tool/latent`` z_bar), through the tweezer's hinge kinematics
   (``ToolGeometry.tips_in_tool_frame``). It differs from the sim's privileged grip point by the
   registration's pose error (a few mm, more in roll about the legs) and the latent's opening error
-  (R^2 ~0.95-0.98 of the opening): the tips sit 12 cm from the hinge, so a degree of pose error
-  moves them by ~2 mm;
+  (the calibration's reader: ``assets/checkpoints/README.md``): the tips sit 12 cm from the hinge, so
+  a degree of pose error moves them by ~2 mm;
 * **table collision**: a geometric rule, since a rig has no contact sensor: a rebuilt tip site
   below the top of the surface under it (the platform within its footprint, the table elsewhere).
   The tip pads are 3 mm high about the sites, so this flags a tool at least 3 mm into the surface:
@@ -39,7 +39,7 @@ hand_base (the imported NaN target replaced by the computed one).
 
 The action (``actions``): "recorded" takes the episode's ``/hingelab/action`` (the rig's high-level
 command, the policy's normalized 5-D action) where every transition has a finite one in [-1, 1],
-else, per episode, the reached one; "reached" always rebuilds it as ``high_level_prefill`` does
+else, per episode, the reached one; "reached" always rebuilds it as ``high_level_demos`` does
 for heuristic demos (the paper's rule): the latent reached at step k + 1 / 3, and the hand's
 velocity measured by kinematics, ``R_hand(k+1)^T (p_hand(k+1) - p_hand(k)) / dt`` (the hand frame
 after the step, as the env records it) / 0.08 m/s, clipped to [-1, 1]. A measured velocity is what

@@ -4,8 +4,8 @@
 driver. On Linux, Ray 2.60 binds the processes it spawns itself (GCS, raylet, log monitor) to the
 driver with ``PR_SET_PDEATHSIG``, so they die with it; the raylet's dashboard and runtime-env agents
 notice the raylet's death within a second, but then report it to the GCS, which is dead too, and hang
-in its retries: after a ``kill -9`` of ``hingelab generate --ray`` they were measured living on for one
-to two minutes, re-parented to init, and a worker that was running an episode finished it and wrote it
+in its retries: after a ``kill -9`` of ``hingelab generate --ray`` they live on for minutes,
+re-parented to init, and a worker that was running an episode finished it and wrote it
 before it noticed. Ray's own reaper (``ray_process_reaper.py``: a child that kills its process group on
 EOF of its stdin) is off when fate-sharing is available, and it would make the driver a process-group
 leader, which a command run from a terminal must not do.

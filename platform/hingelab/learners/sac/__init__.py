@@ -98,7 +98,7 @@ class SACHighLevel:
 
 
 @register_learner
-class SACFlat:
+class SACFlat(SACHighLevel):  # the same run (train_high picks FlatRun by the config)
     name, level = "sac", "flat"
     config_class = FlatTrainConfig
     default_out = "runs/flat_seed{SEED}"
@@ -107,12 +107,6 @@ class SACFlat:
                    "finger joint deltas and the hand velocity at once (no latent goal, no low level), same reward, "
                    "success, episode end and randomization as ToolPick-v0. Rollouts, metrics and checkpoints as in "
                    "hingelab train high (source flat_training).")
-
-    @staticmethod
-    def train(config, run_dir, resume=False, progress=True, name=None) -> dict:
-        from hingelab.learners.sac.high_level import train_high  # the run's modules load when a run starts
-
-        return train_high(config, run_dir, resume=resume, progress=progress, name=name)
 
     @staticmethod
     def summary(result: dict, config, run_dir) -> str:

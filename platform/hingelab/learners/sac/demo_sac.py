@@ -1,9 +1,7 @@
 """SAC from demonstrations: ``DemoSAC``, FastSAC with a Q-filtered behaviour-cloning term it owns.
 
-Plain SAC on ToolShape-v0 drove the fingers to one end of the hinge range for every goal
-within 2,500 to 5,000 steps in every variant tried here (effort on/off, HER, gamma 0.9,
-plain SB3 SAC, smoother latents, a 3x action scale, a pre-filled buffer, no termination on
-drops; ``analysis/low-level-ablation/README.md``). The likely cause: the action is a
+Why: plain SAC on ToolShape-v0 drives the fingers to one end of the hinge range for every goal
+(the variants tried and their runs: ``analysis/low-level-ablation/README.md``). The likely cause: the action is a
 relative joint change, so the loop integrates any bias of the actor into a drift to a
 joint limit, and one step's action moves the latent by less than the perception's
 frame-to-frame jitter, so the critic's action gradient is mostly noise. Demonstrations (any

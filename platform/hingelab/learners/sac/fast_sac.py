@@ -5,8 +5,8 @@ actor and twin critics, Dict observations) and what each change here buys is wri
 ``analysis/bench/history/sac_updates.md``. In short:
 
 - ``configure_torch`` stops glibc from handing the ~256 KB activation buffers back to the
-  kernel after every free (``mallopt``): each fresh buffer otherwise costs 64 page faults,
-  which in this VM made a ReLU 30x slower than the same ReLU in a loop.
+  kernel after every free (``mallopt``): each fresh buffer otherwise costs its page faults
+  again, which in a VM makes small activations far slower (``training.torch_process``).
 - ``FastSAC`` is ``stable_baselines3.SAC`` with the same update, op for op, minus waste:
   fused Adam, no critic weight gradients in the actor loss (they were zeroed unused), critic
   features computed once per step, the squashed-Gaussian math without building a

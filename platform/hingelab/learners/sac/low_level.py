@@ -5,7 +5,7 @@ this module gives the low level's pieces:
 
 * evaluations on fixed held-out goals (``evaluation_goals``: 4 per third of the reachable
   opening range by default), deterministic actions; ``metrics.csv`` rows carry
-  ``success_rate`` (the env's verdict, settled over the last 0.5 s: ``low_level_eval.summarize``),
+  ``success_rate`` (the env's verdict, settled over the last 0.5 s: ``rollouts.low_level.summarize``),
   the final latent distance and the tool's drift; the best model is the most successful,
   then the closest;
 * checkpoints record ToolShape-v0's arguments and action scale (``env_record``), the

@@ -1,7 +1,7 @@
 """The training core of every SAC learner: one run folder, set up new or resumed, trained with
 composable callbacks, checkpointed for an exact resume.
 
-``SACRun`` is the whole loop; a learner (``train_low.LowLevelRun``, ``train_high.HighLevelRun``)
+``SACRun`` is the whole loop; a learner (``low_level.LowLevelRun``, ``high_level.HighLevelRun``)
 subclasses it and gives its task's pieces: the evaluation (``make_evaluator``,
 ``evaluate_policy``, ``is_better``), what its checkpoints record about the env
 (``env_record``), and what it learns from datasets (``use_datasets``).
@@ -18,7 +18,7 @@ from pathlib import Path
 
 from hingelab.errors import ConfigError
 from hingelab.training import checkpoints as ckpt
-from hingelab.training import resume_state as plain_state
+from hingelab.training import resume_state
 from hingelab.learners.sac.callbacks import CHECKPOINT_PATIENCE_EPISODES, RunClock, run_callbacks
 from hingelab.training.run_folder import RunFolder
 from hingelab.training.envs import episode_counts, make_training_vec_env, set_episode_counts
@@ -185,7 +185,7 @@ class SACRun:
             next_checkpoint=self.next_checkpoint, mid_episode=self.mid_episode,
             last_row=(self.metrics.rows() or [{}])[-1] if self.resume else None)
         if self._state_rng is not None:  # last, after everything that seeds on load
-            plain_state.restore_rng_states(self._state_rng[0])
+            resume_state.restore_rng_states(self._state_rng[0])
             self.model.action_space.np_random.bit_generator.state = self._state_rng[1]
         remaining = self.config.steps - self.model.num_timesteps
         self.model.learn(total_timesteps=max(remaining, 0), callback=self.callbacks, reset_num_timesteps=False,
