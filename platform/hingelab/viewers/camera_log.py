@@ -14,6 +14,7 @@ import rerun as rr
 
 from hingelab.episodes import Episode
 from hingelab.episodes import schemas as S
+from hingelab.episodes.camera_topics import read_camera
 from hingelab.viewers import entities as E
 
 
@@ -21,8 +22,6 @@ def log_camera(rec: rr.RecordingStream, episode: Episode) -> bool:
     """Send the camera of ``episode`` (if it has one); True if it did."""
     if S.TOPIC_DEPTH not in episode.topics:
         return False
-    from hingelab.episodes.camera_topics import read_camera
-
     camera = read_camera(episode.path)
     if camera is None or len(camera.depth) == 0:
         return False

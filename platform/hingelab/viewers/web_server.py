@@ -8,6 +8,7 @@ serves that file with ``rerun --serve-web --bind ADDR``, on 127.0.0.1 unless tol
 
 from __future__ import annotations
 
+import importlib.util
 import ipaddress
 import os
 import shutil
@@ -55,8 +56,6 @@ def bind_warning(address: str, grpc_port: int = GRPC_PORT, web_port: int = WEB_P
 def rerun_executable() -> str:
     """The ``rerun`` binary of the rerun-sdk wheel (its ``rerun`` script on PATH is a Python wrapper that
     runs the binary as a child, which a stop would orphan), else ``rerun`` on PATH."""
-    import importlib.util
-
     spec = importlib.util.find_spec("rerun_cli")
     if spec is not None and spec.submodule_search_locations:
         binary = Path(list(spec.submodule_search_locations)[0]) / "rerun"
