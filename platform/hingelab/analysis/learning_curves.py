@@ -31,9 +31,11 @@ the same verdict.
 
 from __future__ import annotations
 
+import csv
 import json
 from pathlib import Path
 
+import numpy as np
 import pandas as pd
 
 from hingelab.analysis.episode_table import ReportInputError
@@ -134,8 +136,6 @@ SWEEP_CSV = "sweep.csv"  # hingelab.sweeps.runner's table of trials (not importe
 def expand_sweeps(run_dirs) -> list[Path]:
     """``run_dirs`` with every sweep folder (a ``sweep.csv``, no ``metrics.csv`` of its own) replaced by
     its trials' run folders that have evaluations, in the sweep's order."""
-    import csv
-
     out = []
     for run_dir in map(Path, run_dirs or []):
         if (run_dir / SWEEP_CSV).exists() and not (run_dir / METRICS_FILE).exists():
@@ -154,8 +154,7 @@ def final_success(seeds: pd.DataFrame, confidence: float = 0.95) -> pd.DataFrame
     """Per run label (a sweep's condition): the last evaluation's success over its seeds: mean, std and a
     Student-t ``confidence`` interval across seeds (the seeds are the samples; clipped to [0, 1]; NaN with
     one seed), and the same for first-attempt success where recorded. ``seeds``: ``seed_summary``'s table."""
-    import numpy as np
-    from scipy import stats
+    from scipy import stats  # about 1 s to import; training and every CLI command import this module without needing it
 
     rows = []
     for run, part in seeds.groupby("run", sort=True):

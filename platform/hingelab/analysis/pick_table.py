@@ -17,8 +17,10 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
+from hingelab.analysis.documents import markdown_table
 from hingelab.analysis.wilson import wilson_interval
 from hingelab.errors import ConfigError
+from hingelab.provenance import code_version
 
 # the failure reasons of ToolPick-v0 episodes (hingelab.rollouts.high_level.FailureReasonWrapper)
 FAILURE_REASONS = ("divergence", "no_camera_cloud", "tool_drop", "slip", "table_collision", "missed_grasp", "timeout")
@@ -95,9 +97,6 @@ def pick_table(folders) -> pd.DataFrame:
 
 
 def write_picks(folders, out, command: str) -> pd.DataFrame:
-    from hingelab.analysis.documents import markdown_table
-    from hingelab.provenance import code_version
-
     table = pick_table(folders)
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)

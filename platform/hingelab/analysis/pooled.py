@@ -33,8 +33,12 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
+from hingelab.analysis.episode_table import load_dataset_table
 from hingelab.analysis.wilson import wilson_interval
+from hingelab.episodes import EpisodeFile
+from hingelab.episodes.dataset import open_dataset
 from hingelab.errors import ConfigError
+from hingelab.provenance import git_commit
 
 DEFAULT_BAND_EDGES = (0.10, 0.18, 0.22)  # rad: the bands analysis/low-level-experts/README.md reads
 THIRDS = ("closed", "middle", "open")  # hingelab.rollouts.low_level_goals.REGIONS
@@ -119,10 +123,6 @@ def _from_episodes_csv(csv: Path, label: str) -> EvalFolder:
 
 def _from_dataset(root: Path, label: str) -> EvalFolder:
     """An evaluation dataset without episodes.csv: the recorded success and goal metadata."""
-    from hingelab.analysis.episode_table import load_dataset_table
-    from hingelab.episodes import EpisodeFile
-    from hingelab.episodes.dataset import open_dataset
-
     index = load_dataset_table(root)  # refuses a missing, empty or outcome-less dataset with one line
     versions = pd.to_numeric(index.get("schema_version", pd.Series(1, index=index.index)), errors="coerce")
     verdicts = index.get("success_verdict", pd.Series(pd.NA, index=index.index))
@@ -356,8 +356,6 @@ def write_pooled(pools, out, edges=DEFAULT_BAND_EDGES, title: str | None = None,
                  command: str = "hingelab report --pool ...") -> PooledReport:
     """Load every folder of ``pools`` ([(name or None, [path, ...]), ...]), write pooled.md, pooled.csv and
     by_region.csv into ``out``; every folder is read (and any error raised) before anything is written."""
-    from hingelab.provenance import git_commit
-
     if not pools:
         raise ConfigError("give at least one --pool DIR... to pool")
     loaded = []

@@ -12,6 +12,8 @@ import datetime as _dt
 import json
 from pathlib import Path
 
+import pandas as pd
+
 from hingelab.analysis import plots
 from hingelab.analysis.documents import Section, write_documents
 from hingelab.analysis.learning_curves import (METRICS_FILE, REACH_LEVEL, expand_sweeps, final_success,
@@ -55,8 +57,6 @@ def build_run_report(runs, out, title: str | None = None, command: str | None = 
                   "created": _dt.datetime.now(_dt.timezone.utc).isoformat(timespec="seconds"), **code_version()}
     (out / "report.json").write_text(json.dumps(provenance, indent=2) + "\n")
     files.append(out / "report.json")
-    import pandas as pd
-
     return Report(out=out, episodes=pd.DataFrame(), tables=tables, files=files)
 
 
