@@ -10,6 +10,8 @@ from __future__ import annotations
 import os
 from pathlib import Path
 
+from hingelab.errors import ConfigError
+
 REPO_ROOT = Path(__file__).resolve().parents[2]
 ASSETS_DIR = Path(os.environ.get("HINGELAB_ASSETS", REPO_ROOT / "assets"))
 ANALYSIS_DIR = REPO_ROOT / "analysis"
@@ -25,8 +27,6 @@ def refuse_to_replace_shipped(path: Path, force: bool, flag: str = "--out") -> N
     holds shipped files, needs ``--force``, because every shipped policy is bound to the
     shipped encoder and scenes.
     """
-    from hingelab.errors import ConfigError
-
     path = Path(path).resolve()
     shipped = {ASSETS_DIR.resolve(), (REPO_ROOT / "assets").resolve()}
     if force or not any(path.is_relative_to(root) for root in shipped) or not path.exists():

@@ -14,11 +14,14 @@ from __future__ import annotations
 
 import functools
 import hashlib
+import json
+import os
 import platform as _stdlib_platform  # the standard module, not our source root
 import subprocess
 from pathlib import Path
 
 from hingelab import __version__
+from hingelab.errors import ConfigError
 from hingelab.paths import ANALYSIS_DIR, REPO_ROOT
 
 # what makes a result: the package, the models and checkpoints, the declared dependencies
@@ -78,8 +81,6 @@ def require_clean_for(out: Path, allow_dirty: bool, command: str) -> None:
     Raises ConfigError naming the changed files and the two ways out (commit, or
     ``--allow-dirty`` for a result that is knowingly not reproducible from a commit).
     """
-    from hingelab.errors import ConfigError
-
     out = Path(out).resolve()
     if allow_dirty or not out.is_relative_to(ANALYSIS_DIR.resolve()) or _ignored(out) or not is_dirty():
         return
@@ -106,8 +107,6 @@ def code_version() -> dict[str, str]:
 
 def machine() -> dict[str, str]:
     """What ran a benchmark: CPU, core count, Python."""
-    import os
-
     return {
         "processor": _stdlib_platform.processor() or _stdlib_platform.machine(),
         "cores": str(os.cpu_count()),
@@ -119,8 +118,6 @@ def machine() -> dict[str, str]:
 def differing_settings(recorded: dict | None, wanted: dict, ignore=()) -> dict:
     """{setting: (recorded, wanted)} where a run's recorded config (a dataset card's, JSON) and the one asked
     for now differ, compared as JSON (tuples as lists), ``ignore`` left out: what a ``--resume`` refuses."""
-    import json
-
     def plain(config):
         return {k: v for k, v in json.loads(json.dumps(config or {}, default=str)).items() if k not in ignore}
 
