@@ -8,35 +8,35 @@ from __future__ import annotations
 
 import argparse
 import json
+import os
 import shutil
 import time
 from pathlib import Path
 
 import numpy as np
+import pandas as pd
 
+from hingelab.analysis import build_report
+from hingelab.episodes import create_dataset
+from hingelab.episodes.dataset import Dataset
 from hingelab.paths import ANALYSIS_DIR, DATASETS_DIR
 from hingelab.policies.high_level import SHIPPED_HIGH_LEVEL
 from hingelab.policies.loading import baseline_names
 from hingelab.policies.low_level import SHIPPED_LOW_LEVEL
-from hingelab.rollouts.evaluation import evaluate_high, evaluate_low
-from hingelab.sim import scripted
-from hingelab.sim.core import SimCore
-from hingelab.sim.finger_synergy import FingerSynergy
-from hingelab.rollouts.heuristic_demos import HeuristicRunConfig, generate_heuristic_dataset, summarize
-from hingelab.episodes import create_dataset
 from hingelab.robot.controller import CheckpointHighLevel, HierarchicalController
 from hingelab.robot.stand_in import StandInRobot
 from hingelab.robot.trial import TrialConfig, run_trials
-from hingelab.episodes.dataset import Dataset
+from hingelab.rollouts.evaluation import evaluate_high, evaluate_low
+from hingelab.rollouts.heuristic_demos import HeuristicRunConfig, generate_heuristic_dataset, summarize
 from hingelab.ros2.bag_export import export_ros2
 from hingelab.ros2.bag_import import import_bags
 from hingelab.ros2.rig_bag import RigBagSpec, write_rig_bag
+from hingelab.sim import scripted
+from hingelab.sim.core import SimCore
+from hingelab.sim.finger_synergy import FingerSynergy
 from hingelab.sweeps.runner import SWEEP_CSV, run_sweep, summary
 from hingelab.sweeps.spec import load_sweep
-from hingelab.analysis import build_report
 from hingelab.viewers.view import view
-import os
-import pandas as pd
 
 
 def add_parser(subparsers) -> None:
@@ -261,7 +261,7 @@ def step_sweep(seed: int) -> dict:
 
     shutil.rmtree(DEMO_SWEEP, ignore_errors=True)  # the demo's own output: remade each run
     try:
-        import ray  # noqa: F401  (the test extra installs it)
+        import ray  # noqa: F401  (optional, in the test extra: the step runs only where it is installed)
     except ModuleNotFoundError:
         print('  Ray is not installed (pip install -c constraints.txt -e ".[test]"): step skipped')
         return {"skipped": True}

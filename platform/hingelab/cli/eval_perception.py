@@ -11,11 +11,13 @@ from __future__ import annotations
 import argparse
 import json
 from pathlib import Path
+
+import numpy as np
+
 from hingelab.errors import ConfigError
 from hingelab.perception.camera_gap import GapConfig, run_gap, summarize
 from hingelab.perception.clouds import CloudRealism, CloudSynthesizer
 from hingelab.provenance import code_version, require_clean_for
-import numpy as np
 
 
 def add_parser(what) -> None:
@@ -28,7 +30,8 @@ def add_parser(what) -> None:
     p.add_argument("--episodes", type=int, default=8, help="episodes (default 8)")
     p.add_argument("--steps", type=int, default=100, help="control steps per episode (default 100, 5 s)")
     p.add_argument("--seed", type=int, default=0, help="seed of the episodes (default 0)")
-    p.add_argument("--out", type=Path, required=True, help="folder for gap.csv, gap_steps.csv, gap.json, camera_frame.png")
+    p.add_argument("--out", type=Path, required=True,
+                   help="folder for gap.csv, gap_steps.csv, gap.json, camera_frame.png")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
     p.add_argument("--allow-dirty", action="store_true",
                    help="write under analysis/ from uncommitted code (the result then names no commit)")
@@ -74,7 +77,7 @@ def run(args: argparse.Namespace) -> int:
 
 def draw_frame(snapshot: dict, path: Path) -> None:
     """Depth (m), tool mask, and the two clouds (hand_base, two views) side by side."""
-    import matplotlib
+    import matplotlib  # slow to import, and only --frame draws: loaded here, its backend set first
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt

@@ -14,8 +14,8 @@ import inspect
 import os
 import sys
 
-from hingelab.errors import HingelabError
 from hingelab.episodes.dataset import corrupt_policy
+from hingelab.errors import HingelabError
 
 # Verb modules in the order ``hingelab --help`` lists them.
 VERB_MODULES = [
@@ -63,7 +63,7 @@ def build_parser(argv: list[str] | None = None) -> argparse.ArgumentParser:
 def mujoco_importable() -> str | None:
     """None, or the one-line reason MuJoCo does not import: a ``MUJOCO_GL`` it cannot use fails at import."""
     try:
-        import mujoco  # noqa: F401
+        import mujoco  # noqa: F401  (the check itself: can MuJoCo be imported with this MUJOCO_GL)
     except Exception as exc:  # RuntimeError (an unknown value) or AttributeError (a backend's library missing)
         if "MUJOCO_GL" not in os.environ:
             raise

@@ -10,31 +10,30 @@ whether they run in local worker processes or as Ray tasks (``ray_address``: one
 
 from __future__ import annotations
 
-import multiprocessing as mp
+import functools
 import time
 from dataclasses import asdict, dataclass
 from pathlib import Path
 
-import numpy as np
-
-from hingelab.episodes import create_dataset
-from hingelab.errors import ConfigError
-from hingelab.provenance import differing_settings
-from hingelab.seeds import demo_seed
-from hingelab.sim.mesh_objects import is_mesh, mesh_sha256, object_label
 import gymnasium as gym
+import numpy as np
+import torch
+from tqdm import tqdm
+
+from hingelab.disk_full import disk_full_error, is_disk_full
 from hingelab.envs import TOOL_PICK_ID
 from hingelab.envs.recording import RecordingWrapper
-from hingelab.heuristic.controller import PrivilegedHeuristic
-from hingelab.sim.finger_synergy import FingerSynergy
-import torch
+from hingelab.episodes import create_dataset
 from hingelab.episodes.card import load_card
 from hingelab.episodes.dataset import Dataset
-from hingelab.disk_full import disk_full_error, is_disk_full
-from tqdm import tqdm
-import functools
+from hingelab.errors import ConfigError
+from hingelab.heuristic.controller import PrivilegedHeuristic
+from hingelab.provenance import differing_settings
+from hingelab.seeds import demo_seed
+from hingelab.sim.finger_synergy import FingerSynergy
+from hingelab.sim.mesh_objects import is_mesh, mesh_sha256, object_label
+from hingelab.workers.local_pool import map_unordered
 from hingelab.workers.ray_fan_out import fan_out
-
 
 
 @dataclass(frozen=True)
@@ -209,12 +208,10 @@ def _generate(out: Path, config: HeuristicRunConfig, seeds: list[int], progress:
         finally:
             _WORKER.pop("env").close()
     else:
-        context = mp.get_context("spawn")  # a clean interpreter: no forked MuJoCo or torch state
-        with context.Pool(config.workers, initializer=_init_worker, initargs=(config, str(out))) as pool:
-            for summary in pool.imap_unordered(_run_in_worker, seeds):
-                summaries.append(summary)
-                bar.update()
-                bar.set_postfix(success=f"{np.mean([s.success for s in summaries]):.0%}")
+        for summary in map_unordered(_run_in_worker, seeds, config.workers, _init_worker, (config, str(out))):
+            summaries.append(summary)
+            bar.update()
+            bar.set_postfix(success=f"{np.mean([s.success for s in summaries]):.0%}")
     bar.close()
     return sorted(summaries, key=lambda s: s.seed)
 

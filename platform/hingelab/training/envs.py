@@ -13,14 +13,12 @@ import functools
 from pathlib import Path
 
 import gymnasium as gym
-
-from hingelab.seeds import training_episode_seed
 import torch
-from hingelab.envs.recording import RecordingWrapper
 from stable_baselines3.common.vec_env import DummyVecEnv
+
+from hingelab.envs.recording import RecordingWrapper
 from hingelab.envs.vec_env import PinnedVecEnv
-
-
+from hingelab.seeds import training_episode_seed
 
 
 class SeededEpisodes(gym.Wrapper):
@@ -38,9 +36,6 @@ class SeededEpisodes(gym.Wrapper):
 
 
 def _make_training_env(config_class, config_dict: dict, dataset_dir: str | None, env_index: int) -> gym.Env:
-
-    import hingelab  # noqa: F401  (registers the envs in a spawned worker)
-
     torch.set_num_threads(1)  # the encoder is small; one thread per env process
     config = config_class.from_dict(config_dict)
     env = gym.make(config.env_id, **config.env_arguments())

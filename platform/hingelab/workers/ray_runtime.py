@@ -16,12 +16,12 @@ from __future__ import annotations
 
 import os
 import signal
+import socket
 import threading
 from contextlib import contextmanager
 
-from hingelab.workers.ray_reaper import LocalRayReaper
 from hingelab.errors import ConfigError
-import socket
+from hingelab.workers.ray_reaper import LocalRayReaper
 
 LOCAL = "local"
 # small: tasks return summaries and paths only, never episode arrays
@@ -37,7 +37,7 @@ def quiet_ray_environment() -> None:
 def import_ray():
     quiet_ray_environment()
     try:
-        import ray
+        import ray  # optional (the test extra), and seconds to import: only a --ray command loads it
     except ModuleNotFoundError as exc:  # pragma: no cover - ray is in the test extra
         raise ConfigError("Ray is not installed: pip install -c constraints.txt -e \".[test]\" (or ray==2.60.0)") \
             from exc
