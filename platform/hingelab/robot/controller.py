@@ -23,10 +23,16 @@ from pathlib import Path
 
 import numpy as np
 
+from hingelab.envs.low_level import PolicyLowLevel
 from hingelab.envs.tool_pick import ALPHA, TARGET_HEIGHT
-from hingelab.tasks import MAX_SPEED, Z_SCALE
+from hingelab.errors import ConfigError
 from hingelab.perception.camera_cloud import ToolCloudConfig, tool_cloud_from_frame
+from hingelab.perception.encoder import load_encoder
+from hingelab.perception.tool_state import ToolState
+from hingelab.policies.baselines import ScriptedPolicy
+from hingelab.policies.high_level import check_context, load_high_level_checkpoint, observes_extent
 from hingelab.robot.interface import RobotReadings
+from hingelab.tasks import MAX_SPEED, Z_SCALE
 
 
 @dataclass
@@ -49,9 +55,6 @@ class CheckpointHighLevel:
     """A high-level checkpoint (``hingelab train high``: SAC or the phase clone), checked against the low level it learned over."""
 
     def __init__(self, path: str | Path, low_level: str | None = None):
-        from hingelab.errors import ConfigError
-        from hingelab.policies.high_level import check_context, load_high_level_checkpoint, observes_extent
-
         self.label = str(path)
         self.model = load_high_level_checkpoint(path)
         recorded = getattr(self.model, "hingelab_provenance", None) or {}
@@ -78,11 +81,7 @@ class ScriptedStandInHighLevel:
     label = "scripted"
 
     def __init__(self, robot, low_level: str | None = None):
-        from hingelab.policies.baselines import ScriptedPolicy
-
         if not hasattr(robot, "env"):
-            from hingelab.errors import ConfigError
-
             raise ConfigError("the scripted high level reads the simulator: it runs on --robot sim only; give a "
                               "high-level checkpoint (hingelab train high) for a real rig")
         self.robot, self.policy = robot, ScriptedPolicy()
@@ -100,10 +99,6 @@ class HierarchicalController:
     perceiving through the camera pipeline."""
 
     def __init__(self, high_level, encoder=None, cloud_config: ToolCloudConfig = ToolCloudConfig()):
-        from hingelab.envs.low_level import PolicyLowLevel
-        from hingelab.perception.encoder import load_encoder
-        from hingelab.perception.tool_state import ToolState
-
         self.encoder = encoder or load_encoder()
         self.high_level = high_level
         self.observe_extent = high_level.observe_extent
@@ -118,8 +113,6 @@ class HierarchicalController:
 
     def reset(self, readings: RobotReadings, seed: int) -> None:
         """A new trial: forget the tool's history; the target is 5 cm above the object's first estimate."""
-        from hingelab.errors import ConfigError
-
         if readings.object_centre is None:
             raise ConfigError("the robot reports no object estimate at the start of the trial; a trial needs one "
                               "(the object in view of the camera)")

@@ -19,11 +19,14 @@ periods; the policies were trained under those delays and pick more often with t
 
 from __future__ import annotations
 
-import numpy as np
-
 from collections import deque
 
+import gymnasium as gym
+import numpy as np
+
+from hingelab.envs import TOOL_PICK_ID
 from hingelab.robot.interface import RobotReadings, Verdict, register_robot
+from hingelab.rollouts.high_level import FailureReasonWrapper
 from hingelab.sim import names
 
 OBJECT_NOISE_M = 0.002
@@ -36,11 +39,6 @@ class StandInRobot:
 
     def __init__(self, object: str = "sphere", size: float = 0.02, mass: float = 0.01, max_steps: int = 200,
                  randomize: bool = True):
-        import gymnasium as gym
-
-        from hingelab.envs import TOOL_PICK_ID
-        from hingelab.rollouts.high_level import FailureReasonWrapper
-
         self.env = FailureReasonWrapper(gym.make(TOOL_PICK_ID, object=object, size=size, mass=mass,
                                                  low_level="privileged", perception="camera", randomize=randomize,
                                                  max_episode_steps=max_steps))

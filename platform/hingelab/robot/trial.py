@@ -27,11 +27,18 @@ from dataclasses import asdict, dataclass
 
 import numpy as np
 import pandas as pd
+from scipy.spatial.transform import Rotation
+from tqdm import tqdm
 
+from hingelab.envs.recording import privileged_fields
+from hingelab.episodes import EpisodeWriter
+from hingelab.episodes import schemas as S
 from hingelab.errors import ConfigError
 from hingelab.robot.controller import HierarchicalController, Step
 from hingelab.robot.interface import Robot, RobotReadings
 from hingelab.seeds import trial_seed
+from hingelab.sim import names
+from hingelab.sim.mesh_objects import object_label
 
 FLUSH_EVERY = 20  # steps: what a crash can lose at most
 ANSWERS = {"s": "success", "success": "success", "f": "failure", "failure": "failure", "a": "abort", "abort": "abort"}
@@ -67,10 +74,6 @@ def ask_operator(question: str, read=input, write=print) -> str:
 
 def _record_step(writer, robot: Robot, readings: RobotReadings, step: Step, t: float, index: int,
                  config: TrialConfig) -> None:
-    from scipy.spatial.transform import Rotation
-
-    from hingelab.envs.recording import privileged_fields
-
     sample = step.sample
     pose = None
     if sample is not None:
@@ -149,13 +152,6 @@ def run_trial(robot: Robot, controller: HierarchicalController, writer, seed: in
 def run_trials(robot: Robot, controller: HierarchicalController, dataset_dir, config: TrialConfig,
                read=input, write=print, progress: bool = True, extra_metadata: dict | None = None) -> pd.DataFrame:
     """``config.trials`` trials into the dataset ``dataset_dir`` (made by ``create_dataset``); their table."""
-    from tqdm import tqdm
-
-    from hingelab.episodes import EpisodeWriter
-    from hingelab.episodes import schemas as S
-    from hingelab.sim import names
-    from hingelab.sim.mesh_objects import object_label
-
     rows = []
     bar = tqdm(range(config.trials), desc=f"trials {config.object} {100 * config.size:g} cm", unit="trial",
                disable=not progress or config.operator)
