@@ -134,7 +134,8 @@ def test_the_check_fails_on_a_new_unlisted_file(tmp_path):
     analysis = tmp_path / "analysis"
     (analysis / "study" / "history").mkdir(parents=True)
     (analysis / "README.md").write_text("# index\n\n## Files\n\n| file | made by |\n|---|---|\n"
-                                        "| `study/pooled/` | `hingelab report --pool a b --out analysis/study/pooled` |\n")
+                                        "| `study/pooled/` | "
+                                        "`hingelab report --pool a b --out analysis/study/pooled` |\n")
     (analysis / "study" / "README.md").write_text(
         "# study\n\n| file | made by |\n|---|---|\n| `outside.csv` | `hingelab report x --out y` |\n\n"
         "## Files\n\n| file | what | made by |\n|---|---|---|\n"

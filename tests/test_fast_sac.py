@@ -67,7 +67,8 @@ class TinyGoalEnv(gym.Env):
 def _filled(cls, seed=0, **kwargs):
     """A model whose buffer holds 500 transitions with reward = -|a|^2 + obs[0] (learnable)."""
     kwargs.setdefault("policy_kwargs", dict(NET))
-    model = cls("MultiInputPolicy", TinyGoalEnv(), buffer_size=500, batch_size=64, learning_starts=0, seed=seed, **kwargs)
+    model = cls("MultiInputPolicy", TinyGoalEnv(), buffer_size=500, batch_size=64, learning_starts=0, seed=seed,
+                **kwargs)
     rb = model.replay_buffer
     rng = np.random.default_rng(123)
     for key in rb.observations:

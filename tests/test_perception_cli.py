@@ -30,7 +30,8 @@ def test_generate_then_train(tmp_path, capsys):
     assert clouds["hinge_angle"].min() >= 0.0 and clouds["hinge_angle"].max() <= 0.3
     # the same seed writes the same clouds
     again = tmp_path / "again"
-    main(["generate", "clouds", "--n", "50", "--per-episode", "50", "--out", str(again), "--seed", "3", "--no-progress"])
+    main(["generate", "clouds", "--n", "50", "--per-episode", "50", "--out", str(again), "--seed", "3",
+          "--no-progress"])
     np.testing.assert_array_equal(load_cloud_dataset(again)["points"], clouds["points"][:50])
 
     out = tmp_path / "encoder_test.pt"

@@ -163,7 +163,8 @@ def test_train_high_phase_clone_and_eval_high(tmp_path, capsys):
     record = clone.hingelab_provenance
     assert len(clone.nets) == 2 and record["config"]["clone_members"] == 2 and record["fit"]["members"] == 2
     assert record["low_level"] == "privileged" and record["fit"]["updates"] == 50
-    assert record["evaluation"]["env_steps"] == 0 and "git_commit" in record and record["env_kwargs"]["max_episode_steps"] == 40
+    assert (record["evaluation"]["env_steps"] == 0 and "git_commit" in record
+            and record["env_kwargs"]["max_episode_steps"] == 40)
     metrics = pd.read_csv(run / "metrics.csv")
     assert len(metrics) == 1 and {"success_rate", "first_attempt_success_rate", "updates"} <= set(metrics.columns)
     # --resume keeps the prior and fits again from it: the same weights, one evaluation row

@@ -67,7 +67,8 @@ def test_each_trial_is_an_episode_with_its_outcome_and_the_bags_facts(rig):
         assert meta["length"] == expected == 25 and len(episode.topics["/step"]["reward"]) == expected
         assert np.array_equal(episode.topics["/step"]["log_time_ns"], np.arange(expected) * STEP_NS)
         assert meta["source"] == "real" and meta["ros2_bag"] == "rig_bag"
-        assert int(meta["ros2_trial_start_ns"]) == trial["start_ns"] and int(meta["ros2_trial_end_ns"]) == trial["end_ns"]
+        assert (int(meta["ros2_trial_start_ns"]) == trial["start_ns"]
+                and int(meta["ros2_trial_end_ns"]) == trial["end_ns"])
         assert meta["ros2_bag_topics"].split(",") == sorted(info["names"][k] for k in (
             "joints", "points", "tf", "tf_static", "events", "action", "object"))
         assert int(meta["ros2_bag_start_ns"]) <= trial["start_ns"] < trial["end_ns"] <= int(meta["ros2_bag_end_ns"])
@@ -128,7 +129,8 @@ def test_exported_episodes_are_ros2_bags_that_import_back_to_the_same_steps(rig,
         counts = {c.topic: c.msgcount for c in reader.connections}
     assert types == {"/joint_states": "sensor_msgs/msg/JointState", "/tool/points": "sensor_msgs/msg/PointCloud2",
                      "/tf": "tf2_msgs/msg/TFMessage", "/trial/event": "std_msgs/msg/String",
-                     "/hingelab/action": "std_msgs/msg/Float64MultiArray", "/object/pose": "geometry_msgs/msg/PoseStamped"}
+                     "/hingelab/action": "std_msgs/msg/Float64MultiArray",
+                     "/object/pose": "geometry_msgs/msg/PoseStamped"}
     assert counts["/tool/points"] == counts["/joint_states"] == 25
     back = root / "back"
     assert main(["datasets", "import-ros2", *map(str, bags), "--topic", "points=/tool/points", "--out", str(back),
@@ -157,7 +159,8 @@ def test_sqlite3_storage_depth_images_and_a_standalone_mcap(tmp_path, capsys):
                       action=False, object_pose=False)
     write_rig_bag(tmp_path / "sqlite_bag", spec)
     assert list((tmp_path / "sqlite_bag").glob("*.db3"))
-    assert main(["datasets", "import-ros2", str(tmp_path / "sqlite_bag"), "--out", str(tmp_path / "a"), "--no-progress"]) == 0
+    assert main(["datasets", "import-ros2", str(tmp_path / "sqlite_bag"), "--out", str(tmp_path / "a"),
+                 "--no-progress"]) == 0
     (episode,) = _episodes(tmp_path / "a")
     assert episode.metadata["length"] == 11 and episode.points.shape == (11, 256, 3)
     assert "/action" not in episode.topics and np.isnan(episode.topics["/step"]["info.age_action_s"]).all()
@@ -181,7 +184,8 @@ def test_a_missing_topic_names_it_and_the_flag(tmp_path, capsys):
     assert main(["datasets", "import-ros2", str(tmp_path / "bag"), "--out", str(tmp_path / "b"), "--no-progress",
                  "--topic", "joints=/svh/joint_states", "--topic", "points=/k4a/points2"]) == 0
     assert "1 episodes, 7 steps" in capsys.readouterr().out
-    assert main(["datasets", "import-ros2", str(tmp_path / "bag"), "--out", str(tmp_path / "c"), "--topic", "cloud"]) == 1
+    assert main(["datasets", "import-ros2", str(tmp_path / "bag"), "--out", str(tmp_path / "c"),
+                 "--topic", "cloud"]) == 1
     assert "KIND=NAME" in _one_line_error(capsys)
     assert main(["datasets", "import-ros2", str(tmp_path / "nowhere"), "--out", str(tmp_path / "d")]) == 1
     assert "nowhere does not exist" in _one_line_error(capsys)
@@ -240,7 +244,8 @@ def test_a_bag_cut_off_mid_chunk_imports_what_is_whole(tmp_path, capsys):
         assert episode.metadata["ros2_trial_closed_by"] == "end"
         assert episode.metadata["length"] == (trial["end_ns"] - trial["start_ns"]) // STEP_NS + 1
     last = max(imported.values(), key=lambda e: int(e.metadata["ros2_trial_start_ns"]))
-    if int(last.metadata["ros2_trial_start_ns"]) not in {t["start_ns"] for t in whole}:  # the trial the cut went through
+    # the trial the cut went through
+    if int(last.metadata["ros2_trial_start_ns"]) not in {t["start_ns"] for t in whole}:
         assert last.metadata["ros2_trial_closed_by"] == "last_message" and "no end event" in out
     # the same whole trials from the intact bag: identical steps
     assert main(["datasets", "import-ros2", str(tmp_path / "bag"), "--out", str(tmp_path / "b"), "--no-progress"]) == 0
@@ -252,7 +257,8 @@ def test_a_bag_cut_off_mid_chunk_imports_what_is_whole(tmp_path, capsys):
 
 
 def test_a_trial_without_end_closes_at_the_last_message_and_says_so(tmp_path, capsys):
-    write_rig_bag(tmp_path / "bag", RigBagSpec(trials=[RigTrial(duration_s=0.4), RigTrial(duration_s=0.4, end_event=False)],
+    write_rig_bag(tmp_path / "bag", RigBagSpec(trials=[RigTrial(duration_s=0.4),
+                                                       RigTrial(duration_s=0.4, end_event=False)],
                                                gap_s=0.2))
     assert main(["datasets", "import-ros2", str(tmp_path / "bag"), "--out", str(tmp_path / "a"), "--no-progress"]) == 0
     out = capsys.readouterr().out
@@ -304,7 +310,8 @@ def test_arm_and_hand_from_their_own_drivers_on_one_topic(tmp_path, capsys):
                                                  hand_joint_names=tuple(f"j{i}" for i in range(9))))
     assert main(["datasets", "import-ros2", str(tmp_path / "other"), "--out", str(tmp_path / "b")]) == 1
     line = _one_line_error(capsys)
-    assert "/joint_states has no message with the hand's joint(s) svh_thumb_flexion" in line and "HAND_ACTUATORS" in line
+    assert ("/joint_states has no message with the hand's joint(s) svh_thumb_flexion" in line
+            and "HAND_ACTUATORS" in line)
 
 
 def test_a_simulated_episode_exports_as_a_ros2_bag_and_imports_back(random_pick_dataset, tmp_path, capsys):

@@ -16,7 +16,8 @@ def test_the_user_facing_streams_never_give_the_same_seed():
     users = range(seeds.SEED_LIMIT)
     priors = range(seeds.prior_block(0, 0), seeds.prior_block(seeds.SEED_LIMIT - 1, 11) + 1)  # 12 pick-table parts
     streams = {"demos": (0, users), "trials": (seeds.TRIALS_BASE, users),
-               "high-level evaluation": (seeds.EVAL_HIGH_BASE, users), "prior, scripted": (seeds.EVAL_HIGH_BASE, priors),
+               "high-level evaluation": (seeds.EVAL_HIGH_BASE, users),
+               "prior, scripted": (seeds.EVAL_HIGH_BASE, priors),
                "prior, heuristic": (0, priors)}
     assert seeds.trial_seed(7, 3) == seeds.TRIALS_BASE + 7 * seeds.STRIDE + 3  # the form the check relies on
     assert seeds.eval_high_seed(7, 3) == seeds.EVAL_HIGH_BASE + 7 * seeds.STRIDE + 3

@@ -159,7 +159,6 @@ def test_object_is_swapped_with_its_size_and_mass(shape, size):
     body = sim.model.body("object")
     assert body.mass[0] == pytest.approx(0.015)
     geom = sim.model.geom("object_geom")
-    lo, hi = np.zeros(3), np.zeros(3)
     # the geom's extent along x equals the object's width (tetrahedron: its edge)
     aabb = sim.model.geom_aabb[geom.id]
     width = 2 * aabb[3] if shape != "tetrahedron" else None

@@ -84,7 +84,8 @@ def test_report_runs_groups_a_sweep_by_condition(sweep, tmp_path, capsys):
         values = sweep_table.loc[sweep_table["condition"] == condition, "final_success_rate"]
         assert final.loc[condition, "seeds"] == 2
         assert final.loc[condition, "success_rate_mean"] == pytest.approx(values.mean())
-        assert final.loc[condition, "success_rate_ci_low"] <= values.mean() <= final.loc[condition, "success_rate_ci_high"]
+        assert (final.loc[condition, "success_rate_ci_low"] <= values.mean()
+                <= final.loc[condition, "success_rate_ci_high"])
     assert "Success at the end, across seeds" in (tmp_path / "report" / "report.md").read_text()
     assert "effort" in capsys.readouterr().out
 

@@ -157,7 +157,8 @@ def test_prefill_matches_per_transition_add_and_feeds_her(tiny_run):
     from hingelab.rollouts.low_level import make_eval_env
     from stable_baselines3.common.vec_env import DummyVecEnv
 
-    env = DummyVecEnv([lambda: make_eval_env({"max_episode_steps": 10}), lambda: make_eval_env({"max_episode_steps": 10})])
+    env = DummyVecEnv([lambda: make_eval_env({"max_episode_steps": 10}),
+                       lambda: make_eval_env({"max_episode_steps": 10})])
     her = HerReplayBuffer(1000, model.observation_space, model.action_space, env=env, n_envs=2, copy_info_dict=True)
     added = insert_transitions(her, transitions)
     assert added == len(transitions)
@@ -282,7 +283,8 @@ def test_prefill_relabels_rewards_with_the_runs_own_reward(tiny_run):
     same = relabel_rewards(read_transitions([run / "dataset"])[0], with_effort)
     np.testing.assert_allclose(same.rewards, recorded.rewards, rtol=1e-5, atol=1e-6)
     goal_only = relabel_rewards(read_transitions([run / "dataset"])[0], without)
-    distance = np.linalg.norm(recorded.next_observations["achieved_goal"] - recorded.observations["desired_goal"], axis=1)
+    distance = np.linalg.norm(recorded.next_observations["achieved_goal"] - recorded.observations["desired_goal"],
+                              axis=1)
     np.testing.assert_allclose(goal_only.rewards, np.exp(-without.reward_config.c1 * distance), rtol=1e-5)
     assert (goal_only.rewards >= recorded.rewards - 1e-6).all()  # the effort term only ever subtracts
     # another effort weight: the tool-motion part scales with c2, from the recorded unweighted motion

@@ -1,4 +1,5 @@
-"""``hingelab trial`` on the MuJoCo stand-in: the simulation's verdict, operator mode, what a trial records, a cut-off trial."""
+"""``hingelab trial`` on the MuJoCo stand-in: the simulation's verdict, operator mode, what a trial records, a cut-off
+trial."""
 
 from __future__ import annotations
 

@@ -86,6 +86,7 @@ def ensemble_member_seed(seed: int, member: int) -> int:
     return int(seed) + int(member) * MEMBER_STRIDE
 
 
-__all__ = ["STRIDE", "SEED_LIMIT", "EPISODE_LIMIT", "TRAINING_SEED_LIMIT", "TRAINING_EPISODE_LIMIT", "TRIALS_BASE", "EVAL_HIGH_BASE", "PRIOR_BASE", "TRAINING_EVALUATION_SEED",
-           "HELD_OUT_BASE", "demo_seed", "trial_seed", "eval_high_seed", "prior_block", "training_episode_seed",
-           "held_out_goal_seed", "sampled_goal_seed", "ensemble_member_seed"]
+__all__ = ["STRIDE", "SEED_LIMIT", "EPISODE_LIMIT", "TRAINING_SEED_LIMIT", "TRAINING_EPISODE_LIMIT", "TRIALS_BASE",
+           "EVAL_HIGH_BASE", "PRIOR_BASE", "TRAINING_EVALUATION_SEED", "HELD_OUT_BASE", "demo_seed", "trial_seed",
+           "eval_high_seed", "prior_block", "training_episode_seed", "held_out_goal_seed", "sampled_goal_seed",
+           "ensemble_member_seed"]

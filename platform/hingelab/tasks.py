@@ -42,6 +42,6 @@ def register_envs() -> None:
         gym.register(id=TOOL_PICK_FLAT_ID, entry_point="hingelab.envs.tool_pick_flat:ToolPickFlatEnv")
 
 
-__all__ = ["TOOL_SHAPE_ID", "TOOL_PICK_ID", "TOOL_PICK_FLAT_ID", "TOOL_SHAPE_EPISODE_STEPS", "TOOL_SHAPE_SUCCESS_GAP_MM", "Z_SCALE", "MAX_SPEED",
-           "OBSERVED_OBJECT", "HIGH_LEVEL_ACTION_SHAPE", "LOW_LEVEL_ACTION_SHAPE", "LOW_LEVEL_OBSERVATION_DIM",
-           "observation_dim", "register_envs"]
+__all__ = ["TOOL_SHAPE_ID", "TOOL_PICK_ID", "TOOL_PICK_FLAT_ID", "TOOL_SHAPE_EPISODE_STEPS",
+           "TOOL_SHAPE_SUCCESS_GAP_MM", "Z_SCALE", "MAX_SPEED", "OBSERVED_OBJECT", "HIGH_LEVEL_ACTION_SHAPE",
+           "LOW_LEVEL_ACTION_SHAPE", "LOW_LEVEL_OBSERVATION_DIM", "observation_dim", "register_envs"]

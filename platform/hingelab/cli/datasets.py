@@ -49,7 +49,8 @@ def add_parser(subparsers) -> None:
         description="FILE --out NEW: salvage one cut-off or corrupt episode file into NEW. DIR (a dataset folder): "
                     "salvage every leftover .partial file of DIR/episodes into its final name (marked "
                     "recovered=true) and remove the .partial; with --discard, remove them instead.")
-    recover.add_argument("file", type=Path, help="the cut-off file (usually episodes/<id>.mcap.partial), or a dataset folder")
+    recover.add_argument("file", type=Path,
+                         help="the cut-off file (usually episodes/<id>.mcap.partial), or a dataset folder")
     recover.add_argument("--out", type=Path, default=None, help="the new episode file to write (one file only)")
     recover.add_argument("--discard", action="store_true", help="a dataset folder: remove its .partial files")
     recover.set_defaults(func=run_recover)
@@ -66,7 +67,8 @@ def add_parser(subparsers) -> None:
             "  (recovered files) are skipped and counted: Minari needs T+1 observations.\n"
             "--format lerobot: --out is the new LeRobotDataset v3.0 folder (meta/info.json, stats.json,\n"
             "  tasks.parquet, meta/episodes/, data/chunk-000/file-000.parquet): LeRobotDataset(REPO_ID, root=OUT).\n"
-            "--format ros2: --out is a new folder of rosbag2 folders (MCAP storage), one per episode: OUT/<episode_id>/\n"
+            "--format ros2: --out is a new folder of rosbag2 folders (MCAP storage), one per episode: "
+            "OUT/<episode_id>/\n"
             "  with /joint_states, /tool/points (PointCloud2, hand_base), /tf, /trial/event, /hingelab/action,\n"
             "  /object/pose; `ros2 bag info`, rosbags and `hingelab datasets import-ros2` read them.\n\n"
             "Tool clouds are aligned to the observations by log time (Minari: infos/tool_points; LeRobot:\n"

@@ -7,8 +7,8 @@ rate per goal region (thirds of the reachable opening range) with Wilson 95% int
 Success is the env's one verdict (ToolShape-v0: settled over the last 0.5 s), the episodes'
 recorded ``success``, so ``hingelab report`` of ``--out`` counts the same episodes.
 
-``high``: a high-level checkpoint (SAC or phase clone), or a baseline (heuristic, scripted, scripted-observed, scripted-feedback,
-random), on ToolPick-v0
+``high``: a high-level checkpoint (SAC or phase clone), or a baseline (heuristic, scripted, scripted-observed,
+scripted-feedback, random), on ToolPick-v0
 (``hingelab.rollouts.high_level``): success within 200 steps and at the first attempt,
 attempts and failure reasons per episode; a table with Wilson 95% intervals (table.csv, report.md).
 
@@ -60,7 +60,8 @@ def add_parser(subparsers) -> None:
     low.set_defaults(func=run_low)
     high = what.add_parser(
         "high", help="a high-level policy (or a baseline) on ToolPick-v0",
-        description="Run a high-level checkpoint (SAC or phase clone), or a baseline, for N episodes of hingelab/ToolPick-v0 "
+        description="Run a high-level checkpoint (SAC or phase clone), or a baseline, for N episodes of "
+                    "hingelab/ToolPick-v0 "
                     "(deterministic actions, domain randomization as in training, seeds paired across "
                     "policies) and write each episode into the dataset --out, with a success table "
                     "(first attempt and within 200 steps, Wilson 95%% intervals, failure reasons: table.csv, "

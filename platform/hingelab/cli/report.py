@@ -114,7 +114,8 @@ def run_picks(args: argparse.Namespace) -> int:
     table = write_picks(args.picks, args.out, command)
     for row in table[table["object"] == "all"].itertuples():
         print(f"{row.policy} over {row.low_level}: {row.episodes} episodes, first attempt "
-              f"{row.first_attempt_success_rate:.3f} [{row.first_attempt_ci_low:.3f}, {row.first_attempt_ci_high:.3f}], "
+              f"{row.first_attempt_success_rate:.3f} "
+              f"[{row.first_attempt_ci_low:.3f}, {row.first_attempt_ci_high:.3f}], "
               f"overall {row.success_rate:.3f} [{row.ci_low:.3f}, {row.ci_high:.3f}], lowest set "
               f"{row.lowest_set_success_rate:.2f}")
     print(f"Wrote {args.out}/picks.md and picks.csv.")

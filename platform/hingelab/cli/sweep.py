@@ -30,7 +30,8 @@ def add_parser(subparsers) -> None:
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
     p.add_argument("sweep_file", type=Path, metavar="SWEEP.toml", help="the sweep file")
-    p.add_argument("--out", type=Path, required=True, help="the sweep folder (new, or the stopped sweep's with --resume)")
+    p.add_argument("--out", type=Path, required=True,
+                   help="the sweep folder (new, or the stopped sweep's with --resume)")
     p.add_argument("--address", default=None, metavar="ADDR",
                    help="join the Ray cluster at ADDR (host:port from `ray start --head`, or auto) instead of "
                         "starting a local one")

@@ -112,7 +112,8 @@ def add_encoder_parser(learners) -> None:
         description="Register every cloud of the dataset, train the PointNet VAE (Chamfer + beta KL) on the "
                     "clouds in the tool frame, fit the latent <-> opening calibration and write a checkpoint.",
     )
-    p.add_argument("--data", type=Path, help="a cloud dataset folder (hingelab generate clouds); not with --recalibrate-curve")
+    p.add_argument("--data", type=Path,
+                   help="a cloud dataset folder (hingelab generate clouds); not with --recalibrate-curve")
     p.add_argument("--epochs", type=int, default=d.epochs, help=f"training epochs (default {d.epochs})")
     p.add_argument("--batch-size", type=int, default=d.batch_size, help=f"clouds per step (default {d.batch_size})")
     p.add_argument("--lr", type=float, default=d.learning_rate, help=f"Adam learning rate (default {d.learning_rate})")

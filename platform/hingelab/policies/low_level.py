@@ -53,10 +53,11 @@ def load_sac_checkpoint(path: Path, encoder=None):
         if "do not fit" not in str(exc):
             raise
         recorded = {k: (described.get(k) or {}) for k in ("observation_space", "action_space")}
-        raise ConfigError(f"{path} does not match ToolShape-v0 (observation "
-                          f"{recorded['observation_space'].get('spaces') or recorded['observation_space'].get('_shape')}, "
-                          f"action {recorded['action_space'].get('_shape')}); give a checkpoint from "
-                          "`hingelab train low`") from exc
+        raise ConfigError(
+            f"{path} does not match ToolShape-v0 (observation "
+            f"{recorded['observation_space'].get('spaces') or recorded['observation_space'].get('_shape')}, "
+            f"action {recorded['action_space'].get('_shape')}); give a checkpoint from "
+            "`hingelab train low`") from exc
     trained_with = (getattr(model, "hingelab_provenance", None) or {}).get("encoder_fingerprint")
     if trained_with is not None:  # checkpoints made before the fingerprint was recorded: not checked
         current = encoder if encoder is not None else shipped_encoder()

@@ -1,9 +1,9 @@
 """The phase clone: a high-level policy cloned from the scripted demonstrator, with its phase as memory.
 
 Why: a Markov network cloned from the scripted high level picks far fewer objects than the scripted
-high level itself (``analysis/high-level/README.md``). The scripted decisions depend on the demonstrator's phase and the steps spent in it (it lines up 3 cm
-over the grip point before it descends, it closes for a set count of steps before it lifts), which its
-observation does not hold: the Markov clone averages the phases where they meet (it descends while
+high level itself (``analysis/high-level/README.md``). The scripted decisions depend on the demonstrator's phase and the
+steps spent in it (it lines up 3 cm over the grip point before it descends, it closes for a set count of steps before it
+lifts), which its observation does not hold: the Markov clone averages the phases where they meet (it descends while
 still centimetres off to the side, it never closes all the way). The phase clone is a network of
 the observation and its own memory, the phase it is in (one of ``PHASES``, the heuristic's, its
 "hold" folded into "carry") and the steps it has spent there; it outputs the action and the next
@@ -115,8 +115,10 @@ class PhaseClone:
         weights = io.BytesIO()
         np.savez(weights, **{f"{i}/{k}": v.detach().cpu().numpy() for i, net in enumerate(self.nets)
                              for k, v in net.state_dict().items()})
-        meta = {"format": FORMAT, "observation_dim": self.observation_dim, "hidden": [list(net.hidden) for net in self.nets],
-                "phases": list(PHASES), "max_phase_steps": MAX_PHASE_STEPS, "hingelab_provenance": self.hingelab_provenance}
+        meta = {"format": FORMAT, "observation_dim": self.observation_dim,
+                "hidden": [list(net.hidden) for net in self.nets],
+                "phases": list(PHASES), "max_phase_steps": MAX_PHASE_STEPS,
+                "hingelab_provenance": self.hingelab_provenance}
         tmp = path.with_name(path.name + ".tmp")
         with zipfile.ZipFile(tmp, "w", zipfile.ZIP_DEFLATED) as archive:
             archive.writestr(META_FILE, json.dumps(meta, indent=1, default=str))
@@ -151,7 +153,8 @@ class PhaseClone:
                 net = PhaseCloneNet(meta["observation_dim"], tuple(layout), state["mean"].numpy(), state["std"].numpy())
                 net.load_state_dict(state)
             except (KeyError, RuntimeError) as exc:
-                raise ConfigError(f"{path}: its weights do not fit its own layout ({type(exc).__name__}: {exc})") from exc
+                raise ConfigError(f"{path}: its weights do not fit its own layout "
+                                  f"({type(exc).__name__}: {exc})") from exc
             nets.append(net)
         return cls(nets, meta.get("hingelab_provenance") or {})
 

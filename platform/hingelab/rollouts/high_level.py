@@ -11,22 +11,23 @@ noise (``hingelab generate heuristic``'s demos are another stream of the plan).
 The random baseline draws its actions from ``numpy.random.default_rng(episode seed)``.
 
 Failure reasons (``FailureReasonWrapper``, recorded as the episode's ``failure_reason``): the env
-gives ``divergence``, ``no_camera_cloud`` (camera perception: a frame gave no tool cloud), ``tool_drop``, and at the time limit ``drop`` (a grasp held and was lost,
-attempt > 1) or ``timeout``. From what the episode did (privileged state, every step) they become,
-first match wins: ``divergence``; ``no_camera_cloud``; ``tool_drop``; ``slip`` (the env's ``drop``: the object was held
-off the platform and lost); ``table_collision`` (the hand or tool touched the table during the
-episode); ``missed_grasp`` (the object was never held, though the tweezer's grip point came within
+gives ``divergence``, ``no_camera_cloud`` (camera perception: a frame gave no tool cloud), ``tool_drop``, and at the
+time limit ``drop`` (a grasp held and was lost, attempt > 1) or ``timeout``. From what the episode did (privileged
+state, every step) they become, first match wins: ``divergence``; ``no_camera_cloud``; ``tool_drop``; ``slip`` (the
+env's ``drop``: the object was held off the platform and lost); ``table_collision`` (the hand or tool touched the table
+during the episode); ``missed_grasp`` (the object was never held, though the tweezer's grip point came within
 2 cm of it); ``timeout`` (anything else: never got near, or held but not brought to the target).
 The env's own reason stays in ``episodes.csv`` as ``env_failure_reason``.
 
 Baselines: ``heuristic`` (the privileged heuristic, ``hingelab.heuristic``: hinge commanded
 directly through ``command_privileged``); ``scripted`` (the heuristic's arm motion, closing for 20
 steps instead of its 12, squeezing at most half the contact angle and keeping the grip point on the
-object while closing (``ScriptedPolicy.heuristic_config``), its hinge command turned into a latent goal, ``calibration.z_for_opening(opening) / Z_SCALE`` clipped to
-[-1, 1], and its world velocity into the hand frame / MAX_SPEED, acting through the env's normal
-5-D action over the low level); ``scripted-observed`` (``scripted`` reading the object's position from
-the policy's observation, noise and delay included, instead of the simulator); ``scripted-feedback`` (the same without the object's size:
-``hingelab.heuristic.feedback``); ``random`` (uniform actions in [-1, 1]).
+object while closing (``ScriptedPolicy.heuristic_config``), its hinge command turned into a latent goal,
+``calibration.z_for_opening(opening) / Z_SCALE`` clipped to [-1, 1], and its world velocity into the hand frame /
+MAX_SPEED, acting through the env's normal 5-D action over the low level); ``scripted-observed`` (``scripted`` reading
+the object's position from the policy's observation, noise and delay included, instead of the simulator);
+``scripted-feedback`` (the same without the object's size: ``hingelab.heuristic.feedback``); ``random`` (uniform actions
+in [-1, 1]).
 """
 
 from __future__ import annotations

@@ -49,7 +49,8 @@ def read_transitions(roots, progress: bool = False) -> tuple[Transitions, int]:
     for root in roots:
         root = Path(root)
         if not root.exists():
-            raise ConfigError(f"dataset {root} does not exist; give a dataset folder (hingelab datasets info lists one)")
+            raise ConfigError(f"dataset {root} does not exist; "
+                              "give a dataset folder (hingelab datasets info lists one)")
         dataset = Dataset(root)
         if len(dataset) == 0:
             raise DatasetError(f"dataset {root} has no finished episodes to learn from")

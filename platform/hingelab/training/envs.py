@@ -22,7 +22,8 @@ from hingelab.seeds import training_episode_seed
 
 
 class SeededEpisodes(gym.Wrapper):
-    """Resets with ``training_episode_seed(run_seed, env_index, episodes_started)``; ``episodes_started`` is the state."""
+    """Resets with ``training_episode_seed(run_seed, env_index, episodes_started)``;
+    ``episodes_started`` is the state."""
 
     def __init__(self, env: gym.Env, run_seed: int, env_index: int, episodes_started: int = 0):
         super().__init__(env)

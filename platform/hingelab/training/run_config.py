@@ -147,7 +147,8 @@ class RunConfig:
         data = {k: v for k, v in data.items() if k in known or k not in cls.legacy_keys}
         unknown = sorted(set(data) - set(known))
         if unknown:
-            raise ConfigError(f"unknown {cls.kind} config keys {unknown}; this run was made by another hingelab version")
+            raise ConfigError(f"unknown {cls.kind} config keys {unknown}; "
+                              "this run was made by another hingelab version")
         defaults = cls()
         values = {}
         for key, value in data.items():
@@ -174,4 +175,5 @@ class RunConfig:
                               f"{', '.join(f'{b}={getattr(self, b)!r}' for b in bad)}")
 
 
-__all__ = ["option", "add_config_arguments", "add_run_arguments", "config_from_args", "given_settings", "flag_of", "RunConfig"]
+__all__ = ["option", "add_config_arguments", "add_run_arguments", "config_from_args", "given_settings", "flag_of",
+           "RunConfig"]

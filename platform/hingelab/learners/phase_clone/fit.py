@@ -92,7 +92,8 @@ def fit_phase_clone(demos: PhaseDemos, hidden: tuple[int, ...], updates: int, ba
 
 
 def fit_phase_clone_members(demos: PhaseDemos, members: int, hidden: tuple[int, ...], updates: int, batch_size: int,
-                            learning_rate: float, seed: int, progress: bool = False) -> tuple[list[PhaseCloneNet], dict]:
+                            learning_rate: float, seed: int,
+                            progress: bool = False) -> tuple[list[PhaseCloneNet], dict]:
     """``members`` nets fitted by ``fit_phase_clone`` on the same demos from different seeds (an ensemble
     for ``PhaseClone``); the nets and the fit (member 0's figures, every member's, total seconds)."""
     if members < 1:

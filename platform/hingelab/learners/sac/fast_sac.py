@@ -118,7 +118,8 @@ class _TorchViewSampler:
         dones = (take(self.dones) * (1 - take(self.timeouts))).reshape(-1, 1)
         rewards = take(self.rewards).reshape(-1, 1)
         cls = DictReplayBufferSamples if self.is_dict else ReplayBufferSamples
-        return cls(observations=obs, actions=take(self.actions), next_observations=next_obs, dones=dones, rewards=rewards)
+        return cls(observations=obs, actions=take(self.actions), next_observations=next_obs, dones=dones,
+                   rewards=rewards)
 
 
 class FastSAC(SAC):

@@ -77,9 +77,11 @@ class LowLevelTrainConfig(SACTrainConfig):
         if self.offline_updates and not self.from_datasets:
             raise ConfigError("offline training (--offline N) needs datasets to learn from: add --from DATASET")
         if self.learns_from_demonstrations and not self.from_datasets:
-            raise ConfigError("learning from demonstrations (--bc-weight, --bc-pretrain) needs them: add --from DATASET")
+            raise ConfigError("learning from demonstrations (--bc-weight, --bc-pretrain) needs them: "
+                              "add --from DATASET")
         if self.init_from and self.offline_updates:
-            raise ConfigError("--init-from starts online training from a policy; --offline trains from datasets: drop one")
+            raise ConfigError("--init-from starts online training from a policy; --offline trains from datasets: "
+                              "drop one")
         if self.learns_from_demonstrations and (self.algorithm != "fast_sac" or self.her):
             raise ConfigError("--bc-weight and --bc-pretrain work with --algorithm fast_sac and without --her")
 
