@@ -11,6 +11,11 @@ lists the stale tables and the command that regenerates each.
 
 from __future__ import annotations
 
+import importlib
+from pathlib import Path
+
+from hingelab.paths import REPO_ROOT
+
 # name -> module; a benchmark's module exposes run(quick: bool) -> BenchTable and MEASURES
 BENCHMARKS = {
     "sim": "hingelab.bench.sim",
@@ -31,11 +36,6 @@ def measured_paths(name: str) -> tuple[str, ...]:
 
     The module's ``MEASURES``, the module itself and ``COMMON_MEASURES``.
     """
-    import importlib
-    from pathlib import Path
-
-    from hingelab.paths import REPO_ROOT
-
     module = importlib.import_module(BENCHMARKS[name])
     own = Path(module.__file__).resolve().relative_to(REPO_ROOT).as_posix()
     return (*module.MEASURES, own, *COMMON_MEASURES)

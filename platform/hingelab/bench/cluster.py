@@ -29,6 +29,15 @@ from pathlib import Path
 import numpy as np
 
 from hingelab.bench.table import BenchTable
+from hingelab.envs.low_level import PolicyLowLevel
+from hingelab.episodes import create_dataset
+from hingelab.policies.low_level import SHIPPED_LOW_LEVEL
+from hingelab.rollouts.heuristic_demos import HeuristicEpisodes, HeuristicRunConfig
+from hingelab.rollouts.low_level import evaluation_env_arguments, make_eval_env, sampled_goals
+from hingelab.rollouts.on_ray import LowLevelEpisodes
+from hingelab.seeds import demo_seed
+from hingelab.workers.ray_fan_out import fan_out
+from hingelab.workers.ray_runtime import ray_session
 
 # the code this benchmark measures (the bench's own module is added by hingelab.bench.measured_paths)
 MEASURES = ("platform/hingelab/workers", "platform/hingelab/rollouts/on_ray.py",
@@ -69,8 +78,6 @@ def _pool_arm(factory, items) -> tuple[float, float]:
 
 
 def _ray_arm(factory, items) -> tuple[float, float]:
-    from hingelab.workers.ray_fan_out import fan_out
-
     start = time.perf_counter()
     stamps = []
     fan_out(factory, items, on_result=lambda _: stamps.append(time.perf_counter()), progress=False)
@@ -95,15 +102,6 @@ def _ray_overheads(ray, tasks: int) -> dict:
 
 
 def _workloads(root: Path, quick: bool):
-    from hingelab.envs.low_level import PolicyLowLevel
-    from hingelab.policies.low_level import SHIPPED_LOW_LEVEL
-    from hingelab.episodes import create_dataset
-    from hingelab.rollouts.heuristic_demos import HeuristicEpisodes, HeuristicRunConfig
-    from hingelab.seeds import demo_seed
-    from hingelab.rollouts.on_ray import LowLevelEpisodes
-    from hingelab.rollouts.low_level import evaluation_env_arguments
-    from hingelab.rollouts.low_level import make_eval_env, sampled_goals
-
     env_args = {**evaluation_env_arguments(PolicyLowLevel(SHIPPED_LOW_LEVEL).model), "randomize": True}
     env = make_eval_env(env_args)
     goals = sampled_goals(env.unwrapped.calibration, env.unwrapped.reachable_range, 8 if quick else 40, seed=0)
@@ -129,8 +127,6 @@ def _episode_bytes(folder: Path) -> tuple[float, int]:
 
 
 def run(quick: bool = False) -> BenchTable:
-    from hingelab.workers.ray_runtime import ray_session
-
     root = Path(tempfile.mkdtemp(prefix="hingelab_bench_cluster_"))
     rows, ratios, notes = [], {}, []
     try:

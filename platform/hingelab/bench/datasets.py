@@ -34,16 +34,23 @@ import tempfile
 import time
 from pathlib import Path
 
+import h5py
 import numpy as np
+import pyarrow as pa
+import pyarrow.parquet as pq
+from rosbags.highlevel import AnyReader
 from tqdm import tqdm
 
 from hingelab.bench.table import BenchTable
+from hingelab.episodes import mcap_raw
 from hingelab.episodes import schemas as S
 from hingelab.episodes.card import create_dataset
-from hingelab.episodes import mcap_raw
 from hingelab.episodes.reader import EpisodeFile, read_episode
 from hingelab.episodes.synthetic import CONTROL_DT_S, tweezer_cloud
 from hingelab.episodes.writer import EpisodeWriter
+from hingelab.perception.encoder import load_encoder
+from hingelab.ros2.bag_import import import_bags
+from hingelab.ros2.rig_bag import RigBagSpec, RigTrial, write_rig_bag
 
 # the code this benchmark measures (the bench module itself: hingelab.bench.measured_paths); the ROS 2
 # import runs the camera cloud pipeline and ToolState (perception/) on every step
@@ -143,8 +150,6 @@ def byte_breakdown(paths) -> dict[str, float]:
 
 # --- h5py: one group per episode ------------------------------------------------------------
 def write_h5py(root: Path, episodes) -> list[Path]:
-    import h5py
-
     path = root / "main_data.hdf5"
     with h5py.File(path, "w") as f:
         for i, ep in enumerate(episodes):
@@ -155,8 +160,6 @@ def write_h5py(root: Path, episodes) -> list[Path]:
 
 
 def read_h5py(paths, with_clouds: bool = True) -> list[dict]:
-    import h5py
-
     names = ["state", "action", "reward"] + (["points"] if with_clouds else [])
     out = []
     with h5py.File(paths[0], "r") as f:
@@ -168,9 +171,6 @@ def read_h5py(paths, with_clouds: bool = True) -> list[dict]:
 
 # --- parquet: one file per episode, fixed-size lists -------------------------------------------
 def write_parquet(root: Path, episodes) -> list[Path]:
-    import pyarrow as pa
-    import pyarrow.parquet as pq
-
     paths = []
     for i, ep in enumerate(episodes):
         table = pa.table({
@@ -186,8 +186,6 @@ def write_parquet(root: Path, episodes) -> list[Path]:
 
 
 def read_parquet(paths, with_clouds: bool = True) -> list[dict]:
-    import pyarrow.parquet as pq
-
     columns = ["observation.state", "action", "next.reward"] + (["observation.points"] if with_clouds else [])
     out = []
     for path in paths:
@@ -240,12 +238,6 @@ def ros2_import_rows(work: Path, quick: bool, repeats: int, real_size: bool = Fa
     default rig bag (1,500-point clouds at 30 Hz), or with ``real_size`` one trial of real-size clouds
     (``REAL_SIZE_POINTS`` at ``REAL_SIZE_CAMERA_HZ``). ``facts["camera_share"]``: the share of the
     import's time spent on the camera frames (decoding, TF, the cloud pipeline), from the best run."""
-    from rosbags.highlevel import AnyReader
-
-    from hingelab.perception.encoder import load_encoder
-    from hingelab.ros2.bag_import import import_bags
-    from hingelab.ros2.rig_bag import RigBagSpec, RigTrial, write_rig_bag
-
     if real_size:
         n_trials, label = 1, "real-size clouds"
         spec = RigBagSpec(trials=[RigTrial(duration_s=2.0 if quick else 3.0)], scene_points=REAL_SIZE_POINTS,

@@ -20,9 +20,13 @@ import types
 import gymnasium as gym
 import mujoco
 import numpy as np
+from stable_baselines3.common.env_util import make_vec_env
+from stable_baselines3.common.vec_env import SubprocVecEnv
 
 from hingelab.bench.table import BenchTable
 from hingelab.envs import TOOL_PICK_ID, TOOL_SHAPE_ID
+from hingelab.envs.vec_env import PinnedVecEnv
+from hingelab.perception import tool_state_kernels
 
 # the code and models this benchmark measures (the bench module itself: hingelab.bench.measured_paths):
 # the envs, their physics and perception, and every asset (ToolPick-v0 runs the shipped low-level policy)
@@ -97,8 +101,6 @@ class _OneWorker:
     def breakdown(self, steps: int) -> dict[str, float]:
         """Milliseconds per step of each part of perception (timers around them for ``steps``
         steps), the replayed physics of those steps, and the rest (total minus those)."""
-        from hingelab.perception import tool_state_kernels
-
         perception = self.env.unwrapped.perception
         tool_state = perception.tool_state
         # encode_scaled is where every encoding goes (encode too); tracked_step is the compiled step
@@ -140,10 +142,6 @@ class _Workers:
     """``n_envs`` spawned env processes in a vec env (PinnedVecEnv or SB3's SubprocVecEnv): total steps/s."""
 
     def __init__(self, env_id: str, n_envs: int, vec_env_cls=None):
-        from stable_baselines3.common.env_util import make_vec_env
-
-        from hingelab.envs.vec_env import PinnedVecEnv
-
         self.vec = make_vec_env(env_id, n_envs=n_envs, seed=0, vec_env_cls=vec_env_cls or PinnedVecEnv,
                                 vec_env_kwargs={"start_method": "spawn"})
         self.vec.reset()
@@ -160,8 +158,6 @@ class _Workers:
 
 
 def run(quick: bool = False) -> BenchTable:
-    from stable_baselines3.common.vec_env import SubprocVecEnv
-
     steps = 40 if quick else 4000
     rounds = 2 if quick else ROUNDS
     block = steps // rounds

@@ -29,11 +29,36 @@ import tempfile
 import time
 from pathlib import Path
 
+import gymnasium as gym
 import numpy as np
+from scipy.spatial import cKDTree
 
 from hingelab.bench.table import BenchTable
+from hingelab.camera import AZURE_KINECT_NFOV_UNBINNED
+from hingelab.envs import TOOL_SHAPE_ID
 from hingelab.errors import ConfigError
 from hingelab.paths import ANALYSIS_DIR
+from hingelab.perception.camera_cloud import (
+    ToolCloudConfig,
+    crop,
+    depth_to_points,
+    remove_statistical_outliers,
+    transform,
+    voxel_downsample,
+)
+from hingelab.perception.clouds import CloudRealism, CloudSynthesizer, ToolGeometry
+from hingelab.perception.encoder import load_encoder
+from hingelab.perception.registration import (
+    CanonicalRegistration,
+    RegistrationConfig,
+    TrackingConfig,
+    rotation_error_rad,
+)
+from hingelab.perception.synthetic_dataset import nominal_tool_pose, sample_clouds
+from hingelab.perception.tool_perception import CameraClouds
+from hingelab.perception.tool_state import ToolState
+from hingelab.perception.train_encoder import mean_chamfer_mm2, register_to_tool_frame, surface_targets
+from hingelab.sim.core import SimCore
 
 # the code and models this benchmark measures (the bench module itself: hingelab.bench.measured_paths);
 # the tool's geometry comes from tweezer.xml, its frame names from sim/names.py
@@ -49,7 +74,7 @@ SEED = 2026  # held-out: datasets and training use small seeds
 
 def _require_open3d():
     try:
-        import open3d
+        import open3d  # optional (hingelab[bench]) and absent from a plain install: its absence is reported here
     except ImportError as exc:
         if "libusb" in str(exc):  # open3d's wheel links the system's libusb (for its RealSense support)
             raise ConfigError("Open3D is installed but needs the system library libusb-1.0, which is missing; "
@@ -60,17 +85,12 @@ def _require_open3d():
 
 
 def _in_hand_clouds(n: int, seed: int, noise_m: float):
-    from hingelab.perception.clouds import CloudRealism, ToolGeometry
-    from hingelab.perception.synthetic_dataset import sample_clouds
-
     geometry = ToolGeometry.default()
     realism = CloudRealism(noise_m, 0.2, 0.0, 0.0)
     return sample_clouds(np.random.default_rng(seed), n, geometry, realism, np.deg2rad(30.0), 0.02)
 
 
 def _errors(rot_est, pos_est, rot_true, pos_true):
-    from hingelab.perception.registration import rotation_error_rad
-
     return np.rad2deg(rotation_error_rad(rot_est, rot_true)), 1000 * np.linalg.norm(pos_est - pos_true, axis=1)
 
 
@@ -82,9 +102,6 @@ def _row(method: str, rot_err, pos_err, ms_per_cloud: float) -> dict:
 
 def bench_registration(n: int, rows: list, notes: list) -> dict:
     o3d = _require_open3d()
-    from hingelab.perception.registration import CanonicalRegistration
-    from hingelab.perception.synthetic_dataset import nominal_tool_pose
-
     data = _in_hand_clouds(n, SEED, 0.003)
     clouds, rot_true, pos_true, theta = data["points"], data["rotation"], data["position"], data["hinge_angle"]
     registration = CanonicalRegistration()
@@ -142,11 +159,6 @@ def bench_registration(n: int, rows: list, notes: list) -> dict:
 
 def bench_encoder(n: int, per_opening: int, noise_m: float, rows: list, notes: list, plot: Path | None,
                   encoder_path: Path | None = None) -> dict:
-    from hingelab.perception.clouds import CloudRealism, CloudSynthesizer, ToolGeometry
-    from hingelab.perception.encoder import load_encoder
-    from hingelab.perception.registration import CanonicalRegistration, RegistrationConfig
-    from hingelab.perception.train_encoder import mean_chamfer_mm2, register_to_tool_frame, surface_targets
-
     encoder = load_encoder(encoder_path)
     if encoder.calibration is None:
         raise ConfigError(f"the encoder {encoder_path or 'shipped'} has no calibration; retrain it with "
@@ -190,6 +202,7 @@ def bench_encoder(n: int, per_opening: int, noise_m: float, rows: list, notes: l
 
 
 def _plot_latents(z, opening, calibration, path) -> None:
+    # matplotlib only when a plot is asked for; the Agg backend is chosen before pyplot is imported
     import matplotlib
 
     matplotlib.use("Agg")
@@ -212,10 +225,6 @@ def _plot_latents(z, opening, calibration, path) -> None:
 
 def bench_tool_state(steps: int, rows: list) -> dict:
     """Updates per second for 1 and 64 tools: ``steps`` updates of 64 clouds, 10x as many of one."""
-    from hingelab.perception.clouds import CloudRealism, CloudSynthesizer, ToolGeometry
-    from hingelab.perception.synthetic_dataset import nominal_tool_pose
-    from hingelab.perception.tool_state import ToolState
-
     rot0, pos0 = nominal_tool_pose()
     out = {}
     for n_tools in (1, 64):
@@ -239,10 +248,6 @@ def bench_tool_state(steps: int, rows: list) -> dict:
 def bench_tracking(episodes: int, steps: int, rows: list) -> dict:
     """A resting tool through sim-like clouds (3 mm, 20%, a per-episode pose error): how much the
     tracked pose moves per step (any of it is noise) with the motion prior and frame by frame."""
-    from hingelab.perception.clouds import CloudRealism, CloudSynthesizer, ToolGeometry
-    from hingelab.perception.registration import TrackingConfig, rotation_error_rad
-    from hingelab.perception.tool_state import ToolState
-
     frame_by_frame = TrackingConfig(rotation_prior_m=0.0, translation_prior=0.0, predict_motion=0.0, max_iterations=8)
     out = {}
     for label, tracking in (("motion prior", TrackingConfig()), ("frame by frame", frame_by_frame)):
@@ -270,11 +275,6 @@ def bench_tracking(episodes: int, steps: int, rows: list) -> dict:
 def _camera_points(frames: int) -> list[np.ndarray]:
     """The tool's masked points (hand_base, before outlier removal) of rendered, noisy frames of
     ToolShape-v0 with random finger motion, and the time per frame of the whole camera path."""
-    import gymnasium as gym
-
-    from hingelab.envs import TOOL_SHAPE_ID
-    from hingelab.perception.camera_cloud import crop, depth_to_points, transform
-
     env = gym.make(TOOL_SHAPE_ID, perception="camera")
     points = []
     try:
@@ -292,10 +292,6 @@ def _camera_points(frames: int) -> list[np.ndarray]:
 
 
 def _env_steps_per_second(perception: str, steps: int) -> float:
-    import gymnasium as gym
-
-    from hingelab.envs import TOOL_SHAPE_ID
-
     env = gym.make(TOOL_SHAPE_ID, perception=perception)
     try:
         env.reset(seed=SEED)
@@ -311,13 +307,6 @@ def _env_steps_per_second(perception: str, steps: int) -> float:
 
 def bench_camera(frames: int, rows: list, notes: list) -> dict:
     """Camera frames and env steps per second; the pipeline's filters against Open3D's on the same points."""
-    from scipy.spatial import cKDTree
-
-    from hingelab.camera import AZURE_KINECT_NFOV_UNBINNED
-    from hingelab.perception.tool_perception import CameraClouds
-    from hingelab.perception.camera_cloud import ToolCloudConfig, remove_statistical_outliers, voxel_downsample
-    from hingelab.sim.core import SimCore
-
     o3d = _require_open3d()
     out = {}
     # frames per second of the camera path alone: render (depth + segmentation), noise, pipeline

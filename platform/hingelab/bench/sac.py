@@ -22,15 +22,27 @@ thread. Why each change is faster, and what each bought alone (an ablation), is 
 
 from __future__ import annotations
 
+import cProfile
+import multiprocessing as mp
+import pstats
 import statistics
 import time
 import traceback
 from collections.abc import Callable
 from typing import Any
 
+import gymnasium as gym
 import numpy as np
+import stable_baselines3
+import torch
+import torch as th
+from gymnasium import spaces
+from stable_baselines3 import SAC
+from stable_baselines3.common.logger import configure
+from tqdm import tqdm
 
 from hingelab.bench.table import BenchTable
+from hingelab.learners.sac.fast_sac import FastSAC, configure_torch
 
 # the code this benchmark measures (the bench's own module is added by hingelab.bench.measured_paths)
 MEASURES = ("platform/hingelab/learners/sac/fast_sac.py",)
@@ -57,9 +69,6 @@ COLUMNS = ["threads", "config", "role", "updates/s", "min", "max", "ms/update", 
 
 def dummy_goal_env() -> Any:
     """An env with the spaces of the goal-conditioned low-level task; steps return random data."""
-    import gymnasium as gym
-    from gymnasium import spaces
-
     class DummyGoalEnv(gym.Env):
         observation_space = spaces.Dict(
             {
@@ -82,8 +91,6 @@ def dummy_goal_env() -> Any:
 
 def make_filled_model(cls: type, seed: int = SEED, buffer_size: int = BUFFER_SIZE, **kwargs: Any) -> Any:
     """SAC or FastSAC, MultiInputPolicy, 2 x 256, batch 256, on the dummy goal env, buffer full of noise."""
-    from stable_baselines3.common.logger import configure
-
     policy_kwargs = dict(kwargs.pop("policy_kwargs", None) or {})
     policy_kwargs.setdefault("net_arch", [256, 256])
     model = cls("MultiInputPolicy", dummy_goal_env(), batch_size=BATCH_SIZE, buffer_size=buffer_size,
@@ -135,9 +142,6 @@ PROFILE_TOTAL = "total under cProfile"
 
 def profile_breakdown(model: Any, n_updates: int, batch_size: int = BATCH_SIZE) -> dict[str, float]:
     """ms per update by part, from cProfile (which inflates the Python-heavy parts a little)."""
-    import cProfile
-    import pstats
-
     model.train(gradient_steps=WARMUP_UPDATES, batch_size=batch_size)
     profiler = cProfile.Profile()
     start = time.perf_counter()
@@ -171,11 +175,6 @@ def profile_breakdown(model: Any, n_updates: int, batch_size: int = BATCH_SIZE) 
 def _worker(arm: str, connection: Any) -> None:
     """Builds the arm's model, then answers ("rate" | "profile", threads, n_updates) until None."""
     try:
-        import torch as th
-        from stable_baselines3 import SAC
-
-        from hingelab.learners.sac.fast_sac import FastSAC, configure_torch
-
         _role, algorithm, process_settings = ARMS[arm]
         if process_settings:
             configure_torch(1)
@@ -200,8 +199,6 @@ class _Arms:
     """The arms' worker processes (spawned: nothing inherited), asked one at a time."""
 
     def __init__(self, arms: list[str]):
-        import multiprocessing as mp
-
         ctx = mp.get_context("spawn")
         self.workers = {}
         for arm in arms:
@@ -314,10 +311,6 @@ def build_table(block_rates: dict[int, dict[str, list[float]]], profile: dict[st
 
 
 def run(quick: bool = False) -> BenchTable:
-    import stable_baselines3
-    import torch
-    from tqdm import tqdm
-
     threads_list = (1,) if quick else (1, 2)
     rounds = 3 if quick else 7
     n_updates = 20 if quick else 200

@@ -26,9 +26,25 @@ import time
 from dataclasses import replace
 from pathlib import Path
 
+import gymnasium as gym
 import numpy as np
+import pandas as pd
+import torch
+from stable_baselines3 import SAC
+from stable_baselines3.common.buffers import DictReplayBuffer
+from stable_baselines3.common.callbacks import BaseCallback
+from stable_baselines3.common.logger import configure
 
 from hingelab.bench.table import BenchTable
+from hingelab.episodes.dataset import Dataset
+from hingelab.episodes.transitions import dataset_transitions, fill_replay_buffer
+from hingelab.learners.sac.high_level import train_high
+from hingelab.learners.sac.high_level_config import HighLevelTrainConfig
+from hingelab.learners.sac.low_level import build_model, train_low
+from hingelab.learners.sac.low_level_config import LowLevelTrainConfig
+from hingelab.learners.sac.run import algorithm_class
+from hingelab.rollouts.low_level import make_eval_env
+from hingelab.training.buffer_fill import prefill_replay_buffer
 
 # the code and models this benchmark measures (the bench module itself: hingelab.bench.measured_paths):
 # `hingelab train low` whole (its envs, recording, replay pre-fill, reports) and its algorithm
@@ -52,8 +68,6 @@ def _random_fill(buffer, n: int, rng: np.random.Generator) -> None:
 
 
 def _updates_per_s(model, n: int, batch: int, threads: int) -> float:
-    import torch
-
     torch.set_num_threads(threads)
     start = time.perf_counter()
     model.train(gradient_steps=n, batch_size=batch)
@@ -61,15 +75,6 @@ def _updates_per_s(model, n: int, batch: int, threads: int) -> float:
 
 
 def bench_updates(blocks: int, per_block: int, rows: list, ratios: dict, notes: list) -> None:
-    import torch
-    from stable_baselines3 import SAC
-    from stable_baselines3.common.logger import configure
-
-    from hingelab.learners.sac.low_level_config import LowLevelTrainConfig
-    from hingelab.rollouts.low_level import make_eval_env
-    from hingelab.learners.sac.run import algorithm_class
-    from hingelab.learners.sac.low_level import build_model
-
     default_threads = torch.get_num_threads()
     config = LowLevelTrainConfig(buffer_size=20_000)
     env = make_eval_env({})
@@ -106,12 +111,6 @@ def bench_updates(blocks: int, per_block: int, rows: list, ratios: dict, notes: 
 
 
 def _bare_learn_rate(warmup: int, steps: int, env=None) -> float:
-    import torch
-    from stable_baselines3 import SAC
-    from stable_baselines3.common.callbacks import BaseCallback
-
-    from hingelab.rollouts.low_level import make_eval_env
-
     class Clock(BaseCallback):
         def _on_step(self) -> bool:
             if self.num_timesteps == warmup:
@@ -132,8 +131,6 @@ def _bare_learn_rate(warmup: int, steps: int, env=None) -> float:
 def _our_learn_rate(train, config, warmup: int, steps: int, run_dir: Path, **quiet) -> float:
     """Env steps/s of ``train(config, run_dir)`` (train_low or train_high) from its first update on;
     ``quiet``: the config's smallest evaluation (its evaluations run outside the timed steps)."""
-    import pandas as pd
-
     config = replace(config, steps=warmup + steps, learning_starts=warmup, eval_every=10**9,
                      checkpoint_every=10**9, **quiet)
     train(config, run_dir, progress=False)
@@ -142,9 +139,6 @@ def _our_learn_rate(train, config, warmup: int, steps: int, run_dir: Path, **qui
 
 
 def bench_learn(warmup: int, steps: int, rows: list, ratios: dict, notes: list, tmp: Path) -> Path:
-    from hingelab.learners.sac.low_level_config import LowLevelTrainConfig
-    from hingelab.learners.sac.low_level import train_low
-
     base = LowLevelTrainConfig(seed=SEED)
     bare = _bare_learn_rate(warmup, steps)
     same = _our_learn_rate(train_low, replace(base, n_envs=1), warmup, steps, tmp / "one_env", eval_goals_per_region=1)
@@ -163,11 +157,6 @@ def bench_learn(warmup: int, steps: int, rows: list, ratios: dict, notes: list, 
 
 
 def bench_learn_high(warmup: int, steps: int, rows: list, ratios: dict, notes: list, tmp: Path) -> None:
-    import gymnasium as gym
-
-    from hingelab.learners.sac.high_level_config import HighLevelTrainConfig
-    from hingelab.learners.sac.high_level import train_high
-
     base = HighLevelTrainConfig(seed=SEED, prior=False)
     bare = _bare_learn_rate(warmup, steps, env=gym.make(base.env_id, **base.env_arguments()))
     same = _our_learn_rate(train_high, replace(base, n_envs=1), warmup, steps, tmp / "high_one_env", eval_episodes=1)
@@ -187,13 +176,6 @@ def bench_learn_high(warmup: int, steps: int, rows: list, ratios: dict, notes: l
 
 
 def bench_prefill(dataset: Path, repeats: int, rows: list, ratios: dict, notes: list) -> None:
-    from stable_baselines3.common.buffers import DictReplayBuffer
-
-    from hingelab.episodes.dataset import Dataset
-    from hingelab.episodes.transitions import dataset_transitions, fill_replay_buffer
-    from hingelab.rollouts.low_level import make_eval_env
-    from hingelab.training.buffer_fill import prefill_replay_buffer
-
     env = make_eval_env({})
     spaces = env.observation_space, env.action_space
     env.close()
