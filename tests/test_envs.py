@@ -350,11 +350,11 @@ def test_tool_pick_shipped_low_level_settles_on_fresh_goals():
     analysis/low-level-experts/README.md, after_compiled_tracking). At the interval's lower end,
     0.936, fewer than 50 of 60 happen with probability 0.14% (0.90: 3.4%); a policy at 0.75 passes
     with probability 8.6%. (In ToolPick-v0 on exploration seeds not used here, 57 of 60 settled.)"""
-    from hingelab.tasks import Z_SCALE
     from hingelab.envs.tool_shape import SETTLE_STEPS
     from hingelab.perception.calibration import latent_distance_for_gap
     from hingelab.rollouts.low_level import sampled_goals
     from hingelab.sim.finger_synergy import FingerSynergy
+    from hingelab.tasks import Z_SCALE
 
     env = gym.make(TOOL_PICK_ID, low_level="policy")
     unwrapped = env.unwrapped

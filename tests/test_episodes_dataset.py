@@ -10,8 +10,8 @@ from hingelab.episodes import create_dataset
 from hingelab.episodes import schemas as S
 from hingelab.episodes.dataset import Dataset
 from hingelab.episodes.export import export_lerobot, export_minari, import_lerobot, import_minari
-from hingelab.episodes.transitions import dataset_frame, dataset_transitions, fill_replay_buffer
 from hingelab.episodes.synthetic import write_synthetic_episode
+from hingelab.episodes.transitions import dataset_frame, dataset_transitions, fill_replay_buffer
 
 N_STEPS = 12
 

@@ -5,8 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from hingelab.episodes import DatasetError, EpisodeWriter, create_dataset, read_episode
-from hingelab.episodes import codec
+from hingelab.episodes import DatasetError, EpisodeWriter, codec, create_dataset, read_episode
 from hingelab.episodes import schemas as S
 from hingelab.episodes.synthetic import CONTROL_DT_S, write_synthetic_episode
 

@@ -5,8 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from hingelab.episodes import create_dataset, read_episode
-from hingelab.episodes import mcap_raw
+from hingelab.episodes import create_dataset, mcap_raw, read_episode
 from hingelab.episodes import schemas as S
 from hingelab.episodes.reader import EpisodeFile
 from hingelab.episodes.recover import recover_episode
@@ -110,8 +109,8 @@ def test_recover_cut_off_file_with_mixed_chunks(dataset, tmp_path, fraction):
 
 def test_file_from_the_mcap_library_writer_still_reads(dataset, tmp_path):
     """Files written before ChunkWriter (mcap's Writer, one cloud chunk per block) read the same."""
-    from mcap.writer import CompressionType, Writer
     from mcap.reader import make_reader
+    from mcap.writer import CompressionType, Writer
 
     path, steps = write_synthetic_episode(dataset, seed=3, n_steps=N_STEPS, **MIXED)
     old = tmp_path / "old.mcap"

@@ -6,9 +6,9 @@ from __future__ import annotations
 
 import json
 
-import example_learner
 import pandas as pd
 
+import example_learner
 from hingelab.cli.main import main
 from hingelab.episodes.dataset import Dataset
 from hingelab.learners import registry

@@ -5,6 +5,7 @@ log time, odd episodes are handled deliberately, and a failed export leaves noth
 from __future__ import annotations
 
 import json
+
 import gymnasium as gym
 import numpy as np
 import pandas as pd
@@ -12,8 +13,7 @@ import pyarrow.parquet as pq
 import pytest
 
 from hingelab.cli.main import main
-from hingelab.episodes import EpisodeWriter, create_dataset
-from hingelab.episodes import export_source
+from hingelab.episodes import EpisodeWriter, create_dataset, export_source
 from hingelab.episodes import schemas as S
 from hingelab.episodes.dataset import Dataset
 from hingelab.episodes.export import export_dataset, export_lerobot, export_minari

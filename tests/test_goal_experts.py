@@ -27,8 +27,8 @@ class _Constant:
 @pytest.fixture(scope="module")
 def shipped():
     from hingelab.envs.low_level import PolicyLowLevel
-    from hingelab.policies.low_level import SHIPPED_LOW_LEVEL_SAC
     from hingelab.perception.encoder import shipped_encoder
+    from hingelab.policies.low_level import SHIPPED_LOW_LEVEL_SAC
 
     return SHIPPED_LOW_LEVEL_SAC, PolicyLowLevel(SHIPPED_LOW_LEVEL_SAC).model, shipped_encoder().calibration
 

@@ -9,7 +9,7 @@ import gymnasium as gym
 import numpy as np
 import pytest
 
-from hingelab.envs import TOOL_PICK_ID, TOOL_PICK_FLAT_ID
+from hingelab.envs import TOOL_PICK_FLAT_ID, TOOL_PICK_ID
 
 
 @pytest.mark.parametrize("object,size,extent_mm", [
@@ -28,8 +28,8 @@ def test_extent_is_the_bounding_box(object, size, extent_mm):
 
 def test_a_run_with_the_extent_trains_and_evaluates(tmp_path, capsys):
     from hingelab.cli.main import main
-    from hingelab.policies.high_level import load_high_level_checkpoint
     from hingelab.learners.sac.high_level import train_high
+    from hingelab.policies.high_level import load_high_level_checkpoint
     from test_train_high import TINY
 
     config = replace(TINY, steps=60, eval_every=60, checkpoint_every=60, prior_episodes=2, max_episode_steps=20,
@@ -47,9 +47,9 @@ def test_a_run_with_the_extent_trains_and_evaluates(tmp_path, capsys):
 
 def test_demos_of_the_other_observation_get_a_one_line_error(tmp_path):
     from hingelab.episodes.errors import DatasetError
-    from hingelab.training.high_level_demos import high_level_transitions
     from hingelab.policies.baselines import ScriptedPolicy
     from hingelab.rollouts.high_level import evaluate, make_eval_env
+    from hingelab.training.high_level_demos import high_level_transitions
 
     root = tmp_path / "demos"
     from hingelab.episodes import create_dataset

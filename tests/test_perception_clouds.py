@@ -8,8 +8,7 @@ import pytest
 from scipy.spatial.transform import Rotation
 
 from hingelab.errors import ConfigError
-from hingelab.perception.clouds import (IDEAL, TWEEZER_XML, CloudRealism, CloudSynthesizer, ToolGeometry,
-                                        pose_matrix)
+from hingelab.perception.clouds import IDEAL, TWEEZER_XML, CloudRealism, CloudSynthesizer, ToolGeometry, pose_matrix
 
 
 @pytest.fixture(scope="module")

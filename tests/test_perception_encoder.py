@@ -10,8 +10,15 @@ import torch
 
 from hingelab.errors import ConfigError
 from hingelab.perception.clouds import IDEAL, CloudSynthesizer, ToolGeometry
-from hingelab.perception.encoder import (EncoderConfig, PointNetVAE, SHIPPED_CHECKPOINT, chamfer, load_encoder,
-                                         save_checkpoint, vae_loss)
+from hingelab.perception.encoder import (
+    SHIPPED_CHECKPOINT,
+    EncoderConfig,
+    PointNetVAE,
+    chamfer,
+    load_encoder,
+    save_checkpoint,
+    vae_loss,
+)
 
 TINY = EncoderConfig(widths=(8, 16), head_width=8, decoder_widths=(16,), decoder_points=32, target_points=64)
 

@@ -14,11 +14,11 @@ from hingelab.cli.main import main
 from hingelab.envs.rewards import HighLevelRewardConfig
 from hingelab.episodes import read_episode
 from hingelab.episodes.dataset import Dataset
-from hingelab.training.high_level_demos import high_level_transitions
-from hingelab.training.real_demos import RealEpisodeError, real_episode_transitions
 from hingelab.ros2.rig_bag import RigBagSpec, RigTrial, write_rig_bag
 from hingelab.ros2.sim_rig_bag import SimRigBagSpec, write_sim_rig_bag
 from hingelab.sim.arm_kinematics import default_kinematics
+from hingelab.training.high_level_demos import high_level_transitions
+from hingelab.training.real_demos import RealEpisodeError, real_episode_transitions
 
 # Perception is not privileged truth: the grip point rebuilt from the registered pose and the latent's
 # opening lies within a few mm of the sim's (measured: 2-3 mm at most), and the tool-object term

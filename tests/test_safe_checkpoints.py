@@ -127,8 +127,8 @@ TINY_RUN = dict(steps=60, n_envs=1, max_episode_steps=10, learning_starts=20, ba
 
 @pytest.fixture(scope="module")
 def tiny_low_run(tmp_path_factory):
-    from hingelab.learners.sac.low_level_config import LowLevelTrainConfig
     from hingelab.learners.sac.low_level import train_low
+    from hingelab.learners.sac.low_level_config import LowLevelTrainConfig
 
     config = LowLevelTrainConfig(**TINY_RUN)
     run = tmp_path_factory.mktemp("resume") / "run"
@@ -176,8 +176,8 @@ def test_a_runs_checkpoints_hold_no_pickles(tiny_low_run):
 def test_resume_reads_no_pickle_of_a_booby_trapped_checkpoint(tiny_low_run, tmp_path):
     """The checkpoint's model.zip with every pickled entry a trap: the run resumes, exactly, and
     nothing ran (resume takes only its tensors and its plain counters)."""
-    from hingelab.training import checkpoints as ckpt
     from hingelab.learners.sac.low_level import train_low
+    from hingelab.training import checkpoints as ckpt
 
     config, run = tiny_low_run
     marker = tmp_path / "ran"
@@ -193,8 +193,8 @@ def test_resume_reads_no_pickle_of_a_booby_trapped_checkpoint(tiny_low_run, tmp_
 def _as_older_hingelab(step: Path, config, buffer_from: Path, marker: Path | None) -> None:
     """Rewrite a checkpoint the way hingelab wrote them before plain resume state (pickles); with
     ``marker``, its state.pkl is a trap."""
-    from hingelab.training import checkpoints as ckpt
     from hingelab.learners.sac.low_level import LowLevelRun
+    from hingelab.training import checkpoints as ckpt
 
     state = ckpt.read_state(step)
     rng = state.pop("rng")
@@ -214,7 +214,6 @@ def _as_older_hingelab(step: Path, config, buffer_from: Path, marker: Path | Non
 
 def test_an_older_pickled_checkpoint_is_refused_unread_and_converted_on_request(tiny_low_run, tmp_path, capsys):
     from hingelab.cli.main import main
-    from hingelab.training import checkpoints as ckpt
     from hingelab.learners.sac.low_level import train_low
 
     config, run = tiny_low_run

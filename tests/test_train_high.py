@@ -14,9 +14,9 @@ import torch
 
 from hingelab.episodes.dataset import Dataset
 from hingelab.errors import ConfigError
-from hingelab.training import checkpoints as ckpt
-from hingelab.learners.sac.high_level_config import FlatTrainConfig, HighLevelTrainConfig
 from hingelab.learners.sac.high_level import train_high
+from hingelab.learners.sac.high_level_config import FlatTrainConfig, HighLevelTrainConfig
+from hingelab.training import checkpoints as ckpt
 
 TINY = HighLevelTrainConfig(
     steps=300, n_envs=1, max_episode_steps=50, learning_starts=50, batch_size=16, buffer_size=2000, net_arch=(32, 32),
@@ -69,9 +69,8 @@ def test_run_writes_prior_rollouts_metrics_and_records(tiny_high):
 def test_demo_share_keeps_the_demos_in_every_batch(tiny_high, tmp_path):
     """The kept demo share: the demos sit in their own store, never overwritten, and half of a batch."""
     from hingelab.learners.sac.demo_sac import DemoSAC
-    from hingelab.training.high_level_demos import DemoShareReplayBuffer
-
     from hingelab.learners.sac.high_level import HighLevelRun
+    from hingelab.training.high_level_demos import DemoShareReplayBuffer
 
     run, summary = tiny_high
     copy = tmp_path / "copy"
@@ -150,8 +149,8 @@ def test_high_level_checkpoint_is_refused_beside_another_low_level(tiny_high):
     with pytest.raises(ConfigError, match="learned over the low level privileged"):
         load_high_level_checkpoint(run / "model.zip", low_level="policy")
     # a policy learned over the shipped low level is refused over another trained one, not over the servo
-    from hingelab.policies.low_level import SHIPPED_LOW_LEVEL_SAC
     from hingelab.policies.high_level import check_context, training_context
+    from hingelab.policies.low_level import SHIPPED_LOW_LEVEL_SAC
 
     model = load_high_level_checkpoint(run / "model.zip")
     model.hingelab_provenance = {**model.hingelab_provenance, **training_context("policy")}
@@ -213,7 +212,7 @@ def test_cli_flags_come_from_the_config(capsys):
 
 def test_pretraining_fits_the_spread_too(tiny_high):
     """--bc-pretrain-std: the actor's spread shrinks toward the demonstrations' (it starts near 1)."""
-    from hingelab.learners.sac.demo_sac import DemoSAC, Demonstrations
+    from hingelab.learners.sac.demo_sac import Demonstrations, DemoSAC
     from hingelab.training.high_level_demos import high_level_transitions
 
     run, _ = tiny_high

@@ -15,9 +15,9 @@ import torch
 from hingelab.episodes.dataset import Dataset
 from hingelab.episodes.errors import DatasetError
 from hingelab.errors import ConfigError
-from hingelab.training import checkpoints as ckpt
-from hingelab.learners.sac.low_level_config import LowLevelTrainConfig
 from hingelab.learners.sac.low_level import train_low
+from hingelab.learners.sac.low_level_config import LowLevelTrainConfig
+from hingelab.training import checkpoints as ckpt
 
 TINY = LowLevelTrainConfig(
     steps=120, n_envs=1, max_episode_steps=10, learning_starts=30, batch_size=16, buffer_size=2000,
@@ -154,8 +154,9 @@ def test_prefill_matches_per_transition_add_and_feeds_her(tiny_run):
     np.testing.assert_array_equal(fast.dones, slow.dones)
     np.testing.assert_array_equal(fast.timeouts, slow.timeouts)
     # HER: whole episodes per env slot, relabelled samples come out
-    from hingelab.rollouts.low_level import make_eval_env
     from stable_baselines3.common.vec_env import DummyVecEnv
+
+    from hingelab.rollouts.low_level import make_eval_env
 
     env = DummyVecEnv([lambda: make_eval_env({"max_episode_steps": 10}),
                        lambda: make_eval_env({"max_episode_steps": 10})])
@@ -169,8 +170,8 @@ def test_prefill_matches_per_transition_add_and_feeds_her(tiny_run):
 
 
 def test_prefill_refuses_another_tasks_data(tiny_run):
-    from stable_baselines3.common.buffers import ReplayBuffer
     from gymnasium import spaces
+    from stable_baselines3.common.buffers import ReplayBuffer
 
     from hingelab.training.buffer_fill import insert_transitions, read_transitions
 
@@ -360,7 +361,7 @@ def test_learning_from_demonstrations_pretrains_and_anchors_the_actor(tiny_run, 
     """--bc-pretrain fits the actor to the --from episodes' actions; --bc-weight keeps a
     Q-filtered BC term in the actor loss (DemoSAC owns it); the checkpoint does not carry the
     demonstrations."""
-    from hingelab.learners.sac.demo_sac import DemoSAC, Demonstrations
+    from hingelab.learners.sac.demo_sac import Demonstrations, DemoSAC
     from hingelab.training.buffer_fill import read_transitions
 
     run, _ = tiny_run

@@ -66,10 +66,9 @@ def test_a_trial_records_camera_cloud_joints_and_outcome(trial_episode):
 
 
 def test_the_view_shows_the_depth_image_and_the_camera_frustum(trial_episode, tmp_path):
-    from test_view_episode import rrd_tables
-
     from hingelab.viewers import entities as E
     from hingelab.viewers.view import view
+    from test_view_episode import rrd_tables
 
     _, path = trial_episode
     rrd = tmp_path / "trial.rrd"

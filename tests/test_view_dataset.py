@@ -6,7 +6,6 @@ from __future__ import annotations
 import numpy as np
 import pytest
 from mcap.writer import Writer
-from test_view_episode import rrd_tables, sorted_by
 
 from hingelab.cli.main import main
 from hingelab.episodes import create_dataset
@@ -15,6 +14,7 @@ from hingelab.episodes.synthetic import write_synthetic_episode
 from hingelab.viewers import entities as E
 from hingelab.viewers import view
 from hingelab.viewers.blueprints import DATASET_BLUEPRINT_FILE, EPISODE_BLUEPRINT_FILE, save_blueprints
+from test_view_episode import rrd_tables, sorted_by
 
 OBJECTS = ("sphere", "sphere", "cube", "cube", "cube", "cylinder")  # success rates 1/2, 2/3, 0
 LENGTHS = (12, 7, 20, 9, 15, 11)

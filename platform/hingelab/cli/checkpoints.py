@@ -4,11 +4,12 @@ from __future__ import annotations
 
 import argparse
 from pathlib import Path
+
 from hingelab.errors import ConfigError
-from hingelab.policies.sb3_zip import read_plain_data
 from hingelab.perception.encoder import SHIPPED_CHECKPOINT, convert_checkpoint
-from hingelab.training.checkpoints import convert_pickled
 from hingelab.policies.phase_clone import PhaseClone, is_phase_clone
+from hingelab.policies.sb3_zip import read_plain_data
+from hingelab.training.checkpoints import convert_pickled
 
 
 def add_parser(subparsers) -> None:

@@ -10,8 +10,8 @@ import argparse
 from pathlib import Path
 
 from hingelab.errors import ConfigError
-from hingelab.policies.goal_experts import load_experts, write_experts
 from hingelab.paths import refuse_to_replace_shipped
+from hingelab.policies.goal_experts import load_experts, write_experts
 
 
 def add_parser(subparsers) -> None:

@@ -7,18 +7,16 @@ import sys
 from pathlib import Path
 
 from hingelab.cli.options import add_on_corrupt
+from hingelab.episodes.dataset import open_dataset
 from hingelab.episodes.errors import DatasetError
+from hingelab.episodes.export import EXPORTERS, export_dataset
+from hingelab.episodes.recover import recover_episode, recover_folder
+from hingelab.episodes.verify import verify_dataset
+from hingelab.errors import ConfigError
 from hingelab.paths import DATASETS_DIR
 from hingelab.ros2 import bag_export  # noqa: F401  (registers the ros2 export format)
-from hingelab.episodes.export import EXPORTERS
-from hingelab.ros2.topics import KINDS
-from hingelab.episodes.dataset import open_dataset
-from hingelab.episodes.verify import verify_dataset
-from hingelab.episodes.recover import recover_episode, recover_folder
-from hingelab.errors import ConfigError
-from hingelab.episodes.export import export_dataset
 from hingelab.ros2.bag_import import import_bags
-from hingelab.ros2.topics import topic_names
+from hingelab.ros2.topics import KINDS, topic_names
 
 
 def add_parser(subparsers) -> None:

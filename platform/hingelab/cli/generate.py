@@ -15,7 +15,6 @@ import time
 from pathlib import Path
 
 from hingelab.paths import DATASETS_DIR
-from hingelab.perception.synthetic_dataset import CloudDatasetConfig
 from hingelab.perception.synthetic_dataset import CloudDatasetConfig, generate_cloud_dataset
 
 # source name -> "module:function" adding its sub-subcommand to the ``generate`` subparsers

@@ -7,7 +7,6 @@ from pathlib import Path
 
 from hingelab.cli.options import add_ray_argument
 from hingelab.paths import DATASETS_DIR
-from hingelab.rollouts.heuristic_demos import HeuristicRunConfig
 from hingelab.rollouts.heuristic_demos import HeuristicRunConfig, generate_heuristic_dataset, summarize, timed
 
 

@@ -8,14 +8,15 @@ import shlex
 import time
 from pathlib import Path
 
-from hingelab.cli.options import add_on_corrupt
 import pandas as pd
+
+from hingelab.analysis import build_report
+from hingelab.analysis.pick_table import write_picks
 from hingelab.analysis.pooled import DEFAULT_BAND_EDGES, write_pooled
+from hingelab.analysis.run_report import build_run_report
+from hingelab.cli.options import add_on_corrupt
 from hingelab.errors import ConfigError
 from hingelab.provenance import require_clean_for
-from hingelab.analysis.pick_table import write_picks
-from hingelab.analysis.run_report import build_run_report
-from hingelab.analysis import build_report
 
 
 def add_parser(subparsers) -> None:

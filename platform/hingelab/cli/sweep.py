@@ -5,9 +5,10 @@ from __future__ import annotations
 import argparse
 import time
 from pathlib import Path
+
+from hingelab.errors import ConfigError
 from hingelab.sweeps.runner import run_sweep, summary
 from hingelab.sweeps.spec import load_sweep
-from hingelab.errors import ConfigError
 
 
 def add_parser(subparsers) -> None:

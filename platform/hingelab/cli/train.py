@@ -12,17 +12,15 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
+from hingelab import paths
 from hingelab.errors import ConfigError
 from hingelab.learners import registry
-from hingelab.training.run_config import config_from_args, given_settings
-from hingelab import paths
 from hingelab.paths import refuse_to_replace_shipped
-from hingelab.training.run_folder import resumed_config
 from hingelab.perception.encoder import EncoderConfig
-from hingelab.perception.train_encoder import TrainEncoderConfig
-from hingelab.perception.train_encoder import TrainEncoderConfig, train_encoder
-from hingelab.perception.train_encoder import recalibrate_encoder
 from hingelab.perception.sim_calibration import recalibrate_curve
+from hingelab.perception.train_encoder import TrainEncoderConfig, recalibrate_encoder, train_encoder
+from hingelab.training.run_config import config_from_args, given_settings
+from hingelab.training.run_folder import resumed_config
 
 
 def add_parser(subparsers, argv: list[str] = ()) -> None:

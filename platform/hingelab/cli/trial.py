@@ -6,18 +6,17 @@ import argparse
 import sys
 from pathlib import Path
 
-from hingelab.robot import stand_in  # noqa: F401  (registers the "sim" robot)
-from hingelab.robot.interface import ROBOTS
-from hingelab.policies.high_level import SHIPPED_HIGH_LEVEL
-from hingelab.robot.controller import CheckpointHighLevel, ScriptedStandInHighLevel
+import pandas as pd
+
 from hingelab.analysis.pick_table import FAILURE_REASONS, pick_rates
 from hingelab.episodes import create_dataset
 from hingelab.errors import ConfigError
-from hingelab.robot.controller import HierarchicalController
+from hingelab.policies.high_level import SHIPPED_HIGH_LEVEL
+from hingelab.robot import stand_in  # noqa: F401  (registers the "sim" robot)
+from hingelab.robot.controller import CheckpointHighLevel, HierarchicalController, ScriptedStandInHighLevel
+from hingelab.robot.interface import ROBOTS
 from hingelab.robot.trial import TrialConfig, run_trials
 from hingelab.seeds import STRIDE, TRIALS_BASE
-import pandas as pd
-
 
 
 def add_parser(subparsers) -> None:

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import signal
 import sys
 from pathlib import Path
 
@@ -10,7 +11,6 @@ from hingelab.cli.options import add_on_corrupt
 from hingelab.errors import ConfigError
 from hingelab.viewers import view
 from hingelab.viewers.web_server import bind_warning
-import signal
 
 
 def add_parser(subparsers) -> None:

@@ -10,8 +10,15 @@ goal-region experts manifest (``goal_experts``), the phase clone (``phase_clone`
 """
 
 from hingelab.policies import baselines, goal_experts, high_level  # noqa: F401  (they register their formats)
-from hingelab.policies.loading import (BASELINES, FORMATS, baseline_names, load_policy, policy_format,
-                                       register_baseline, register_policy_format)
+from hingelab.policies.loading import (
+                                       BASELINES,
+                                       FORMATS,
+                                       baseline_names,
+                                       load_policy,
+                                       policy_format,
+                                       register_baseline,
+                                       register_policy_format,
+)
 from hingelab.policies.policy import EpisodePolicy, ModelPolicy, Policy, as_episode_policy
 
 __all__ = ["Policy", "EpisodePolicy", "ModelPolicy", "as_episode_policy", "load_policy", "policy_format",

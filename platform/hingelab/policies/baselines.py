@@ -26,7 +26,6 @@ from hingelab.policies.phase_clone import phase_index
 from hingelab.sim.finger_synergy import FingerSynergy
 from hingelab.tasks import MAX_SPEED, OBSERVED_OBJECT, Z_SCALE
 
-
 # ------------------------------------------------------------------ high level (ToolPick-v0)
 BASELINES = ("heuristic", "scripted", "scripted-observed", "scripted-feedback", "random")
 

@@ -25,13 +25,13 @@ import zipfile
 from pathlib import Path
 
 import torch as th
-
-from hingelab.errors import ConfigError
 from gymnasium import spaces
 from stable_baselines3 import SAC
+from stable_baselines3.common.save_util import recursive_setattr
 from stable_baselines3.common.type_aliases import TrainFreq, TrainFrequencyUnit
 from stable_baselines3.common.utils import ConstantSchedule, FloatSchedule
-from stable_baselines3.common.save_util import recursive_setattr
+
+from hingelab.errors import ConfigError
 
 ACTIVATIONS = {name: getattr(th.nn, name) for name in ("ReLU", "Tanh", "ELU", "LeakyReLU", "SiLU", "GELU")}
 # settings the loader rebuilds itself, or that only a training run uses; never taken from the file

@@ -37,14 +37,14 @@ from pathlib import Path
 import gymnasium as gym
 import numpy as np
 import pandas as pd
+from tqdm import tqdm
 
 from hingelab.analysis.pick_table import FAILURE_REASONS, pick_rates
-from hingelab.seeds import EVAL_HIGH_BASE, STRIDE, eval_high_seed
 from hingelab.envs import TOOL_PICK_ID
 from hingelab.envs.recording import RecordingWrapper
-from hingelab.sim.mesh_objects import object_label
-from tqdm import tqdm
+from hingelab.seeds import EVAL_HIGH_BASE, STRIDE, eval_high_seed
 from hingelab.sim import scripted
+from hingelab.sim.mesh_objects import object_label
 
 SEED_BASE, SEED_STRIDE = EVAL_HIGH_BASE, STRIDE  # what the evaluations' cards quote
 MISSED_GRASP_DISTANCE_M = 0.02

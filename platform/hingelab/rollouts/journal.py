@@ -10,13 +10,13 @@ from __future__ import annotations
 
 import json
 import os
+import shlex
 from pathlib import Path
 
-from hingelab.errors import ConfigError
-from hingelab.provenance import differing_settings
 from hingelab.episodes.card import load_card
 from hingelab.episodes.dataset import Dataset
-import shlex
+from hingelab.errors import ConfigError
+from hingelab.provenance import differing_settings
 
 JOURNAL_FILE = "episodes.partial.jsonl"
 

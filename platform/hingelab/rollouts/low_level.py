@@ -17,15 +17,15 @@ from pathlib import Path
 import gymnasium as gym
 import numpy as np
 import pandas as pd
+from tqdm import tqdm
 
 from hingelab.analysis.wilson import wilson_interval
+from hingelab.envs.recording import RecordingWrapper
 from hingelab.envs.rewards import LowLevelRewardConfig
 from hingelab.envs.tool_shape import SETTLE_STEPS
-from hingelab.tasks import TOOL_SHAPE_ID as ENV_ID
 from hingelab.rollouts.low_level_goals import REGIONS, region_of
 from hingelab.seeds import sampled_goal_seed
-from tqdm import tqdm
-from hingelab.envs.recording import RecordingWrapper
+from hingelab.tasks import TOOL_SHAPE_ID as ENV_ID
 
 
 def recorded_env_arguments(model) -> dict:

@@ -29,14 +29,15 @@ import time
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 
-from hingelab.workers.ray_runtime import LOCAL, cluster_cpus, describe, ray_session
-from hingelab.sweeps.spec import SweepSpec, Trial
+import numpy as np
+
 from hingelab.errors import ConfigError, HingelabError
 from hingelab.provenance import code_version
-from hingelab.training.run_folder import MetricsLog
-from hingelab.training import checkpoints as ckpt
+from hingelab.sweeps.spec import SweepSpec
 from hingelab.sweeps.trial_task import run_trial
-import numpy as np
+from hingelab.training import checkpoints as ckpt
+from hingelab.training.run_folder import MetricsLog
+from hingelab.workers.ray_runtime import LOCAL, cluster_cpus, describe, ray_session
 
 SWEEP_CSV, SWEEP_JSON, SWEEP_TOML, LOGS_DIR = "sweep.csv", "sweep.json", "sweep.toml", "logs"
 REFRESH_S = 5.0  # how often the live table looks at the run folders

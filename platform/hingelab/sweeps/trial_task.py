@@ -11,6 +11,7 @@ training behind, and ``--resume`` continues it from its last checkpoint.
 
 from __future__ import annotations
 
+import ctypes
 import os
 import shlex
 import signal
@@ -18,7 +19,6 @@ import socket
 import subprocess
 import sys
 import time
-import ctypes
 
 
 def _die_with_parent() -> None:  # pragma: no cover - runs in the child between fork and exec

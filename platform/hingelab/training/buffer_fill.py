@@ -23,10 +23,10 @@ from pathlib import Path
 import numpy as np
 
 from hingelab.envs.rewards import LowLevelRewardConfig
+from hingelab.episodes import schemas as S
 from hingelab.episodes.dataset import Dataset
 from hingelab.episodes.errors import DatasetError
 from hingelab.episodes.transitions import Transitions, concat_transitions, episode_transitions
-from hingelab.episodes import schemas as S
 from hingelab.errors import ConfigError
 
 

@@ -14,15 +14,14 @@ hingelab (``state.pkl``, ``replay_buffer.pkl``) are refused on resume, unread;
 
 from __future__ import annotations
 
+import pickle
 import shutil
 from collections import deque
 from pathlib import Path
 
 from hingelab.errors import ConfigError
+from hingelab.policies.sb3_zip import read_plain_data, set_weights_from_zip
 from hingelab.training import resume_state
-from hingelab.policies.sb3_zip import set_weights_from_zip
-import pickle
-from hingelab.policies.sb3_zip import read_plain_data
 
 CHECKPOINTS_DIR = "checkpoints"
 MODEL_FILE = "model.zip"

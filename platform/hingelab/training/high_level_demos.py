@@ -64,14 +64,14 @@ from stable_baselines3.common.type_aliases import ReplayBufferSamples
 
 from hingelab.envs import TOOL_PICK_ID
 from hingelab.envs.rewards import HighLevelRewardConfig, high_level_terms
-from hingelab.tasks import Z_SCALE, observation_dim
 from hingelab.episodes import schemas as S
 from hingelab.episodes.dataset import Dataset
 from hingelab.episodes.errors import DatasetError
 from hingelab.episodes.transitions import Transitions, concat_transitions, episode_transitions, fill_replay_buffer
 from hingelab.errors import ConfigError
-from hingelab.training import real_demos
 from hingelab.perception.encoder import load_encoder
+from hingelab.tasks import Z_SCALE, observation_dim
+from hingelab.training import real_demos
 from hingelab.training.buffer_fill import _check_shapes, insert_transitions
 
 OBSERVATION_DIM = observation_dim()  # 14

@@ -34,14 +34,16 @@ from __future__ import annotations
 import shutil
 from dataclasses import replace
 from pathlib import Path
+
 import gymnasium as gym
-from hingelab.episodes import create_dataset
+
 from hingelab.envs.recording import RecordingWrapper
+from hingelab.episodes import create_dataset
 from hingelab.policies import load_policy
-from hingelab.rollouts.high_level import DemonstratorLabels, FailureReasonWrapper, evaluate
-from hingelab.sim.mesh_objects import object_label
 from hingelab.rollouts.heuristic_demos import HeuristicRunConfig, generate_heuristic_dataset
+from hingelab.rollouts.high_level import DemonstratorLabels, FailureReasonWrapper, evaluate
 from hingelab.seeds import prior_block
+from hingelab.sim.mesh_objects import object_label
 
 PRIOR_SOURCES = ("scripted", "scripted-feedback", "heuristic")
 PRIOR_OBJECTS = ("run", "all")

@@ -56,13 +56,13 @@ from scipy.spatial.transform import Rotation
 
 from hingelab.envs.rewards import HighLevelRewardConfig, high_level_terms
 from hingelab.envs.tool_pick import ALPHA, TARGET_HEIGHT
-from hingelab.tasks import MAX_SPEED, Z_SCALE
 from hingelab.episodes import schemas as S
 from hingelab.episodes.errors import DatasetError
 from hingelab.episodes.transitions import Transitions
+from hingelab.perception.clouds import ToolGeometry
 from hingelab.ros2.topics import ARM_JOINT_NAMES
 from hingelab.sim.arm_kinematics import default_kinematics
-from hingelab.perception.clouds import ToolGeometry
+from hingelab.tasks import MAX_SPEED, Z_SCALE
 
 SOURCE = "real"
 TOPICS = [S.TOPIC_STEP, S.TOPIC_TOOL_POSE, S.TOPIC_LATENT, S.TOPIC_OBJECT]

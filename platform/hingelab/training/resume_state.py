@@ -25,9 +25,9 @@ from pathlib import Path
 
 import numpy as np
 import torch
+from stable_baselines3.common.buffers import BaseBuffer
 
 from hingelab.errors import ConfigError
-from stable_baselines3.common.buffers import BaseBuffer
 
 COUNTERS = ("pos", "full")  # the buffer's scalars that change as it fills; the others are settings
 META_KEY = "__meta__"  # the buffer's counters and object arrays, as JSON bytes inside the npz

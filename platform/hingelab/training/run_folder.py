@@ -19,15 +19,14 @@ from __future__ import annotations
 import csv
 import json
 import time
-from dataclasses import replace
+from dataclasses import fields, replace
 from pathlib import Path
 
-from hingelab.errors import ConfigError
-from hingelab.provenance import code_version
-from dataclasses import fields
-from hingelab.training.run_config import flag_of
 from hingelab.analysis.learning_curves import old_metrics_renames
 from hingelab.episodes import create_dataset
+from hingelab.errors import ConfigError
+from hingelab.provenance import code_version
+from hingelab.training.run_config import flag_of
 
 CONFIG_FILE = "config.json"
 RUN_FILE = "run.json"

@@ -18,8 +18,9 @@ from __future__ import annotations
 import uuid
 from typing import Callable, Iterable
 
-from hingelab.workers.ray_runtime import describe, ray_session
 from tqdm import tqdm
+
+from hingelab.workers.ray_runtime import describe, ray_session
 
 # per Ray worker process: the runner of the run it served last
 _RUNNERS: dict[str, object] = {}

@@ -41,6 +41,7 @@ import signal
 import subprocess
 import sys
 import time
+
 import psutil
 
 RELEASED = "released"

@@ -34,9 +34,9 @@ import torch.nn.functional as F
 from stable_baselines3 import SAC
 from stable_baselines3.common.buffers import DictReplayBuffer, ReplayBuffer
 from stable_baselines3.common.type_aliases import DictReplayBufferSamples, ReplayBufferSamples
+from stable_baselines3.common.utils import polyak_update
 
 from hingelab.training.torch_process import configure_torch  # noqa: F401  (re-exported: the bench applies it)
-from stable_baselines3.common.utils import polyak_update
 
 #: Every speed-up ``FastSAC`` applies by default; pass a subset as ``speedups=`` to ablate.
 ALL_SPEEDUPS = frozenset(

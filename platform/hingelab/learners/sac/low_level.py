@@ -21,19 +21,20 @@ import math
 import time
 from pathlib import Path
 
-from hingelab.errors import ConfigError
-from hingelab.learners.sac.low_level_config import LowLevelTrainConfig
-from hingelab.rollouts.low_level_goals import evaluation_goals
-from hingelab.rollouts.low_level import evaluate, make_eval_env, summarize
-from hingelab.learners.sac.run import SACRun, algorithm_class, sac_arguments
-from stable_baselines3 import HerReplayBuffer
 import torch
-from hingelab.perception.encoder import shipped_encoder_fingerprint
-from hingelab.envs.low_level import PolicyLowLevel
-from hingelab.training.buffer_fill import fill_from_transitions, read_transitions
-from hingelab.learners.sac.demo_sac import Demonstrations
+from stable_baselines3 import HerReplayBuffer
 from stable_baselines3.common.logger import configure
 from tqdm import tqdm
+
+from hingelab.envs.low_level import PolicyLowLevel
+from hingelab.errors import ConfigError
+from hingelab.learners.sac.demo_sac import Demonstrations
+from hingelab.learners.sac.low_level_config import LowLevelTrainConfig
+from hingelab.learners.sac.run import SACRun, algorithm_class, sac_arguments
+from hingelab.perception.encoder import shipped_encoder_fingerprint
+from hingelab.rollouts.low_level import evaluate, make_eval_env, summarize
+from hingelab.rollouts.low_level_goals import evaluation_goals
+from hingelab.training.buffer_fill import fill_from_transitions, read_transitions
 
 
 def build_model(config: LowLevelTrainConfig, env):

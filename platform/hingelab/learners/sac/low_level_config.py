@@ -12,10 +12,10 @@ import argparse
 from dataclasses import dataclass
 
 from hingelab.errors import ConfigError
-from hingelab.training.run_config import option
 from hingelab.learners.sac.config import SACTrainConfig
-
 from hingelab.tasks import TOOL_SHAPE_ID as ENV_ID
+from hingelab.training.run_config import option
+
 GOAL_SAMPLINGS = ("reachable", "reachable_open", "reachable_closed", "normal")
 
 

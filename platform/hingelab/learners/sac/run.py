@@ -16,19 +16,20 @@ from __future__ import annotations
 
 from pathlib import Path
 
+import torch
+from stable_baselines3 import SAC
+
+from hingelab.episodes.dataset import corrupt_policy
 from hingelab.errors import ConfigError
+from hingelab.learners.sac.callbacks import CHECKPOINT_PATIENCE_EPISODES, RunClock, run_callbacks
+from hingelab.learners.sac.demo_sac import DemoSAC
+from hingelab.learners.sac.fast_sac import FastSAC
+from hingelab.provenance import code_version
 from hingelab.training import checkpoints as ckpt
 from hingelab.training import resume_state
-from hingelab.learners.sac.callbacks import CHECKPOINT_PATIENCE_EPISODES, RunClock, run_callbacks
-from hingelab.training.run_folder import RunFolder
 from hingelab.training.envs import episode_counts, make_training_vec_env, set_episode_counts
+from hingelab.training.run_folder import RunFolder
 from hingelab.training.torch_process import configure_torch
-from hingelab.provenance import code_version
-from stable_baselines3 import SAC
-from hingelab.learners.sac.fast_sac import FastSAC
-from hingelab.learners.sac.demo_sac import DemoSAC
-import torch
-from hingelab.episodes.dataset import corrupt_policy
 
 PROVENANCE_ATTRIBUTE = "hingelab_provenance"  # saved inside every model.zip
 
