@@ -22,8 +22,8 @@ import numpy as np
 import pandas as pd
 
 from hingelab.episodes import EpisodeFile
-from hingelab.episodes.schemas import verdict_description
 from hingelab.episodes.dataset import Dataset, open_dataset
+from hingelab.episodes.schemas import verdict_description
 from hingelab.errors import HingelabError
 
 OBJECT_SIZE_KEY = "object_size"  # metres, written by sources that vary the object size

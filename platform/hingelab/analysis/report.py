@@ -33,10 +33,21 @@ import pandas as pd
 from hingelab.analysis import plots
 from hingelab.analysis.documents import Section, write_documents
 from hingelab.analysis.episode_table import load_episode_table
-from hingelab.analysis.learning_curves import (METRICS_FILE, REACH_LEVEL, expand_sweeps, final_success,
-                                               load_learning_curves, load_seed_curves, seed_summary)
+from hingelab.analysis.learning_curves import (
+    METRICS_FILE,
+    REACH_LEVEL,
+    expand_sweeps,
+    final_success,
+    load_learning_curves,
+    load_seed_curves,
+    seed_summary,
+)
 from hingelab.analysis.success_tables import (
-    attempt_rates, failure_reasons, length_return_stats, overall_success, success_rates,
+    attempt_rates,
+    failure_reasons,
+    length_return_stats,
+    overall_success,
+    success_rates,
 )
 from hingelab.provenance import code_version
 

@@ -16,8 +16,15 @@ import pandas as pd
 
 from hingelab.analysis import plots
 from hingelab.analysis.documents import Section, write_documents
-from hingelab.analysis.learning_curves import (METRICS_FILE, REACH_LEVEL, expand_sweeps, final_success,
-                                               load_learning_curves, load_seed_curves, seed_summary)
+from hingelab.analysis.learning_curves import (
+    METRICS_FILE,
+    REACH_LEVEL,
+    expand_sweeps,
+    final_success,
+    load_learning_curves,
+    load_seed_curves,
+    seed_summary,
+)
 from hingelab.analysis.report import FINAL_SUCCESS_SECTION, Report
 from hingelab.provenance import code_version
 

@@ -26,8 +26,6 @@ import tempfile
 import time
 from pathlib import Path
 
-import numpy as np
-
 from hingelab.bench.table import BenchTable
 from hingelab.envs.low_level import PolicyLowLevel
 from hingelab.episodes import create_dataset

@@ -94,8 +94,14 @@ import numpy as np
 from gymnasium import spaces
 
 from hingelab.envs.rendering import SimRenderMixin
-from hingelab.envs.rewards import (LowLevelRewardConfig, drift_term, effort_from_info, effort_quantities,
-                                   effort_terms, goal_reward)
+from hingelab.envs.rewards import (
+    LowLevelRewardConfig,
+    drift_term,
+    effort_from_info,
+    effort_quantities,
+    effort_terms,
+    goal_reward,
+)
 from hingelab.errors import ConfigError
 from hingelab.perception.calibration import latent_distance_for_gap
 from hingelab.perception.clouds import ToolGeometry

@@ -12,9 +12,6 @@ the full descriptor set of each schema it uses, so standard tools decode it.
 
 from __future__ import annotations
 
-from google.protobuf import descriptor_pb2, descriptor_pool, timestamp_pb2
-from google.protobuf.message_factory import GetMessageClass
-
 from foxglove_schemas_protobuf.CameraCalibration_pb2 import CameraCalibration
 from foxglove_schemas_protobuf.FrameTransform_pb2 import FrameTransform
 from foxglove_schemas_protobuf.JointStates_pb2 import JointStates
@@ -23,6 +20,8 @@ from foxglove_schemas_protobuf.Point3InFrame_pb2 import Point3InFrame
 from foxglove_schemas_protobuf.PointCloud_pb2 import PointCloud
 from foxglove_schemas_protobuf.PoseInFrame_pb2 import PoseInFrame
 from foxglove_schemas_protobuf.RawImage_pb2 import RawImage
+from google.protobuf import descriptor_pb2, descriptor_pool, timestamp_pb2
+from google.protobuf.message_factory import GetMessageClass
 
 # Version of topics, schemas and metadata keys. Bump on any incompatible change
 # and keep the reader able to read every older version.

@@ -9,7 +9,6 @@ from __future__ import annotations
 
 import numpy as np
 
-from hingelab.episodes import schemas as S
 from hingelab.episodes.writer import EpisodeWriter
 
 CONTROL_DT_S = 0.05  # 20 Hz

@@ -37,8 +37,16 @@ import numpy as np
 from hingelab.errors import ConfigError
 from hingelab.perception import tool_state_kernels
 from hingelab.perception.encoder import ToolEncoder, load_encoder
-from hingelab.perception.registration import (CanonicalRegistration, Registration, RegistrationConfig, TrackingConfig,
-                                              check_clouds, matrix_to_rotvec, rotvec_to_matrix, tracking_settings)
+from hingelab.perception.registration import (
+    CanonicalRegistration,
+    Registration,
+    RegistrationConfig,
+    TrackingConfig,
+    check_clouds,
+    matrix_to_rotvec,
+    rotvec_to_matrix,
+    tracking_settings,
+)
 
 ALPHA = 0.9  # the paper's smoothing
 CONTROL_DT_S = 0.05  # 20 Hz

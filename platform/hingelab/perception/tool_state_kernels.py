@@ -17,8 +17,13 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-from hingelab.perception.pose_kernels import (ORTHONORMALITY_TOLERANCE, euler_angles_xyz, matrices_to_rotvecs,
-                                              pose_check, rotvecs_to_matrices)
+from hingelab.perception.pose_kernels import (
+    ORTHONORMALITY_TOLERANCE,
+    euler_angles_xyz,
+    matrices_to_rotvecs,
+    pose_check,
+    rotvecs_to_matrices,
+)
 from hingelab.perception.registration_kernels import track_one
 
 

@@ -25,8 +25,16 @@ from hingelab.episodes import load_card
 from hingelab.errors import ConfigError
 from hingelab.perception.calibration import OpeningCalibration
 from hingelab.perception.clouds import ToolGeometry, _even_subset
-from hingelab.perception.encoder import (EncoderConfig, PointNetVAE, ToolEncoder, chamfer, load_encoder,
-                                         rewrite_calibration, save_checkpoint, vae_loss)
+from hingelab.perception.encoder import (
+    EncoderConfig,
+    PointNetVAE,
+    ToolEncoder,
+    chamfer,
+    load_encoder,
+    rewrite_calibration,
+    save_checkpoint,
+    vae_loss,
+)
 from hingelab.perception.registration import CanonicalRegistration, RegistrationConfig
 from hingelab.perception.synthetic_dataset import load_cloud_dataset, nominal_tool_pose
 from hingelab.provenance import code_version

@@ -25,7 +25,6 @@ from __future__ import annotations
 
 from dataclasses import asdict, dataclass
 
-import numpy as np
 import pandas as pd
 from scipy.spatial.transform import Rotation
 from tqdm import tqdm

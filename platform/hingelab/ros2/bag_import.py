@@ -31,7 +31,6 @@ import numpy as np
 from tqdm.auto import tqdm
 
 from hingelab.camera import CameraFrame
-from hingelab.episodes import schemas as S
 from hingelab.episodes.card import create_dataset
 from hingelab.episodes.errors import DatasetError
 from hingelab.episodes.writer import EpisodeWriter

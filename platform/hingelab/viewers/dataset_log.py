@@ -30,10 +30,21 @@ from tqdm import tqdm
 from hingelab.episodes.dataset import Dataset
 from hingelab.viewers import entities as E
 from hingelab.viewers.episode_series import (
-    POINTS2D, POINTS3D, Series, episode_facts_markdown, episode_series, latent_trajectory, tip_midpoints,
+    POINTS2D,
+    POINTS3D,
+    Series,
+    episode_facts_markdown,
+    episode_series,
+    latent_trajectory,
+    tip_midpoints,
 )
 from hingelab.viewers.rerun_send import (
-    COLORS, LINE_RADIUS_UI, dataset_indexes, send_scene_statics, send_series, send_static_style,
+    COLORS,
+    LINE_RADIUS_UI,
+    dataset_indexes,
+    send_scene_statics,
+    send_series,
+    send_static_style,
 )
 
 SUCCESS_COLOR = (40, 180, 90)

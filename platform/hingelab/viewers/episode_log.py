@@ -15,10 +15,19 @@ from hingelab.episodes import Episode
 from hingelab.viewers import entities as E
 from hingelab.viewers.camera_log import log_camera
 from hingelab.viewers.episode_series import (
-    Series, episode_facts_markdown, episode_series, latent_trajectory, tip_midpoints,
+    Series,
+    episode_facts_markdown,
+    episode_series,
+    latent_trajectory,
+    tip_midpoints,
 )
 from hingelab.viewers.rerun_send import (
-    COLORS, LINE_RADIUS_UI, episode_indexes, send_scene_statics, send_series, send_static_style,
+    COLORS,
+    LINE_RADIUS_UI,
+    episode_indexes,
+    send_scene_statics,
+    send_series,
+    send_static_style,
 )
 
 
