@@ -1,4 +1,5 @@
-"""``hingelab trial``: robot trials of the hierarchical policy, as a lab runs them on its rig."""
+"""``hingelab trial``: robot trials of the hierarchical policy, as a lab runs them on its rig
+(``hingelab.robot.trial.run_trial_session`` does the work; this module parses and prints)."""
 
 from __future__ import annotations
 
@@ -6,16 +7,8 @@ import argparse
 import sys
 from pathlib import Path
 
-import pandas as pd
-
-from hingelab.analysis.pick_table import FAILURE_REASONS, pick_rates
-from hingelab.episodes import create_dataset
-from hingelab.errors import ConfigError
-from hingelab.policies.high_level import SHIPPED_HIGH_LEVEL
-from hingelab.robot import stand_in  # noqa: F401  (registers the "sim" robot)
-from hingelab.robot.controller import CheckpointHighLevel, HierarchicalController, ScriptedStandInHighLevel
 from hingelab.robot.interface import ROBOTS
-from hingelab.robot.trial import TrialConfig, run_trials
+from hingelab.robot.trial import TrialConfig, run_trial_session
 from hingelab.seeds import STRIDE, TRIALS_BASE
 
 
@@ -57,58 +50,10 @@ def add_parser(subparsers) -> None:
     p.set_defaults(func=run)
 
 
-def _high_level(args, robot):
-
-    path = args.policy or SHIPPED_HIGH_LEVEL
-    if args.policy is None and not SHIPPED_HIGH_LEVEL.exists():
-        print(f"hingelab trial: warning: no shipped high-level policy ({SHIPPED_HIGH_LEVEL}); the stand-in runs "
-              "the scripted high level (the heuristic's motion over the low-level policy) instead", file=sys.stderr)
-        return ScriptedStandInHighLevel(robot, args.low_level)
-    return CheckpointHighLevel(path, args.low_level)
-
-
 def run(args: argparse.Namespace) -> int:
-
     config = TrialConfig(object=args.object, size=args.size, trials=args.trials, seed=args.seed,
                          max_steps=args.max_steps, depth_every=args.depth_every, operator=args.operator)
-    if args.out.exists() and any(args.out.iterdir()):
-        raise ConfigError(f"{args.out} exists and is not empty; give a new folder to --out")
-    robot = ROBOTS[args.robot](args.object, args.size, args.max_steps)  # a bad object: an error before files
-    try:
-        high = _high_level(args, robot)
-        controller = HierarchicalController(high)
-        card = {"robot": args.robot, "policy": high.label, "low_level": high.low_level, "object": args.object,
-                "size": args.size, "trials": args.trials, "max_steps": args.max_steps, "operator": args.operator,
-                "depth_every": args.depth_every, "seeds": f"{TRIALS_BASE} + seed * {STRIDE} + trial"}
-        create_dataset(args.out, name=f"trial-{args.object}-{args.size * 100:g}cm", source=robot.source,
-                       config=card, seed=args.seed,
-                       description=f"hingelab trial on the {args.robot} robot: {high.label} over {high.low_level}, "
-                                   f"{args.object} {args.size * 100:g} cm")
-        try:
-            rows = run_trials(robot, controller, args.out, config, progress=not args.no_progress,
-                              extra_metadata={"policy": high.label, "low_level": high.low_level})
-        except KeyboardInterrupt:
-            partial = sorted((args.out / "episodes").glob("*.partial"))
-            where = f" ({partial[-1]})" if partial else ""
-            print(f"hingelab trial: interrupted; the trial under way is kept as a .partial file{where}: salvage it "
-                  f"with `hingelab datasets recover FILE --out NEWFILE`; the finished trials are in {args.out}",
-                  file=sys.stderr)
-            raise
-    finally:
-        robot.close()
-    rows.to_csv(args.out / "trials.csv", index=False)
-    row = {"object": args.object, "size_cm": 100 * args.size, "trials": len(rows), **pick_rates(rows)}
-
-    pd.DataFrame([row]).to_csv(args.out / "table.csv", index=False)
-    failures = ", ".join(f"{r} {row[f'failures_{r}']}" for r in FAILURE_REASONS if row[f"failures_{r}"])
-    other = rows.loc[~rows["success"] & ~rows["failure_reason"].isin(FAILURE_REASONS), "failure_reason"]
-    if len(other):
-        failures = ", ".join(filter(None, [failures, *(f"{k} {v}" for k, v in other.value_counts().items())]))
-    judged = "the operator" if args.operator else "the simulation (object within 1 cm of the target)"
-    print(f"{len(rows)} trials of {high.label} over {high.low_level} on the {args.robot} robot, {args.object} "
-          f"{args.size * 100:g} cm, judged by {judged}: first attempt {int(row['first_attempt_successes'])}/"
-          f"{len(rows)} = {row['first_attempt_success_rate']:.2f} [{row['first_attempt_ci_low']:.2f}, "
-          f"{row['first_attempt_ci_high']:.2f}], with further attempts {int(row['successes'])}/{len(rows)} = "
-          f"{row['success_rate']:.2f} [{row['ci_low']:.2f}, {row['ci_high']:.2f}]; failures: {failures or 'none'}. "
-          f"Dataset, trials.csv, table.csv in {args.out}.")
+    session = run_trial_session(args.robot, config, args.out, policy=args.policy, low_level=args.low_level,
+                                progress=not args.no_progress, warn=lambda text: print(text, file=sys.stderr))
+    print(session.summary)
     return 0

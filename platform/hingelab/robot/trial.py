@@ -24,18 +24,22 @@ crash): ``hingelab datasets recover`` salvages it.
 from __future__ import annotations
 
 from dataclasses import asdict, dataclass
+from pathlib import Path
 
 import pandas as pd
 from scipy.spatial.transform import Rotation
 from tqdm import tqdm
 
+from hingelab.analysis.pick_table import FAILURE_REASONS, pick_rates
 from hingelab.envs.recording import privileged_fields
-from hingelab.episodes import EpisodeWriter
+from hingelab.episodes import EpisodeWriter, create_dataset
 from hingelab.episodes import schemas as S
 from hingelab.errors import ConfigError
-from hingelab.robot.controller import HierarchicalController, Step
-from hingelab.robot.interface import Robot, RobotReadings
-from hingelab.seeds import trial_seed
+from hingelab.policies.high_level import SHIPPED_HIGH_LEVEL
+from hingelab.robot import stand_in  # noqa: F401  (registers the "sim" robot)
+from hingelab.robot.controller import CheckpointHighLevel, HierarchicalController, ScriptedStandInHighLevel, Step
+from hingelab.robot.interface import ROBOTS, Robot, RobotReadings
+from hingelab.seeds import STRIDE, TRIALS_BASE, trial_seed
 from hingelab.sim import names
 from hingelab.sim.mesh_objects import object_label
 
@@ -169,3 +173,74 @@ def run_trials(robot: Robot, controller: HierarchicalController, dataset_dir, co
         rows.append({"trial": index, **row})
         bar.set_postfix(success=f"{sum(r['success'] for r in rows) / len(rows):.2f}")
     return pd.DataFrame(rows)
+
+
+@dataclass
+class TrialSession:
+    out: Path
+    label: str  # the high-level policy
+    low_level: str
+    rows: pd.DataFrame  # one row per trial (trials.csv)
+    table: pd.DataFrame  # the pick table's rates with Wilson intervals (table.csv)
+    summary: str
+
+
+def high_level_for(robot: Robot, policy=None, low_level: str | None = None, warn=print):
+    """The high level a trial runs: ``policy`` (a checkpoint), else the shipped one, else (on the stand-in,
+    without a shipped policy) the scripted high level, said through ``warn``."""
+    if policy is None and not SHIPPED_HIGH_LEVEL.exists():
+        warn(f"hingelab trial: warning: no shipped high-level policy ({SHIPPED_HIGH_LEVEL}); the stand-in runs the "
+             "scripted high level (the heuristic's motion over the low-level policy) instead")
+        return ScriptedStandInHighLevel(robot, low_level)
+    return CheckpointHighLevel(policy or SHIPPED_HIGH_LEVEL, low_level)
+
+
+def run_trial_session(robot_name: str, config: TrialConfig, out, policy=None, low_level: str | None = None,
+                      progress: bool = True, read=input, write=print, warn=print) -> TrialSession:
+    """``hingelab trial``: ``config.trials`` trials on the robot registered as ``robot_name`` into the new
+    dataset ``out``, then ``trials.csv`` and ``table.csv``. A Ctrl-C keeps the trial under way as a
+    ``.partial`` file (said through ``warn``) and the finished trials in ``out``."""
+    out = Path(out)
+    if robot_name not in ROBOTS:
+        raise ConfigError(f"no robot {robot_name!r}; the robots: {', '.join(ROBOTS)}")
+    if out.exists() and any(out.iterdir()):
+        raise ConfigError(f"{out} exists and is not empty; give a new folder to --out")
+    robot = ROBOTS[robot_name](config.object, config.size, config.max_steps)  # a bad object: an error before files
+    try:
+        high = high_level_for(robot, policy, low_level, warn=warn)
+        card = {"robot": robot_name, "policy": high.label, "low_level": high.low_level, "object": config.object,
+                "size": config.size, "trials": config.trials, "max_steps": config.max_steps,
+                "operator": config.operator, "depth_every": config.depth_every,
+                "seeds": f"{TRIALS_BASE} + seed * {STRIDE} + trial"}
+        create_dataset(out, name=f"trial-{config.object}-{config.size * 100:g}cm", source=robot.source,
+                       config=card, seed=config.seed,
+                       description=f"hingelab trial on the {robot_name} robot: {high.label} over {high.low_level}, "
+                                   f"{config.object} {config.size * 100:g} cm")
+        try:
+            rows = run_trials(robot, HierarchicalController(high), out, config, read=read, write=write,
+                              progress=progress, extra_metadata={"policy": high.label, "low_level": high.low_level})
+        except KeyboardInterrupt:
+            partial = sorted((out / "episodes").glob("*.partial"))
+            where = f" ({partial[-1]})" if partial else ""
+            warn(f"hingelab trial: interrupted; the trial under way is kept as a .partial file{where}: salvage it "
+                 f"with `hingelab datasets recover FILE --out NEWFILE`; the finished trials are in {out}")
+            raise
+    finally:
+        robot.close()
+    rows.to_csv(out / "trials.csv", index=False)
+    row = {"object": config.object, "size_cm": 100 * config.size, "trials": len(rows), **pick_rates(rows)}
+    table = pd.DataFrame([row])
+    table.to_csv(out / "table.csv", index=False)
+    failures = ", ".join(f"{r} {row[f'failures_{r}']}" for r in FAILURE_REASONS if row[f"failures_{r}"])
+    other = rows.loc[~rows["success"] & ~rows["failure_reason"].isin(FAILURE_REASONS), "failure_reason"]
+    if len(other):
+        failures = ", ".join(filter(None, [failures, *(f"{k} {v}" for k, v in other.value_counts().items())]))
+    judged = "the operator" if config.operator else "the simulation (object within 1 cm of the target)"
+    summary = (f"{len(rows)} trials of {high.label} over {high.low_level} on the {robot_name} robot, {config.object} "
+               f"{config.size * 100:g} cm, judged by {judged}: first attempt {int(row['first_attempt_successes'])}/"
+               f"{len(rows)} = {row['first_attempt_success_rate']:.2f} [{row['first_attempt_ci_low']:.2f}, "
+               f"{row['first_attempt_ci_high']:.2f}], with further attempts {int(row['successes'])}/{len(rows)} = "
+               f"{row['success_rate']:.2f} [{row['ci_low']:.2f}, {row['ci_high']:.2f}]; failures: "
+               f"{failures or 'none'}. Dataset, trials.csv, table.csv in {out}.")
+    return TrialSession(out, high.label, high.low_level, rows, table, summary)
+
