@@ -203,4 +203,7 @@ def load_learning_curves(run_dirs) -> pd.DataFrame:
     return learning_curves(pd.concat([load_run_metrics(d) for d in run_dirs], ignore_index=True))
 
 
-__all__ = ["expand_sweeps", "final_success", "SWEEP_CSV", "REACH_LEVEL", "seed_summary", "SEED_CURVE_METRICS", "load_seed_curves", "OPTIONAL_CURVE_METRICS", "OLD_TRAIN_LOW_COLUMNS", "old_metrics_renames", "upgrade_metrics", "load_run_metrics", "learning_curves", "load_learning_curves", "METRICS_FILE", "REQUIRED_COLUMNS"]
+__all__ = ["expand_sweeps", "final_success", "SWEEP_CSV", "REACH_LEVEL", "seed_summary", "SEED_CURVE_METRICS",
+           "load_seed_curves", "OPTIONAL_CURVE_METRICS", "OLD_TRAIN_LOW_COLUMNS", "old_metrics_renames",
+           "upgrade_metrics", "load_run_metrics", "learning_curves", "load_learning_curves", "METRICS_FILE",
+           "REQUIRED_COLUMNS"]

@@ -108,9 +108,9 @@ def write_picks(folders, out, command: str) -> pd.DataFrame:
                       *[f"failures_{r}" for r in FAILURE_REASONS]]]
     version = code_version()
     (out / "picks.md").write_text(
-        "# Pick table\n\nPer policy (and the low level under it, and where its tool clouds came from), shape and size: success at the first attempt "
-        "and within the 200 steps (object within 1 cm of the target), Wilson 95% intervals; `all` pools the "
-        "policy's sets.\n\n" + markdown_table(shown.round(3)) + "\n\n## Failure reasons\n\n"
+        "# Pick table\n\nPer policy (and the low level under it, and where its tool clouds came from), shape and size: "
+        "success at the first attempt and within the 200 steps (object within 1 cm of the target), Wilson 95% "
+        "intervals; `all` pools the policy's sets.\n\n" + markdown_table(shown.round(3)) + "\n\n## Failure reasons\n\n"
         + markdown_table(failures) + f"\n\nMade by: `{command}` (hingelab {version['hingelab_version']}, "
         f"commit {version['git_commit']}).\n")
     return table

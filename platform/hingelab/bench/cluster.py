@@ -155,9 +155,9 @@ def run(quick: bool = False) -> BenchTable:
                          f"MB/s at {WORKERS} workers": mb * ray_rate})
             ratios[f"{name.split(' (')[0]}: Ray tasks / local worker processes"] = ray_rate / pool_rate
         notes += [
-            f"{WORKERS} workers in both arms: a local one-node Ray of {WORKERS} CPUs (one task per episode, 1 CPU each; "
-            f"hingelab.workers.ray_fan_out) against a multiprocessing spawn pool of {WORKERS} processes, the same episode "
-            "runner (env and policy built once per worker) writing MCAP into a fresh dataset folder.",
+            f"{WORKERS} workers in both arms: a local one-node Ray of {WORKERS} CPUs (one task per episode, 1 CPU "
+            f"each; hingelab.workers.ray_fan_out) against a multiprocessing spawn pool of {WORKERS} processes, the "
+            "same episode runner (env and policy built once per worker) writing MCAP into a fresh dataset folder.",
             f"Rates are steady: episodes per second after the first {WORKERS} results (the workers' start-up) to the "
             f"last, the best of {rounds} interleaved rounds per arm (pool, then Ray, per workload and round); 'first "
             "episode' is the start-up as a user waits for it (the pool's from new processes; Ray's without ray.init, "

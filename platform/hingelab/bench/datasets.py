@@ -349,7 +349,8 @@ def run(quick: bool = False) -> BenchTable:
     trusted = next(r for r in variants if r["format"].startswith("(hingelab MCAP, trusted read"))
     for column in ("read steps/s (clouds + transitions)", "read steps/s (transitions)"):
         ratios[f"{column}: ours (validating) / trusted read (validate=False)"] = row_ratio(ours, trusted, column)
-    ratios[f"{BAG_COLUMN}: import into episodes / bare rosbags read"] = bag_rows[0][BAG_COLUMN] / bag_rows[1][BAG_COLUMN]
+    ratios[f"{BAG_COLUMN}: import into episodes / bare rosbags read"] = (
+        bag_rows[0][BAG_COLUMN] / bag_rows[1][BAG_COLUMN])
     ratios[f"{BAG_COLUMN}, real-size clouds: import into episodes / bare rosbags read"] = (
         big_rows[0][BAG_COLUMN] / big_rows[1][BAG_COLUMN])
     rows = [ours, *baselines, hingelab_generic, *variants, *bag_rows, *big_rows]
@@ -372,8 +373,8 @@ def run(quick: bool = False) -> BenchTable:
             "digests, the clouds' positions from the chunks' own records) unless read_episode(validate=False): "
             "the trusted-read row is that opt-out on the default files",
             "the rows in parentheses are not baselines: hingelab's generic path (one protobuf decode per "
-            "message), the trusted read, the default files read with one thread, and the writer's other storage options "
-            "(EpisodeWriter(cloud_compression=..., compression=...), chosen per chunk); zstd on the "
+            "message), the trusted read, the default files read with one thread, and the writer's other storage "
+            "options (EpisodeWriter(cloud_compression=..., compression=...), chosen per chunk); zstd on the "
             "cloud chunks is what keeps files at or under the baselines' size (noisy float32 clouds "
             "shrink ~10%, and the per-step messages plus the columns cost ~400 B/step that the "
             "baselines do not store); its decoding is most of the cloud read time, spread over the "
@@ -392,8 +393,8 @@ def run(quick: bool = False) -> BenchTable:
             f"{big['camera_hz']:g} Hz, the other topics as above ({big['bag_bytes'] / 1e6:.0f} MB, {big['messages']:,} "
             f"messages): {big['steps']} steps ({big['import_steps_per_s']:,.0f} steps/s), the camera frames "
             f"{100 * big['camera_share']:.0f}% of the import's time "
-            f"({1000 * big['camera_s'] / max(1, big['camera_frames']):.0f} ms a frame over {big['camera_frames']} frames: "
-            "the cloud's bytes viewed as float32, the points outside the crop box's sphere dropped in the "
+            f"({1000 * big['camera_s'] / max(1, big['camera_frames']):.0f} ms a frame over {big['camera_frames']} "
+            "frames: the cloud's bytes viewed as float32, the points outside the crop box's sphere dropped in the "
             "camera frame before the transform, then the pipeline on the few thousand left)",
             "bytes per step of the default files: " + "; ".join(
                 f"{key} {value:,.1f}" for key, value in breakdown.items()),

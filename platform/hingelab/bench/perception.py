@@ -145,8 +145,8 @@ def bench_registration(n: int, rows: list, notes: list) -> dict:
         notes.append(f"{name}, rotation median (deg) by opening third (low to high): " + ", ".join(
             f"{np.median(rot_err[i]):.2f}" for i in thirds) + "; translation median (mm): " + ", ".join(
             f"{np.median(pos_err[i]):.2f}" for i in thirds))
-    notes.append(f"ours also estimates the opening: mean |error| {np.rad2deg(np.abs(ours.hinge_angle - theta).mean()):.2f} "
-                 f"deg over {n} clouds")
+    notes.append("ours also estimates the opening: mean |error| "
+                 f"{np.rad2deg(np.abs(ours.hinge_angle - theta).mean()):.2f} deg over {n} clouds")
     gross = lambda e: int((e[0] > 45).sum())  # noqa: E731
     notes.append(f"gross failures (rotation error > 45 deg): ours {gross(err_ours)}, ours without prior "
                  f"{gross(err_global)}, Open3D {gross(err_o3d)} of {n}")
@@ -327,8 +327,8 @@ def bench_camera(frames: int, rows: list, notes: list) -> dict:
                  "ms per update": 1000 / out["frames_per_s"]})
     for perception in ("synthesized", "camera"):
         out[f"env_{perception}"] = _env_steps_per_second(perception, frames)
-        rows.append({"method": f"ToolShape-v0 env steps, {perception} perception", "updates/s": out[f"env_{perception}"],
-                     "ms per update": 1000 / out[f"env_{perception}"]})
+        rows.append({"method": f"ToolShape-v0 env steps, {perception} perception",
+                     "updates/s": out[f"env_{perception}"], "ms per update": 1000 / out[f"env_{perception}"]})
     # the filters on the same points, ours and Open3D's
     config = ToolCloudConfig()
     clouds = _camera_points(frames)
@@ -352,15 +352,17 @@ def bench_camera(frames: int, rows: list, notes: list) -> dict:
     gaps = np.concatenate(gaps)
     points_in = sum(len(p) for p in clouds)
     out.update(ours_ms=1000 * ours_s / len(clouds), o3d_ms=1000 * o3d_s / len(clouds))
-    rows.append({"method": "camera pipeline filters, ours (scipy cKDTree, numpy voxels)", "ms per cloud": out["ours_ms"]})
+    rows.append({"method": "camera pipeline filters, ours (scipy cKDTree, numpy voxels)",
+                 "ms per cloud": out["ours_ms"]})
     rows.append({"method": "camera pipeline filters, Open3D (remove_statistical_outlier, voxel_down_sample)",
                  "ms per cloud": out["o3d_ms"]})
     out["kept_ratio"] = kept_ours / kept_o3d
     out["voxel_ratio"] = voxels_ours / voxels_o3d
-    notes.append(f"camera pipeline filters on {len(clouds)} rendered frames' tool points ({points_in / len(clouds):.0f} "
-                 f"per frame): outlier removal kept {kept_ours} (ours) and {kept_o3d} (Open3D) points, the 2 mm grid "
-                 f"made {voxels_ours} and {voxels_o3d} voxels; each of our voxel centroids lies "
-                 f"{1000 * np.median(gaps):.3f} mm (median) and {1000 * gaps.max():.3f} mm (max) from Open3D's nearest")
+    notes.append(f"camera pipeline filters on {len(clouds)} rendered frames' tool points "
+                 f"({points_in / len(clouds):.0f} per frame): outlier removal kept {kept_ours} (ours) and {kept_o3d} "
+                 f"(Open3D) points, the 2 mm grid made {voxels_ours} and {voxels_o3d} voxels; each of our voxel "
+                 f"centroids lies {1000 * np.median(gaps):.3f} mm (median) and {1000 * gaps.max():.3f} mm (max) from "
+                 "Open3D's nearest")
     return out
 
 
@@ -405,7 +407,8 @@ def run(quick: bool = False, encoder: Path | None = None) -> BenchTable:
                    "camera pipeline filters ms, ours/open3d": camera["ours_ms"] / camera["o3d_ms"],
                    "camera pipeline outlier removal, points kept ours/open3d": camera["kept_ratio"],
                    "camera pipeline voxels, ours/open3d": camera["voxel_ratio"]})
-    return BenchTable(name="perception", title="Tool perception: registration vs Open3D ICP, encoder, tool state, depth camera",
+    return BenchTable(name="perception",
+                      title="Tool perception: registration vs Open3D ICP, encoder, tool state, depth camera",
                       columns=columns, rows=rows, ratios=ratios, notes=notes,
                       config={"quick": quick, "registration_clouds": n, "seed": SEED,
                               "encoder": str(encoder) if encoder else "shipped"})

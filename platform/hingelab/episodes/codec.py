@@ -136,7 +136,8 @@ def encode_camera_calibration(log_time_ns: int, intrinsics) -> bytes:
     return S.CameraCalibration(
         timestamp=timestamp(log_time_ns), frame_id=S.FRAME_CAMERA, width=k.width, height=k.height,
         distortion_model="", D=[], K=[k.fx, 0.0, k.cx, 0.0, k.fy, k.cy, 0.0, 0.0, 1.0],
-        R=[1.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0], P=[k.fx, 0.0, k.cx, 0.0, 0.0, k.fy, k.cy, 0.0, 0.0, 0.0, 1.0, 0.0],
+        R=[1.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0],
+        P=[k.fx, 0.0, k.cx, 0.0, 0.0, k.fy, k.cy, 0.0, 0.0, 0.0, 1.0, 0.0],
     ).SerializeToString()
 
 

@@ -91,7 +91,8 @@ def crop(points: np.ndarray, low, high) -> np.ndarray:
 
 def colour_depth_mask(rgb: np.ndarray, depth: np.ndarray, colour, tolerance: int = 40,
                       depth_range: tuple[float, float] = (0.3, 1.2)) -> np.ndarray:
-    """(H, W) bool: pixels within ``tolerance`` of the tool's colour (per channel, 0-255) and within the depth window."""
+    """(H, W) bool: pixels within ``tolerance`` of the tool's colour (per channel, 0-255) and within the depth
+    window."""
     near = np.all(np.abs(rgb.astype(np.int16) - np.asarray(colour, np.int16)) <= tolerance, axis=-1)
     return near & (depth >= depth_range[0]) & (depth <= depth_range[1])
 

@@ -101,7 +101,8 @@ def run_gap(config: GapConfig = GapConfig(), progress: bool = True, frame_hook=N
 
 
 def summarize(rows: pd.DataFrame) -> pd.DataFrame:
-    """Per perception: opening R^2 and mean absolute error, tracking error medians and 95th percentiles, flagged share."""
+    """Per perception: opening R^2 and mean absolute error, tracking error medians and 95th percentiles, flagged
+    share."""
     out = []
     for name, g in rows.groupby("perception", sort=False):
         ok = g[g["flag"] == ""]

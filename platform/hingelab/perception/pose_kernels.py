@@ -172,5 +172,5 @@ def synthesize_clouds(bank, bank_part, index, refill, noise, noise_std, rot_a, p
     return out
 
 
-__all__ = ["ORTHONORMALITY_TOLERANCE", "euler_angles_xyz", "hand_frame_poses", "matrices_to_rotvecs", "mean_displacement", "pose_check",
-           "rotvecs_to_matrices", "synthesize_clouds"]
+__all__ = ["ORTHONORMALITY_TOLERANCE", "euler_angles_xyz", "hand_frame_poses", "matrices_to_rotvecs",
+           "mean_displacement", "pose_check", "rotvecs_to_matrices", "synthesize_clouds"]

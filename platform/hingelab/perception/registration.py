@@ -439,7 +439,7 @@ class CanonicalRegistration:
     def _track_numpy(self, clouds, rotation, translation, hinge, config: TrackingConfig) -> Registration:
         """``track`` in numpy, batched: the whole batch iterates until no tool moves."""
         points, single = check_clouds(clouds)
-        c, n_batch = self.config, len(points)
+        c = self.config
         rot_p, pos_p, theta = self._track_start(points, rotation, translation, hinge)
         normals_a, normals_b = self._model_normals()
         k_r, k_t = config.rotation_prior_m ** 2, config.translation_prior
@@ -525,7 +525,8 @@ class CanonicalRegistration:
             # R maps the canonical principal frame onto the cloud's: R = E H F^T
             rot = np.einsum("bij,hjk,kl->bhil", frames, hyp, self._canon_frame[0].T).reshape(-1, 3, 3)
         else:
-            rolls = Rotation.from_rotvec(np.outer(np.linspace(-1.0, 1.0, c.prior_hypotheses) * c.prior_roll_rad, [1, 0, 0]))
+            rolls = Rotation.from_rotvec(np.outer(np.linspace(-1.0, 1.0, c.prior_hypotheses) * c.prior_roll_rad,
+                                                  [1, 0, 0]))
             hyp = rolls.as_matrix()
             rot = (prior[0][:, None] @ hyp[None]).reshape(-1, 3, 3)
         n_hyp = len(hyp)

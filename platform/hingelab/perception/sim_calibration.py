@@ -62,7 +62,8 @@ def tracked_sweep_latents(encoder: ToolEncoder, sweeps: int = 40, seed: int = 0,
         synthesizer.new_episode(seed + k)
         state = ToolState(encoder=encoder, n_tools=1)
         for opening in (sweep if k % 2 == 0 else sweep[::-1]):
-            sample = state.update(synthesizer.from_tool_pose(rot, pos, opening)[None], n_distinct=synthesizer.n_distinct)
+            sample = state.update(synthesizer.from_tool_pose(rot, pos, opening)[None],
+                                  n_distinct=synthesizer.n_distinct)
             z.append(sample.z[0].copy())
             openings.append(opening)
     openings = np.asarray(openings)
@@ -101,7 +102,8 @@ def recalibrate_curve(checkpoint, sweeps: int = 40, seed: int = 0, progress: boo
     held_out = new.evaluate(check_data["z"], check_data["opening_rad"], check_data["tip_gap_m"])
     metrics = {
         "offsets_before": curve_offsets(old, check_data), "offsets_after": curve_offsets(new, check_data),
-        "r2_opening_before": old.evaluate(check_data["z"], check_data["opening_rad"], check_data["tip_gap_m"])["r2_opening"],
+        "r2_opening_before": old.evaluate(check_data["z"], check_data["opening_rad"],
+                                          check_data["tip_gap_m"])["r2_opening"],
         "r2_opening_after": held_out["r2_opening"], "mae_opening_rad_after": held_out["mae_opening_rad"],
         "success_threshold_before": latent_distance_for_gap(old, SUCCESS_GAP_MM),
         "success_threshold_after": latent_distance_for_gap(new, SUCCESS_GAP_MM),

@@ -144,7 +144,8 @@ def recalibrate_encoder(data_dir, checkpoint, progress: bool = True) -> tuple[To
     checkpoint = Path(checkpoint)
     encoder = load_encoder(checkpoint)
     if encoder.calibration is None:
-        raise ConfigError(f"{checkpoint} has no calibration to add a reader to; retrain it with `hingelab train encoder`")
+        raise ConfigError(f"{checkpoint} has no calibration to add a reader to; "
+                          "retrain it with `hingelab train encoder`")
     data = load_cloud_dataset(data_dir, progress=progress)
     trained_on = (encoder.info.get("data") or {}).get("config_hash")
     card = load_card(data_dir)
@@ -167,7 +168,8 @@ def recalibrate_encoder(data_dir, checkpoint, progress: bool = True) -> tuple[To
 
 
 def train_encoder(data_dir, out_path, train: TrainEncoderConfig = TrainEncoderConfig(),
-                  encoder: EncoderConfig = EncoderConfig(), registration_config: RegistrationConfig = RegistrationConfig(),
+                  encoder: EncoderConfig = EncoderConfig(),
+                  registration_config: RegistrationConfig = RegistrationConfig(),
                   progress: bool = True, log=print) -> tuple[ToolEncoder, dict]:
     """Train, fit the calibration, write the checkpoint; returns (encoder, summary metrics)."""
     if train.epochs < 1 or train.batch_size < 2:

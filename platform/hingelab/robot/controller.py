@@ -52,7 +52,8 @@ class Step:
 
 
 class CheckpointHighLevel:
-    """A high-level checkpoint (``hingelab train high``: SAC or the phase clone), checked against the low level it learned over."""
+    """A high-level checkpoint (``hingelab train high``: SAC or the phase clone), checked against the low level it
+    learned over."""
 
     def __init__(self, path: str | Path, low_level: str | None = None):
         self.label = str(path)
@@ -131,7 +132,8 @@ class HierarchicalController:
         self._tool_pose = pose if self._fresh else ALPHA * pose + (1 - ALPHA) * self._tool_pose
         self._fresh = False
         z_bar = sample.z_smoothed[0]
-        centre = readings.object_centre if readings.object_centre is not None else self.target_world - [0, 0, TARGET_HEIGHT]
+        centre = (readings.object_centre if readings.object_centre is not None
+                  else self.target_world - [0, 0, TARGET_HEIGHT])
         object_hand, target_hand = readings.to_hand(centre), readings.to_hand(self.target_world)
         parts = [self._tool_pose, z_bar, object_hand, target_hand]
         if self.observe_extent:

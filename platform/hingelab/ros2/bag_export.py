@@ -5,10 +5,13 @@ per episode, with the standard types (definitions stored in the bag, as ``ros2 b
 
 | topic | type | from the episode |
 |---|---|---|
-| ``/joint_states`` | sensor_msgs/msg/JointState | ``/hand/joints`` under the platform names (``svh_*``), and arm_joint_1..6 when the steps carry them (imported episodes) |
+| ``/joint_states`` | sensor_msgs/msg/JointState | ``/hand/joints`` under the platform names (``svh_*``), and
+  arm_joint_1..6 when the steps carry them (imported episodes) |
 | ``/tool/points`` | sensor_msgs/msg/PointCloud2 | the 256-point tool cloud, x, y, z float32, frame ``hand_base`` |
 | ``/tf`` | tf2_msgs/msg/TFMessage | ``hand_base`` -> ``tool``, the registered tool pose |
-| ``/trial/event`` | std_msgs/msg/String | ``start`` at the first step, ``attempt`` where the step's attempt grows, ``success`` at the first successful step (or the last), ``failure:<reason>`` at the last step of a failed one, ``end`` at the last step |
+| ``/trial/event`` | std_msgs/msg/String | ``start`` at the first step, ``attempt`` where the step's attempt grows,
+  ``success`` at the first successful step (or the last), ``failure:<reason>`` at the last step of a failed one,
+  ``end`` at the last step |
 | ``/hingelab/action`` | std_msgs/msg/Float64MultiArray | ``/action`` values |
 | ``/object/pose`` | geometry_msgs/msg/PoseStamped | ``/object/position``, frame ``hand_base`` (identity orientation) |
 
@@ -91,7 +94,8 @@ def export_episode(episode, folder: Path) -> int:
         for k, t in enumerate(pose["log_time_ns"]):
             rot = Rotation.from_quat(np.asarray(pose["orientation"][k], float)).as_matrix()
             add(base + t, KINDS["tf"].default, T["tf2_msgs/msg/TFMessage"](
-                transforms=[_tf(ts, base + t, S.FRAME_HAND, S.FRAME_TOOL, rot, np.asarray(pose["position"][k], float))]))
+                transforms=[_tf(ts, base + t, S.FRAME_HAND, S.FRAME_TOOL, rot,
+                                np.asarray(pose["position"][k], float))]))
     if S.TOPIC_ACTION in topics:
         action = topics[S.TOPIC_ACTION]
         for k, t in enumerate(action["log_time_ns"]):
@@ -104,8 +108,9 @@ def export_episode(episode, folder: Path) -> int:
             p = np.asarray(obj["position"][k], float)
             add(base + t, KINDS["object"].default, T["geometry_msgs/msg/PoseStamped"](
                 header=_header(ts, base + t, S.FRAME_HAND),
-                pose=T["geometry_msgs/msg/Pose"](position=T["geometry_msgs/msg/Point"](x=p[0], y=p[1], z=p[2]),
-                                                 orientation=T["geometry_msgs/msg/Quaternion"](x=0.0, y=0.0, z=0.0, w=1.0))))
+                pose=T["geometry_msgs/msg/Pose"](
+                    position=T["geometry_msgs/msg/Point"](x=p[0], y=p[1], z=p[2]),
+                    orientation=T["geometry_msgs/msg/Quaternion"](x=0.0, y=0.0, z=0.0, w=1.0))))
     step_times = step.get("log_time_ns")
     if step_times is None or not len(step_times):
         step_times = next((f["log_time_ns"] for f in topics.values() if len(f.get("log_time_ns", []))), None)

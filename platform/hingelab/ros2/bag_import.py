@@ -9,12 +9,12 @@ usable camera cloud) has a sample are left out (the grid stays anchored at ``sta
 
 The camera: a whole-scene PointCloud2 in the camera frame, or a 32FC1 depth image with its
 camera_info. Its topic is read in passes (``_Camera``): the stamps first, then only the frames some
-step takes; the other topics are small and read once into memory. Each frame is put into ``hand_base`` with the camera's pose from the TF
-tree at the message's stamp, then through the platform's camera cloud pipeline
-(``perception.camera_cloud``: crop box, statistical outliers, 2 mm voxels, 256 points). A frame
-that gives no tool cloud is dropped (counted by its flag) and the step takes the latest frame
-that did. The 256-point clouds go through ``ToolState`` (registration, encoder, EMA) as in
-simulation: tool pose, latents z and z_bar.
+step takes; the other topics are small and read once into memory. Each frame is put into
+``hand_base`` with the camera's pose from the TF tree at the message's stamp, then through the
+platform's camera cloud pipeline (``perception.camera_cloud``: crop box, statistical outliers, 2 mm
+voxels, 256 points). A frame that gives no tool cloud is dropped (counted by its flag) and the step
+takes the latest frame that did. The 256-point clouds go through ``ToolState`` (registration,
+encoder, EMA) as in simulation: tool pose, latents z and z_bar.
 
 Each episode keeps the bag's name, path, topics and time range in its metadata (``ros2_*``
 keys); the summary of a bag (``BagSummary``) counts episodes, steps and the messages dropped

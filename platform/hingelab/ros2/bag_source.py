@@ -213,7 +213,8 @@ def _open_cut_off(path: Path, mcap_file: Path, reason: str) -> Bag:
     for schema in schemas.values():
         text = schema.data.decode("utf-8", "replace")
         try:
-            types.update(get_types_from_idl(text) if schema.encoding == "ros2idl" else get_types_from_msg(text, schema.name))
+            types.update(get_types_from_idl(text) if schema.encoding == "ros2idl"
+                         else get_types_from_msg(text, schema.name))
         except Exception as exc:
             raise DatasetError(f"{path}: the message definition of {schema.name} does not parse ({exc})") from None
     typestore = get_typestore(Stores.EMPTY)

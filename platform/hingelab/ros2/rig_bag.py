@@ -193,8 +193,9 @@ def write_rig_bag(path, spec: RigBagSpec = RigBagSpec()) -> dict:
             obj = np.array([0.5, 0.02 * np.sin(stamp_s), 0.21])
             add(stamp_s + 0.03, names["object"], T["geometry_msgs/msg/PoseStamped"](
                 header=_header(ts, ns(stamp_s), "world"),
-                pose=T["geometry_msgs/msg/Pose"](position=T["geometry_msgs/msg/Point"](x=obj[0], y=obj[1], z=obj[2]),
-                                                 orientation=T["geometry_msgs/msg/Quaternion"](x=0.0, y=0.0, z=0.0, w=1.0))))
+                pose=T["geometry_msgs/msg/Pose"](
+                    position=T["geometry_msgs/msg/Point"](x=obj[0], y=obj[1], z=obj[2]),
+                    orientation=T["geometry_msgs/msg/Quaternion"](x=0.0, y=0.0, z=0.0, w=1.0))))
     if spec.action:
         for i in range(int(end_s * 20)):
             add(i / 20 + 0.001, names["action"], T["std_msgs/msg/Float64MultiArray"](
@@ -206,7 +207,8 @@ def write_rig_bag(path, spec: RigBagSpec = RigBagSpec()) -> dict:
         for a in range(1, trial.attempts):
             at = start_s + trial.duration_s * a / (trial.attempts + 1)
             events += [(at - 0.01, "failure:missed_grasp"), (at, "attempt")]
-        events.append((stop_s - 0.2, {"success": "success", "failure": "failure:slip", "abort": "abort"}[trial.outcome]))
+        events.append((stop_s - 0.2,
+                       {"success": "success", "failure": "failure:slip", "abort": "abort"}[trial.outcome]))
         if trial.end_event:
             events.append((stop_s, "end"))
         for at, text in events:

@@ -71,7 +71,8 @@ NO_NOISE = DepthNoise(0.0, 0.0, 89.0, 90.0, 0.0, 0.0, 0.0)
 
 
 def silhouette(depth: np.ndarray, jump_m: float) -> np.ndarray:
-    """(H, W) bool: valid pixels whose depth differs from a 4-neighbour's by more than ``jump_m`` (or borders a hole)."""
+    """(H, W) bool: valid pixels whose depth differs from a 4-neighbour's by more than ``jump_m`` (or borders a
+    hole)."""
     d = np.where(depth > 0, depth, np.float32(1e6))  # a hole next to a pixel counts as a jump
     edge = np.zeros(depth.shape, bool)
     dy = np.abs(d[1:] - d[:-1]) > jump_m

@@ -55,7 +55,8 @@ class DomainRandomizer:
         c = self.config
         if not c.enabled:
             return EpisodeRandomization(np.ones(len(self.actuators)), self.nominal_friction[self.finger_geoms].copy(),
-                                        float(self.nominal_friction[self.object_geoms][0]) if len(self.object_geoms) else 1.0,
+                                        float(self.nominal_friction[self.object_geoms][0])
+                                        if len(self.object_geoms) else 1.0,
                                         0.0)
         return EpisodeRandomization(
             gain_scale=rng.uniform(*c.gain_range, size=len(self.actuators)),

@@ -274,7 +274,8 @@ def _header(name: str) -> str:
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    parser.add_argument("--out", type=Path, default=SCENES_DIR, help=f"folder for the scene files (default {SCENES_DIR})")
+    parser.add_argument("--out", type=Path, default=SCENES_DIR,
+                        help=f"folder for the scene files (default {SCENES_DIR})")
     parser.add_argument("--force", action="store_true",
                         help="replace the shipped scenes under assets/ (shipped policies were trained in them)")
     args = parser.parse_args()
