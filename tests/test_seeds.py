@@ -56,3 +56,30 @@ def test_the_training_stream_shares_numbers_with_the_demos_as_documented():
 def test_ensemble_members_are_seeded_apart_and_member_0_is_the_fit_seed():
     assert seeds.ensemble_member_seed(5, 0) == 5
     assert len({seeds.ensemble_member_seed(5, m) for m in range(8)}) == 8
+
+
+def test_loading_checkpoints_draws_nothing_from_the_global_generators():
+    """A run seeds the global generators; a checkpoint loaded after that (the encoder, a SAC zip, a phase
+    clone) must not move them, or the run trains something else than its seed says the first time a
+    process loads that checkpoint (found as train flat's weights differing between a fresh process and a
+    second run in it)."""
+    import random
+
+    import torch
+
+    from hingelab.perception.encoder import load_encoder
+    from hingelab.policies import load_policy
+    from hingelab.policies.high_level import SHIPPED_HIGH_LEVEL
+    from hingelab.policies.low_level import SHIPPED_LOW_LEVEL_SAC
+
+    def draws(load: bool):
+        torch.manual_seed(7)
+        np.random.seed(7)
+        random.seed(7)
+        if load:
+            load_encoder()
+            load_policy(SHIPPED_LOW_LEVEL_SAC, level="low")
+            load_policy(SHIPPED_HIGH_LEVEL, level="high")
+        return float(torch.rand(1)), float(np.random.rand()), random.random()
+
+    assert draws(load=True) == draws(load=False)

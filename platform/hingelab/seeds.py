@@ -29,6 +29,12 @@ checkpoint was made with it: changing it changes what a seed trains.
 
 from __future__ import annotations
 
+import random
+from contextlib import contextmanager
+
+import numpy as np
+import torch
+
 STRIDE = 100_003  # episodes per block (a prime: blocks of neighbouring seeds do not line up)
 SEED_LIMIT = 1_000  # the --seed values the plan keeps apart ...
 EPISODE_LIMIT = 10_000  # ... for this many episodes per command
@@ -79,6 +85,21 @@ def held_out_goal_seed(index: int) -> int:
 def sampled_goal_seed(seed: int, index: int) -> int:
     """Goal ``index`` of ``hingelab eval low --seed seed``."""
     return HELD_OUT_BASE + SAMPLED_OFFSET + int(seed) * SAMPLED_STRIDE + int(index)
+
+
+@contextmanager
+def preserved_global_rngs():
+    """Run the block without advancing Python's, NumPy's or torch's global generators: loading a checkpoint
+    builds networks (whose initial weights are drawn, then overwritten) and stable-baselines3 reseeds the
+    generators when it sets a model up, and a run that loads one after seeding must train what its seed
+    says, whether or not the process loaded it before."""
+    states = random.getstate(), np.random.get_state(), torch.random.get_rng_state()
+    try:
+        yield
+    finally:
+        random.setstate(states[0])
+        np.random.set_state(states[1])
+        torch.random.set_rng_state(states[2])
 
 
 def ensemble_member_seed(seed: int, member: int) -> int:

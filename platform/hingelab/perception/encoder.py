@@ -36,6 +36,7 @@ from hingelab.paths import ASSETS_DIR
 from hingelab.perception import encoder_kernels
 from hingelab.perception.calibration import READER_FIELDS, OpeningCalibration
 from hingelab.perception.clouds import ToolGeometry
+from hingelab.seeds import preserved_global_rngs
 
 CHECKPOINT_FORMAT = "hingelab.tool_encoder"
 CHECKPOINT_VERSION = 1
@@ -379,7 +380,8 @@ def _encoder_from_raw(raw, path: Path, geometry=None) -> ToolEncoder:
     if raw.get("geometry_hash") != geometry.geometry_hash:
         raise ConfigError(f"{path} was trained on another tweezer geometry ({raw.get('geometry_hash')}, now "
                           f"{geometry.geometry_hash}); regenerate the clouds and retrain the encoder")
-    model = PointNetVAE(config)
+    with preserved_global_rngs():  # the initial weights are overwritten: loading draws nothing of a run's
+        model = PointNetVAE(config)
     try:
         model.load_state_dict(raw["state_dict"])
     except (RuntimeError, KeyError) as exc:

@@ -30,6 +30,7 @@ import torch
 from torch import nn
 
 from hingelab.errors import ConfigError
+from hingelab.seeds import preserved_global_rngs
 
 PHASES = ("open", "above", "descend", "close", "carry")  # the heuristic's (hingelab.heuristic.controller)
 MAX_PHASE_STEPS = 60  # the steps input saturates here (the heuristic's longest phase timeout)
@@ -150,7 +151,9 @@ class PhaseClone:
         nets = []
         for layout, state in zip(hidden, states):
             try:
-                net = PhaseCloneNet(meta["observation_dim"], tuple(layout), state["mean"].numpy(), state["std"].numpy())
+                with preserved_global_rngs():  # the initial weights are overwritten: loading draws nothing
+                    net = PhaseCloneNet(meta["observation_dim"], tuple(layout), state["mean"].numpy(),
+                                        state["std"].numpy())
                 net.load_state_dict(state)
             except (KeyError, RuntimeError) as exc:
                 raise ConfigError(f"{path}: its weights do not fit its own layout "

@@ -32,6 +32,7 @@ from stable_baselines3.common.type_aliases import TrainFreq, TrainFrequencyUnit
 from stable_baselines3.common.utils import ConstantSchedule, FloatSchedule
 
 from hingelab.errors import ConfigError
+from hingelab.seeds import preserved_global_rngs
 
 ACTIVATIONS = {name: getattr(th.nn, name) for name in ("ReLU", "Tanh", "ELU", "LeakyReLU", "SiLU", "GELU")}
 # settings the loader rebuilds itself, or that only a training run uses; never taken from the file
@@ -117,7 +118,8 @@ def load_sac_zip_safely(path, observation_space, action_space, device: str = "cp
     model.lr_schedule = FloatSchedule(ConstantSchedule(model.learning_rate))
     model.train_freq = TrainFreq(1, TrainFrequencyUnit.STEP)
     model.buffer_size, model.replay_buffer_class, model.replay_buffer_kwargs, model.n_envs = 1, None, {}, 1
-    model._setup_model()
+    with preserved_global_rngs():  # SB3 reseeds the global generators with the zip's seed; the weights are the zip's
+        model._setup_model()
     set_weights_from_zip(model, path, device=device)
     return model
 
