@@ -39,13 +39,9 @@ def add_parser(subparsers, argv: list[str] = ()) -> None:
 def chosen_learner(argv: list[str], level: str) -> str:
     """The ``--learner`` of ``train LEVEL`` on this command line; on a ``--resume`` without it, the learner
     the ``--out`` run folder records; else the default."""
-    try:
-        start = argv.index("train") + 1
-    except ValueError:
+    if argv[:2] != ["train", level]:  # the verb is the command line's first word (hingelab has no global flag)
         return registry.DEFAULT_LEARNER
-    if start >= len(argv) or argv[start] != level:
-        return registry.DEFAULT_LEARNER
-    args = argv[start + 1:]
+    args = argv[2:]
     for i, token in enumerate(args):
         if token == "--learner" and i + 1 < len(args):
             return args[i + 1]
