@@ -64,9 +64,12 @@ def test_changed_weights_relabel_by_the_formula(heuristic, recorded):
                                - terms["tool_object"], rtol=1e-9, atol=1e-12)
     assert np.abs(c2.rewards - raw.rewards).max() > 1e-3
     # c_h1 (success bonus) and c_h3 (object-target weight): linear in the weights
-    c13 = high_level_transitions([heuristic], dataclasses.replace(base, c_h1=4.0, c_h3=2.5))
+    changed = dataclasses.replace(base, c_h1=4.0, c_h3=2.5)
+    c13 = high_level_transitions([heuristic], changed)
     success = raw.infos["is_success"] > 0.5
-    expected = (4.0 - base.c_h1) * success + (2.5 / base.c_h3 - 1) * terms["object_target"]
+    # the absorbing term's R_max = 1 + c_h3 changes with c_h3 too
+    expected = ((4.0 - base.c_h1 + changed.absorbing_bonus - base.absorbing_bonus) * success
+                + (2.5 / base.c_h3 - 1) * terms["object_target"])
     np.testing.assert_allclose(c13.rewards - raw.rewards, expected, rtol=1e-9, atol=1e-12)
     # the penalty: far lowered to 5 cm, c_h5 2: -2 wherever a distance exceeds 5 cm
     near = high_level_transitions([heuristic], dataclasses.replace(base, far=0.05, c_h5=2.0))

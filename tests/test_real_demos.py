@@ -65,7 +65,7 @@ def test_the_reward_is_the_envs_formula_with_the_target_5cm_above_the_start(sim_
     tr = high_level_transitions([root / "real"], config)
     d_tool, d_target = tr.infos["tool_object_distance"], tr.infos["object_target_distance"]
     penalty = (d_tool > config.far) | (d_target > config.far) | (tr.infos["table_collision"] > 0.5)
-    expected = (config.c_h1 * tr.infos["is_success"] + np.exp(-config.c_h2 * d_tool)
+    expected = ((config.c_h1 + config.absorbing_bonus) * tr.infos["is_success"] + np.exp(-config.c_h2 * d_tool)
                 + config.c_h3 * np.exp(-config.c_h4 * d_target) - config.c_h5 * penalty)
     np.testing.assert_allclose(tr.rewards, expected, rtol=1e-12, atol=1e-12)
     # the observation's target (NaN as imported) is the env's: 5 cm above the object's start, in hand_base

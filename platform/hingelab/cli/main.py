@@ -25,6 +25,7 @@ VERB_MODULES = [
     "hingelab.cli.sweep",
     "hingelab.cli.eval",
     "hingelab.cli.trial",
+    "hingelab.cli.diagnose",
     "hingelab.cli.compose",
     "hingelab.cli.view",
     "hingelab.cli.report",

@@ -16,6 +16,8 @@ file says it too). A secondary verdict the env reports (ToolShape-v0's
 
 from __future__ import annotations
 
+import dataclasses
+import json
 from pathlib import Path
 
 import gymnasium as gym
@@ -58,6 +60,24 @@ def _scalars(info: dict) -> dict[str, float]:
     return out
 
 
+def reward_metadata(env: gym.Env) -> dict[str, str]:
+    """The env's reward config as episode metadata (JSON), so that a dataset says which reward (its
+    weights, and for ToolPick-v0 its mode) its rewards are; {} for an env without one."""
+    config = getattr(env.unwrapped, "reward_config", None)
+    if config is None or not dataclasses.is_dataclass(config):
+        return {}
+    return {S.KEY_REWARD_CONFIG: json.dumps(dataclasses.asdict(config), sort_keys=True)}
+
+
+def object_metadata(record: dict | None) -> dict:
+    """The episode facts of a drawn object (``record``: ``ToolPickEnv.object_record``, a family's draw): its
+    kind, its draw as JSON and its size, which replaces the size cap; {} for a fixed object (None)."""
+    if record is None:
+        return {}
+    return {S.KEY_OBJECT_KIND: record["kind"], S.KEY_OBJECT_DRAW: json.dumps(record, sort_keys=True),
+            "object_size": record["size_m"]}
+
+
 def success_verdict(env: gym.Env) -> str | None:
     """The name of the verdict ``info["is_success"]`` gives (a key of ``schemas.SUCCESS_VERDICTS``).
 
@@ -94,7 +114,8 @@ class RecordingWrapper(gym.Wrapper):
         self.writer = EpisodeWriter(self.dataset_dir, source=self.source, task=self.task, object=self.object_name,
                                     seed=seed, action_level=self.action_level, joint_names=SVH_JOINTS,
                                     extra_metadata={S.KEY_SUCCESS_VERDICT: self.success_verdict,
-                                                    **self.extra_metadata})
+                                                    **reward_metadata(self.env), **self.extra_metadata})
+        self.writer.facts.update(object_metadata(getattr(self.env.unwrapped, "object_record", None)))
         self.writer.open()
         self._write(obs_before=None, action=None, reward=0.0, terminated=False, truncated=False, info=info)
         self.last_obs = obs

@@ -16,8 +16,21 @@ observation is unchanged.
 High level (paper eq. 8-10):
     r = c_h1 [success] + exp(-c_h2 ||tool - object||) + c_h3 exp(-c_h4 ||object - target||)
         - c_h5 [tool-object or object-target distance > 20 cm, or table collision]
+        [+ gamma R_max / (1 - gamma) [success]]   (mode "absorbing", the default; not the paper's)
 "tool" is the point between the tweezer tips (the working point the paper's tool
 position stands for; the registered tool frame sits on the hinge, 12 cm behind them).
+
+Why the absorbing term: both shaping terms are positive at every step (up to R_max = 1 + c_h3),
+success pays c_h1 once and ends the episode, and the 200-step limit bootstraps. Under the paper's
+reward alone a policy holding the object 1.1 cm short of the target is worth about
+1.8 / (1 - gamma) = 90 to a critic with gamma 0.98, one that succeeds about 12: lingering pays more
+than finishing. Mode "absorbing" treats success as an absorbing state: the terminal step also
+carries the discounted value of staying at the target forever at the best step reward,
+gamma R_max / (1 - gamma), so a success is worth more than any lingering, and ending the episode by
+dropping the tool (which forfeits the positive shaping) stays worth the least. ``gamma`` must be the
+learner's discount (the training configs pass theirs). Mode "paper" is eq. 8-10 alone.
+``analysis/high-level/reward/`` measures both on a successful and a hovering episode
+(``hingelab.analysis.reward_diagnostic``).
 """
 
 from __future__ import annotations
@@ -43,6 +56,11 @@ class LowLevelRewardConfig:
     control_dt: float = 0.05
 
 
+HIGH_LEVEL_REWARD_MODES = ("absorbing", "paper")
+#: the reward config of recordings that do not name theirs: every one made before the modes existed
+LEGACY_MODE = "paper"
+
+
 @dataclass(frozen=True)
 class HighLevelRewardConfig:
     c_h1: float = 10.0  # sparse success bonus
@@ -52,6 +70,27 @@ class HighLevelRewardConfig:
     c_h5: float = 1.0  # penalty
     far: float = 0.20  # m (paper: 20 cm)
     success_radius: float = 0.01  # m (paper: 1 cm)
+    mode: str = "absorbing"  # or "paper" (module doc)
+    gamma: float = 0.98  # the learner's discount: the absorbing term's (unused by mode "paper")
+
+    def __post_init__(self):
+        if self.mode not in HIGH_LEVEL_REWARD_MODES:
+            raise ConfigError(f"unknown high-level reward mode {self.mode!r}; choose one of "
+                              f"{', '.join(HIGH_LEVEL_REWARD_MODES)}")
+        if not 0.0 <= self.gamma < 1.0:
+            raise ConfigError(f"the reward's discount gamma must be in [0, 1), not {self.gamma!r}")
+
+    @property
+    def max_step_reward(self) -> float:
+        """R_max: the best reward of a step that is not a success (tool on the object, object at the target)."""
+        return 1.0 + self.c_h3
+
+    @property
+    def absorbing_bonus(self) -> float:
+        """What a success step adds in mode "absorbing": gamma R_max / (1 - gamma); 0 in mode "paper"."""
+        if self.mode != "absorbing":
+            return 0.0
+        return self.gamma * self.max_step_reward / (1.0 - self.gamma)
 
 
 def goal_reward(z_bar: np.ndarray, z_goal: np.ndarray, c1: float) -> np.ndarray:
@@ -117,4 +156,5 @@ def high_level_terms(tool: np.ndarray, obj: np.ndarray, target: np.ndarray, tabl
         "tool_object": float(np.exp(-config.c_h2 * d_tool)),
         "object_target": config.c_h3 * float(np.exp(-config.c_h4 * d_target)),
         "penalty": -config.c_h5 * float(penalty),
+        "absorbing": config.absorbing_bonus * float(success),
     }

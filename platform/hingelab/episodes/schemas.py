@@ -79,6 +79,8 @@ METADATA_EPISODE_START = "episode_start"  # written at open: survives a crash, u
 KEY_SOURCE = "source"
 KEY_TASK = "task"
 KEY_OBJECT = "object"
+KEY_OBJECT_KIND = "object_kind"  # (family:NAME objects) the shape drawn for the episode, e.g. "prism5"
+KEY_OBJECT_DRAW = "object_draw"  # (family:NAME objects) the draw's record (JSON): object_families.rebuild takes it
 KEY_SEED = "seed"
 KEY_LENGTH = "length"
 KEY_RETURN = "return"
@@ -100,6 +102,7 @@ KEY_SUCCESS_VERDICT = "success_verdict"  # (v2) which verdict ``success`` is: a 
 KEY_LAST_STEP_SUCCESS = "last_step_success"  # (v2) ToolShape-v0's secondary, one-frame verdict; never ``success``
 KEY_OUTCOME_BY = "outcome_by"  # (v3) who judged a trial's outcome: "operator" or "simulation"
 KEY_FIRST_ATTEMPT_SUCCESS = "first_attempt_success"  # ToolPick-v0 episodes and trials: success at attempt 1
+KEY_REWARD_CONFIG = "reward_config"  # the env's reward config (JSON) the episode's rewards were computed with
 
 # The verdicts ``success`` may be (the ``success_verdict`` values): one per task, the one the
 # env's info["is_success"], the demo, eval, report and the benches count.

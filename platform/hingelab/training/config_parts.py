@@ -15,7 +15,7 @@ from __future__ import annotations
 
 from dataclasses import asdict, dataclass
 
-from hingelab.envs.rewards import HighLevelRewardConfig
+from hingelab.envs.rewards import HIGH_LEVEL_REWARD_MODES, LEGACY_MODE, HighLevelRewardConfig
 from hingelab.errors import ConfigError
 from hingelab.training.prior import PICK_SETS, PRIOR_OBJECTS, PRIOR_SOURCES
 from hingelab.training.run_config import RunConfig, option
@@ -50,7 +50,8 @@ class RunSettings(RunConfig):
 
 @dataclass(frozen=True)
 class PickTask(RunConfig):
-    object: str = option("sphere", "object to pick: sphere, cube, cylinder, tetrahedron or mesh:PATH")
+    object: str = option("sphere", "object to pick: sphere, cube, cylinder, tetrahedron, mesh:PATH or "
+                                   "family:NAME[:SEED] (a new object each episode, --size its cap)")
     size: float = option(0.02, "object width in m (a mesh's largest extent)")
     mass: float = option(0.01, "object mass in kg")
     low_level: str = option("policy", "the frozen low level: policy (the shipped low-level policy), privileged "
@@ -81,10 +82,19 @@ class PickReward(RunConfig):
     c_h3: float = option(_REWARD.c_h3, "reward: weight of the object-target closeness term")
     c_h4: float = option(_REWARD.c_h4, "reward: 1/m of the object-target closeness term")
     c_h5: float = option(_REWARD.c_h5, "reward: penalty (a distance over 20 cm, a table collision)")
+    reward_mode: str = option(_REWARD.mode, "absorbing: success also pays the discounted value of staying at the "
+                                            "target, gamma (1 + c_h3) / (1 - gamma), so finishing beats lingering; "
+                                            "paper: the paper's eq. 8-10 alone (hingelab.envs.rewards)",
+                              choices=HIGH_LEVEL_REWARD_MODES)
+
+    defaults_before = {"reward_mode": LEGACY_MODE}  # run configs saved before the modes: the paper's reward
 
     @property
     def reward(self) -> HighLevelRewardConfig:
-        return HighLevelRewardConfig(c_h1=self.c_h1, c_h2=self.c_h2, c_h3=self.c_h3, c_h4=self.c_h4, c_h5=self.c_h5)
+        """The env's reward config; its discount is the learner's (``gamma``), where the config has one."""
+        gamma = getattr(self, "gamma", _REWARD.gamma)
+        return HighLevelRewardConfig(c_h1=self.c_h1, c_h2=self.c_h2, c_h3=self.c_h3, c_h4=self.c_h4, c_h5=self.c_h5,
+                                     mode=self.reward_mode, gamma=gamma)
 
 
 @dataclass(frozen=True)

@@ -25,10 +25,13 @@ the object-target distance, success and table collision are the recorded step in
 (``object_target_distance``, ``is_success``, ``table_collision``: exact); the tool-object
 distance (tool = the grip point between the tips, which needs the world z axis that the
 recording does not hold) is recovered from the recorded ``tool_object`` term,
-``d = -ln(term) / c_h2`` of the config the episode was recorded with (``recorded_reward``,
-default ``HighLevelRewardConfig()``, what ``generate heuristic`` runs; every episode is
-checked against it: its sparse, object-target and penalty terms, its step reward = the sum
-of its terms, and the recovered distance against the tips' midpoint in ``/sim/privileged``).
+``d = -ln(term) / c_h2`` of the config the episode was recorded with (``recorded_reward``;
+by default the one its metadata names, ``reward_config``, and for recordings made before
+episodes named it the paper's reward of the default weights; every episode is
+checked against it: its sparse, object-target, penalty and absorbing terms, its step reward = the
+sum of its terms, and the recovered distance against the tips' midpoint in ``/sim/privileged``).
+The relabelled rewards follow ``reward_config``'s mode too: an old recording relabelled for mode
+"absorbing" gains the absorbing term on its success step, as the env would pay it now.
 With the default config the relabelled rewards equal the recorded ones (bit for bit on the
 test datasets; the recovered distance could differ in the last bit); another
 weight relabels old demos. A different ``success_radius`` is refused: it would change which
@@ -55,6 +58,7 @@ the transitions given: relabel them for the run's ``HighLevelRewardConfig`` firs
 from __future__ import annotations
 
 import copy
+import json
 from pathlib import Path
 
 import numpy as np
@@ -63,7 +67,7 @@ from stable_baselines3.common.buffers import ReplayBuffer
 from stable_baselines3.common.type_aliases import ReplayBufferSamples
 
 from hingelab.envs import TOOL_PICK_ID
-from hingelab.envs.rewards import HighLevelRewardConfig, high_level_terms
+from hingelab.envs.rewards import LEGACY_MODE, HighLevelRewardConfig, high_level_terms
 from hingelab.episodes import schemas as S
 from hingelab.episodes.dataset import Dataset
 from hingelab.episodes.errors import DatasetError
@@ -130,10 +134,28 @@ def _check_episode(episode, path: Path, observation_dim: int) -> None:
                            "re-record it with this hingelab")
 
 
-def _episode(episode, index: int, config: HighLevelRewardConfig, recorded: HighLevelRewardConfig,
+def recorded_reward_config(episode) -> HighLevelRewardConfig:
+    """The reward config an episode was recorded with: its metadata's ``reward_config``, or, for a
+    recording made before episodes named it, the paper's reward with the default weights."""
+    text = episode.metadata.get(S.KEY_REWARD_CONFIG)
+    if not text:
+        return HighLevelRewardConfig(mode=LEGACY_MODE)
+    try:
+        return HighLevelRewardConfig(**json.loads(text))
+    except (ValueError, TypeError) as exc:
+        raise DatasetError(f"{episode.path}: its reward_config metadata is not a high-level reward config "
+                           f"({type(exc).__name__}: {exc})") from exc
+
+
+def _episode(episode, index: int, config: HighLevelRewardConfig, recorded: HighLevelRewardConfig | None,
              actions: str, observation_dim: int) -> Transitions:
     path = episode.path
     _check_episode(episode, path, observation_dim)
+    recorded = recorded or recorded_reward_config(episode)
+    if config.success_radius != recorded.success_radius:
+        raise ConfigError(f"a success radius of {config.success_radius} m (recorded in {path}: "
+                          f"{recorded.success_radius} m) would change where the recorded episodes end; relabelling "
+                          "cannot change that")
     tr = episode_transitions(episode, index)
     m = len(tr)
     step = episode.topics[S.TOPIC_STEP]
@@ -156,7 +178,11 @@ def _episode(episode, index: int, config: HighLevelRewardConfig, recorded: HighL
         problems.append("object_target")
     if not np.allclose(terms["penalty"], -recorded.c_h5 * penalty, rtol=0, atol=1e-12):
         problems.append("penalty")
-    if not np.allclose(tr.rewards, sum(terms.values()), rtol=1e-12, atol=1e-12):
+    # recordings from before the absorbing term have no such term: it was 0
+    absorbing = np.asarray(terms_topic["absorbing"][rows], float) if "absorbing" in terms_topic else np.zeros(m)
+    if not np.allclose(absorbing, recorded.absorbing_bonus * success, rtol=1e-12, atol=1e-12):
+        problems.append("absorbing")
+    if not np.allclose(tr.rewards, sum(terms.values()) + absorbing, rtol=1e-12, atol=1e-12):
         problems.append("reward = sum of the terms")
     privileged = episode.topics.get(S.TOPIC_PRIVILEGED)
     if privileged is not None and {"tip_a", "tip_b", "object_position"} <= privileged.keys():
@@ -187,8 +213,8 @@ def high_level_transitions(datasets, reward_config: HighLevelRewardConfig | None
     14-D (``observation_dim``: 17 with ``observe_extent``) / 5-D spaces, rewards relabelled with
     ``reward_config`` (default: the env's default).
 
-    ``recorded_reward``: the config the episodes were recorded with (default: the env's
-    default, what ``hingelab generate heuristic`` records). ``actions``: "reached" (the
+    ``recorded_reward``: the config the episodes were recorded with (default: the one each
+    episode's metadata names; the paper's reward for recordings that name none). ``actions``: "reached" (the
     paper's: the reached latent / 3 clipped, and the recorded hand velocity) or "recorded".
     Each transition's infos add ``tool_object_distance`` (m). A dataset or episode that is
     not a ToolPick-v0 high-level recording is a one-line DatasetError naming its file.
@@ -201,12 +227,9 @@ def high_level_transitions(datasets, reward_config: HighLevelRewardConfig | None
     dataset none of whose real episodes can be used raises the first one's error all the same.
     """
     config = reward_config or HighLevelRewardConfig()
-    recorded = recorded_reward or HighLevelRewardConfig()
+    recorded = recorded_reward
     if actions not in ACTION_MODES:
         raise ConfigError(f"actions must be one of {', '.join(ACTION_MODES)}, not {actions!r}")
-    if config.success_radius != recorded.success_radius:
-        raise ConfigError(f"a success radius of {config.success_radius} m (recorded: {recorded.success_radius} m) "
-                          "would change where the recorded episodes end; relabelling cannot change that")
     if isinstance(datasets, (str, Path)):
         datasets = [datasets]
     parts, index, calibration = [], 0, None
@@ -335,4 +358,4 @@ class DemoShareReplayBuffer(ReplayBuffer):
 
 
 __all__ = ["high_level_transitions", "concat_demos", "look_ahead", "fill_high_level_buffer", "relabel_rewards",
-           "DemoShareReplayBuffer"]
+           "recorded_reward_config", "DemoShareReplayBuffer"]

@@ -182,7 +182,7 @@ def real_episode_transitions(episode, index: int, config: HighLevelRewardConfig,
     rig_success = np.asarray(step.get("info.is_success", np.zeros(n))[:n], float) > 0.5
     terms = [high_level_terms(grip[k], obj_world[k], target, bool(collision[k]), config) for k in range(n)]
     dense = np.array([t["tool_object"] + t["object_target"] + t["penalty"] for t in terms])
-    reward_of_state = dense + config.c_h1 * rig_success
+    reward_of_state = dense + (config.c_h1 + config.absorbing_bonus) * rig_success  # the rig's verdict
     # transitions k = 0..m-1 (state k -> k + 1), up to the first successful state
     if rig_success[0]:
         raise RealEpisodeError(f"{path}: the trial's success event comes before its first step; no transition")

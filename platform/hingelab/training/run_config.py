@@ -133,6 +133,8 @@ class RunConfig:
 
     kind = "run"  # in error messages: "unknown low-level config keys"
     legacy_keys: frozenset = frozenset()  # keys an older hingelab wrote into this config that it now ignores
+    # (in any config part) keys an older hingelab did not write, and the value its runs had: from_dict uses it
+    defaults_before: dict = {}
 
     def to_dict(self) -> dict:
         out = asdict(self)
@@ -145,6 +147,10 @@ class RunConfig:
     def from_dict(cls, data: dict):
         known = {f.name: f for f in fields(cls)}
         data = {k: v for k, v in data.items() if k in known or k not in cls.legacy_keys}
+        for part in cls.__mro__:  # a key a saved config lacks: what runs did before the key existed
+            for key, value in vars(part).get("defaults_before", {}).items():
+                if key in known:
+                    data.setdefault(key, value)
         unknown = sorted(set(data) - set(known))
         if unknown:
             raise ConfigError(f"unknown {cls.kind} config keys {unknown}; "

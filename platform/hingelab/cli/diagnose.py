@@ -1,0 +1,85 @@
+"""``hingelab diagnose reward|noise --out DIR``: checks of the high level's learning problem that can fail.
+
+``reward``: is finishing worth more to a critic than lingering near the target, under each reward mode
+(``hingelab.rollouts.reward_diagnostic``). ``noise``: how much exploration noise each action dimension
+tolerates before the scripted demonstrator fails (``hingelab.rollouts.noise_tolerance``)."""
+
+from __future__ import annotations
+
+import argparse
+import shlex
+from pathlib import Path
+
+from hingelab.provenance import code_version, require_clean_for
+from hingelab.rollouts import noise_tolerance, reward_diagnostic
+
+
+def add_parser(subparsers) -> None:
+    p = subparsers.add_parser("diagnose", help="diagnostics of the high level's learning problem (reward, noise)",
+                              description="Diagnostics that can fail: what the high-level reward pays for "
+                                          "finishing against lingering, and how much exploration noise each "
+                                          "action dimension tolerates.")
+    what = p.add_subparsers(title="diagnostics", metavar="WHAT", required=True)
+    reward = what.add_parser(
+        "reward", help="the value of succeeding against hovering 1.1 cm short, under each reward mode",
+        description="The scripted demonstrator picks the object from N starts, once as it does and once holding "
+                    "it 1.1 cm below the target until the time limit; for the paper's reward and the absorbing "
+                    "one, the value a critic learns at the decision point (the object first within 2 cm of the "
+                    "target). Writes reward_diagnostic.md, summary.csv and episodes.csv into --out.")
+    reward.add_argument("--episodes", type=int, default=10, help="starts (pairs of episodes; default 10)")
+    reward.add_argument("--seed", type=int, default=9100, help="seed of the starts, eval high's stream (default 9100)")
+    reward.add_argument("--gamma", type=float, default=0.98, help="the critic's discount (default 0.98, SAC's here)")
+    reward.set_defaults(func=run_reward)
+    noise = what.add_parser(
+        "noise", help="exploration noise each action dimension tolerates (the scripted demonstrator)",
+        description="The scripted demonstrator over the shipped low level with Gaussian noise on one executed "
+                    "action dimension at a time (latent goal 0 and 1, hand velocity x, y, z), --episodes per level "
+                    "from the same starts; a table of successes and tool drops and the tolerated level per "
+                    "dimension. Writes noise_tolerance.md and noise_tolerance.csv into --out.")
+    noise.add_argument("--episodes", type=int, default=20, help="episodes per level (default 20)")
+    noise.add_argument("--levels", type=float, nargs="+", default=list(noise_tolerance.DEFAULT_LEVELS),
+                       metavar="STD", help="noise stds in action units (default "
+                                           f"{' '.join(map(str, noise_tolerance.DEFAULT_LEVELS))})")
+    noise.add_argument("--seed", type=int, default=9200, help="seed of the starts, eval high's stream (default 9200)")
+    noise.set_defaults(func=run_noise)
+    for sub in (reward, noise):
+        sub.add_argument("--object", default="sphere", help="object shape (default sphere, the training object)")
+        sub.add_argument("--size", type=float, default=0.02, help="object width in m (default 0.02)")
+        sub.add_argument("--out", type=Path, required=True, help="report folder, e.g. analysis/high-level/reward")
+        sub.add_argument("--allow-dirty", action="store_true",
+                         help="write under analysis/ from uncommitted code (the report then says so)")
+        sub.add_argument("--no-progress", action="store_true", help="no progress bar")
+
+
+def _command(args, verb: str, options: list[str]) -> str:
+    words = ["hingelab", "diagnose", verb, *options, "--out", str(args.out)]
+    return shlex.join(words) + f" (git {code_version()['git_commit'][:7]})"
+
+
+def run_reward(args: argparse.Namespace) -> int:
+    require_clean_for(args.out, args.allow_dirty, "hingelab diagnose reward")
+    rows = reward_diagnostic.diagnose(args.episodes, args.seed, args.gamma, args.object, args.size,
+                                      progress=not args.no_progress)
+    summary = reward_diagnostic.summarize(rows)
+    options = ["--episodes", str(args.episodes), "--seed", str(args.seed), "--gamma", f"{args.gamma:g}",
+               "--object", args.object, "--size", f"{args.size:g}"]
+    path = reward_diagnostic.write_report(rows, summary, args.out, _command(args, "reward", options), args.gamma)
+    for s in summary:
+        print(f"{s['mode']}: succeeding {s['success_value_at_decision']:.1f}, hovering "
+              f"{s['hover_value_at_decision']:.1f} at the decision point; succeeding worth more on "
+              f"{s['finishing_pays_more']} of {s['pairs']} starts")
+    print(f"wrote {path}")
+    return 0
+
+
+def run_noise(args: argparse.Namespace) -> int:
+    require_clean_for(args.out, args.allow_dirty, "hingelab diagnose noise")
+    rows = noise_tolerance.measure(args.episodes, args.levels, args.seed, args.object, args.size,
+                                   progress=not args.no_progress)
+    options = ["--episodes", str(args.episodes), "--levels", *(f"{v:g}" for v in args.levels), "--seed",
+               str(args.seed), "--object", args.object, "--size", f"{args.size:g}"]
+    path = noise_tolerance.write_report(rows, args.out, _command(args, "noise", options))
+    for name, level in noise_tolerance.tolerances(rows).items():
+        print(f"{name}: tolerates std {level:g}")
+    print(f"wrote {path}")
+    return 0
