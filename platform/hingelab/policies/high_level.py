@@ -28,6 +28,7 @@ from hingelab.policies.goal_experts import file_sha256
 from hingelab.policies.loading import register_policy_format
 from hingelab.policies.low_level import load_sac_checkpoint, resolve_low_level
 from hingelab.policies.phase_clone import PhaseClone, is_phase_clone
+from hingelab.policies.residual import ResidualPolicy, is_residual_policy
 from hingelab.policies.sb3_zip import is_sac_zip, load_sac_zip, read_plain_data
 from hingelab.tasks import HIGH_LEVEL_ACTION_SHAPE as ACTION_SHAPE
 from hingelab.tasks import observation_dim
@@ -91,8 +92,9 @@ def load_high_level_checkpoint(path, low_level: str | None = None):
     ``hingelab.policies.ModelPolicy`` does), loaded on the CPU; with ``low_level``, checked against the
     low level and encoder it learned beside."""
     path = resolve_checkpoint(path)
-    if is_phase_clone(path):  # the phase clone (train high --learner phase-clone): a policy with memory
-        model = PhaseClone.load(path)
+    residual = is_residual_policy(path)  # train high --learner residual-sac: a phase clone and a residual
+    if residual or is_phase_clone(path):  # the phase clone (train high --learner phase-clone): a policy with memory
+        model = ResidualPolicy.load(path) if residual else PhaseClone.load(path)
         env_kwargs = model.hingelab_provenance.get("env_kwargs") or {}
         expected = observation_dim(bool(env_kwargs.get("observe_extent", False)))
         if model.observation_dim != expected:
@@ -122,7 +124,8 @@ def load_high_level_checkpoint(path, low_level: str | None = None):
 
 def _load_phase_clone(path, encoder=None, low_level=None, level=None):
     if level == "low":
-        raise ConfigError(f"{path} is a high-level policy (a phase clone); give a low-level checkpoint")
+        raise ConfigError(f"{path} is a high-level policy (a phase clone or a residual over one); give a "
+                          "low-level checkpoint")
     return load_high_level_checkpoint(path, low_level=low_level)
 
 
@@ -136,6 +139,7 @@ def _load_sac_zip(path, encoder=None, low_level=None, level=None):
 
 
 register_policy_format("hingelab phase clone", is_phase_clone, _load_phase_clone)
+register_policy_format("hingelab residual policy", is_residual_policy, _load_phase_clone)
 register_policy_format("stable-baselines3 SAC zip", is_sac_zip, _load_sac_zip)
 
 __all__ = ["load_high_level_checkpoint", "resolve_checkpoint", "training_context", "check_context",

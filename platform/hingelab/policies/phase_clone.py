@@ -128,8 +128,9 @@ class PhaseClone:
 
     @classmethod
     def load(cls, path) -> "PhaseClone":
-        """A clone of this format, or of ``FORMAT_ONE`` (one net: its weights unprefixed, ``hidden`` flat)."""
-        path = Path(path)
+        """A clone of this format, or of ``FORMAT_ONE`` (one net: its weights unprefixed, ``hidden`` flat);
+        ``path`` may be a file object (a residual policy holds its base inside its own zip)."""
+        path = path if hasattr(path, "read") else Path(path)
         try:
             with zipfile.ZipFile(path) as archive:
                 meta = json.loads(archive.read(META_FILE))

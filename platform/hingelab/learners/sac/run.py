@@ -97,6 +97,14 @@ class SACRun:
         return {**self.env_record(), "config": self.config.to_dict(), "seed": self.config.seed, **code_version(),
                 **(extra or {})}
 
+    def wrap_env(self, env):
+        """The rollout envs as the learner's model sees them (the recording below sees the env's own actions)."""
+        return env
+
+    def save_policy(self, path: Path) -> None:
+        """Write the policy the run has now (``best_model.zip``, ``model.zip``): SB3's zip without the buffer."""
+        self.model.save(path, exclude=["replay_buffer"])
+
     def build_model(self, env):
         """A new model of ``algorithm_class`` with ``sac_arguments`` (and the learner's policy and buffer)."""
         raise NotImplementedError
@@ -123,7 +131,7 @@ class SACRun:
             self.prepare_new_run()
             self.folder.write_run_files({"learner": "sac"})
         self.prepare_data()
-        self.env = make_training_vec_env(self.config, self.folder.dataset(self.dataset_description))
+        self.env = self.wrap_env(make_training_vec_env(self.config, self.folder.dataset(self.dataset_description)))
         self.make_evaluator()
         state = None
         latest = ckpt.latest_checkpoint(self.run_dir) if self.resume else None
@@ -160,7 +168,7 @@ class SACRun:
         if self.is_better(row):
             self.best = {**{k: row[k] for k in self.initial_best()}, "env_steps": env_steps}
             setattr(self.model, PROVENANCE_ATTRIBUTE, self.provenance({"evaluation": row}))
-            self.model.save(self.run_dir / "best_model.zip", exclude=["replay_buffer"])
+            self.save_policy(self.run_dir / "best_model.zip")
         return row
 
     def checkpoint_now(self, mid_episode: bool) -> Path:
@@ -195,7 +203,7 @@ class SACRun:
 
     def finish(self, elapsed_s: float) -> dict:
         setattr(self.model, PROVENANCE_ATTRIBUTE, self.provenance({"final_env_steps": self.model.num_timesteps}))
-        self.model.save(self.run_dir / "model.zip", exclude=["replay_buffer"])
+        self.save_policy(self.run_dir / "model.zip")
         rows = self.metrics.rows()
         self.env.close()
         self.close_evaluator()

@@ -1,0 +1,124 @@
+"""``ResidualSAC``: FastSAC's update for the residual policy, with the recipes of online RL from a prior.
+
+What differs from FastSAC (``hingelab.learners.sac.fast_sac``), each for a reason the runs of plain SAC
+from the privileged buffer showed (``analysis/high-level/``):
+
+* **Acting with the policy from the first step.** SB3 acts uniformly at random until ``learning_starts``;
+  here the policy acts from step 0 (the base plus the residual's bounded noise), so the first data are
+  the prior's own rollouts (WSRL, Zhou et al. 2024), not random flailing that drops the tool.
+* **Critic warm-up.** The actor and the temperature do not move until ``actor_start`` env steps: until
+  then only the critics learn, on the prior's rollouts (and the demos), so the first actor gradient
+  comes from a critic that has seen the task, not from an untrained one.
+* **A critic ensemble** (``EnsembleCritic``, LayerNorm): the bootstrap target takes the minimum over a
+  random subset of ``target_critics`` members (REDQ, Chen et al. 2021; RLPD, Ball et al. 2023), the
+  actor the members' mean; several updates per env step (``gradient_steps``) are then stable.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+import torch as th
+import torch.nn.functional as F
+
+from hingelab.learners.sac.fast_sac import FastSAC, _mean
+
+
+class ResidualSAC(FastSAC):
+    """FastSAC with policy-driven warm-up, a critic-only warm-up and an ensemble target (module doc)."""
+
+    def __init__(self, *args: Any, actor_start: int = 0, target_critics: int = 2, **kwargs: Any):
+        self.actor_start = int(actor_start)
+        self.target_critics = int(target_critics)
+        super().__init__(*args, **kwargs)
+
+    def _sample_action(self, learning_starts: int, action_noise=None, n_envs: int = 1):
+        # the policy acts from the first step (SB3 would act uniformly at random before learning_starts)
+        return super()._sample_action(0, action_noise, n_envs)
+
+    def _q_values(self, critic: Any, obs: Any, features: Any, actions: th.Tensor) -> tuple[th.Tensor, ...]:
+        return critic(obs, actions)  # the ensemble rebuilds the executed action from obs: never skip its forward
+
+    @property
+    def actor_moves(self) -> bool:
+        """Whether the actor and the temperature update now (after the critic-only warm-up)."""
+        return self.num_timesteps >= self.actor_start
+
+    def train(self, gradient_steps: int, batch_size: int = 64) -> None:
+        self.policy.set_training_mode(True)
+        optimizers = [self.actor.optimizer, self.critic.optimizer]
+        if self.ent_coef_optimizer is not None:
+            optimizers += [self.ent_coef_optimizer]
+        self._update_learning_rate(optimizers)
+        actor_moves = self.actor_moves
+        critic_params = list(self.critic.parameters())
+        target_params = list(self.critic_target.parameters())
+        members = self.critic.n_critics
+        subset = min(self.target_critics, members)
+        ent_coefs, actor_losses, critic_losses, ent_coef_losses = [], [], [], []
+
+        for gradient_step in range(gradient_steps):
+            data = self._sample(batch_size)
+            discounts = data.discounts if data.discounts is not None else self.gamma
+            if self.ent_coef_optimizer is not None and self.log_ent_coef is not None:
+                ent_coef = th.exp(self.log_ent_coef.detach())
+            else:
+                ent_coef = self.ent_coef_tensor
+            ent_coefs.append(ent_coef.detach())
+
+            with th.no_grad():
+                next_actions, next_log_prob = self._action_log_prob(data.next_observations)
+                next_q = self.critic_target.q_values(data.next_observations, next_actions)  # (E, B, 1)
+                if subset < members:  # REDQ: the minimum over a random subset of members
+                    chosen = th.from_numpy(np.random.choice(members, subset, replace=False))
+                    next_q = next_q.index_select(0, chosen)
+                next_q = next_q.min(dim=0).values - ent_coef * next_log_prob.reshape(-1, 1)
+                target_q = data.rewards + (1 - data.dones) * discounts * next_q
+
+            current_q = self.critic.q_values(data.observations, data.actions)  # (E, B, 1)
+            critic_loss = 0.5 * members * F.mse_loss(current_q, target_q.unsqueeze(0).expand_as(current_q))
+            critic_losses.append(critic_loss.detach())
+            self.critic.optimizer.zero_grad()
+            critic_loss.backward()
+            self.critic.optimizer.step()
+
+            if actor_moves:
+                actions_pi, log_prob = self._action_log_prob(data.observations)
+                log_prob = log_prob.reshape(-1, 1)
+                if self.ent_coef_optimizer is not None and self.log_ent_coef is not None:
+                    ent_coef_loss = -(self.log_ent_coef * (log_prob + self.target_entropy).detach()).mean()
+                    ent_coef_losses.append(ent_coef_loss.detach())
+                    self.ent_coef_optimizer.zero_grad()
+                    ent_coef_loss.backward()
+                    self.ent_coef_optimizer.step()
+                for p in critic_params:  # the actor's loss needs the input gradient only
+                    p.requires_grad_(False)
+                try:
+                    q_pi = self.critic.q_values(data.observations, actions_pi).mean(dim=0)
+                    actor_loss = (ent_coef * log_prob - q_pi).mean()
+                    extra = self._extra_actor_loss(batch_size)
+                    if extra is not None:
+                        actor_loss = actor_loss + extra
+                    actor_losses.append(actor_loss.detach())
+                    self.actor.optimizer.zero_grad()
+                    actor_loss.backward()
+                finally:
+                    for p in critic_params:
+                        p.requires_grad_(True)
+                self.actor.optimizer.step()
+
+            if gradient_step % self.target_update_interval == 0:
+                self._polyak(critic_params, target_params, True)
+
+        self._n_updates += gradient_steps
+        self.logger.record("train/n_updates", self._n_updates, exclude="tensorboard")
+        self.logger.record("train/ent_coef", _mean(ent_coefs))
+        self.logger.record("train/critic_loss", _mean(critic_losses))
+        if actor_losses:
+            self.logger.record("train/actor_loss", _mean(actor_losses))
+        if ent_coef_losses:
+            self.logger.record("train/ent_coef_loss", _mean(ent_coef_losses))
+
+
+__all__ = ["ResidualSAC"]

@@ -1,0 +1,119 @@
+"""The settings of a residual SAC run (``hingelab train high --learner residual-sac``), saved with the run.
+
+SAC learns a bounded residual over a frozen base policy (``hingelab.policies.residual``): the shipped
+phase clone (``--base shipped``), a phase-clone checkpoint, or a clone the run fits first on its own
+privileged prior (``--base fit``: the privileged buffer's demos, as the paper's ablation arm learns from
+them). The privileged prior's demos also stay in every batch (``--demo-share``, RLPD's kept share).
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import zipfile
+from dataclasses import dataclass
+from pathlib import Path
+
+from hingelab.errors import ConfigError
+from hingelab.learners.sac.config import SACTrainConfig
+from hingelab.paths import ASSETS_DIR
+from hingelab.policies import phase_clone
+from hingelab.policies.residual import check_scale
+from hingelab.tasks import TOOL_PICK_ID
+from hingelab.training.config_parts import PickReward, PickTask, PriorDemos
+from hingelab.training.run_config import option
+
+BASES = ("shipped", "fit")  # or a phase-clone checkpoint's path
+SHIPPED_HIGH_LEVEL = ASSETS_DIR / "checkpoints" / "high_level.zip"  # policies.high_level's (which loads torch)
+# The largest executed exploration noise (std, action units) per action dimension: below what the scripted
+# demonstrator tolerates (``hingelab diagnose noise``, analysis/high-level/exploration/noise_tolerance.md)
+EXPLORATION_BOUND = (0.02, 0.02, 0.1, 0.1, 0.1)
+# The residual's reach: small on the latent goal (the low level shakes the tool loose when its goal jumps),
+# larger on the hand's velocity (the clone's misses are millimetres of lateral offset)
+RESIDUAL_SCALE = (0.05, 0.05, 0.2, 0.2, 0.2)
+
+
+@dataclass(frozen=True)
+class ResidualSACConfig(PickTask, PickReward, PriorDemos, SACTrainConfig):
+    base: str = option("shipped", "the frozen base: shipped (assets/checkpoints/high_level.zip, the phase clone), "
+                                  "fit (a phase clone fitted first on the run's privileged prior, saved as "
+                                  "RUNDIR/base.zip), or a phase-clone checkpoint", metavar="shipped|fit|CKPT")
+    residual_scale: tuple = option(RESIDUAL_SCALE, "the largest correction the residual adds to each action "
+                                                   "dimension, in (0, 1]: one number for all, or 5 (latent goal 0 "
+                                                   "and 1, hand velocity x, y, z)", item=float, metavar="S")
+    exploration_bound: tuple = option(EXPLORATION_BOUND, "the largest executed exploration noise (std, action "
+                                                         "units) per action dimension: latent goal 0 and 1, hand "
+                                                         "velocity x, y, z", item=float, metavar="STD")
+    critics: int = option(10, "critics in the ensemble (LayerNorm, one batched network)", flag="--critics")
+    target_critics: int = option(2, "critics whose minimum makes the bootstrap target, drawn anew every update "
+                                    "(REDQ)")
+    critic_layer_norm: bool = option(True, "critics without LayerNorm", flag="--no-critic-layer-norm", negate=True)
+    actor_start: int = option(5_000, "env steps before the actor and the temperature first move: until then the "
+                                     "critics alone learn, on the prior's rollouts (and the demos)")
+    demo_share: float = option(0.25, "share of every batch drawn from the privileged prior's demos (0: none; "
+                                     "--no-prior: no demos)")
+    # the base fitted by the run (--base fit): the phase clone's settings
+    clone_net_arch: tuple = option((256, 256), "hidden layers of the base clone (--base fit)", item=int)
+    clone_updates: int = option(30_000, "Adam updates of the base clone (--base fit)", metavar="UPDATES")
+    clone_batch_size: int = option(512, "demo steps per update of the base clone (--base fit)")
+    clone_learning_rate: float = option(1e-3, "learning rate of the base clone (--base fit; cosine decay to 0)")
+    # SAC settings whose defaults differ for this learner
+    steps: int = option(100_000, "environment steps (transitions) in total, over all envs")
+    max_episode_steps: int = option(200, "steps per episode before truncation (200 = 10 s, the paper's limit)")
+    learning_starts: int = option(1_000, "env steps of the policy (the base and bounded noise) before the first "
+                                         "update")
+    ent_coef: str = option("auto_0.01", "entropy coefficient: auto_X (tuned, starting at X), auto, or a number")
+    eval_every: int = option(10_000, "env steps between evaluations")
+    eval_episodes: int = option(30, "held-out episodes per evaluation")
+
+    kind = "residual-sac"
+    env_id = TOOL_PICK_ID
+    train_source = "high_level_training"
+    action_level = "high"
+
+    def __post_init__(self):
+        self.check({**self.sac_checks(), **self.task_checks(), **self.prior_checks(),
+                    "critics": self.critics >= 1, "target_critics": 1 <= self.target_critics <= self.critics,
+                    "actor_start": self.actor_start >= 0, "demo_share": 0 <= self.demo_share <= 1,
+                    "clone_net_arch": len(self.clone_net_arch) >= 1 and all(int(n) >= 1 for n in self.clone_net_arch),
+                    "clone_updates": self.clone_updates >= 1, "clone_batch_size": self.clone_batch_size >= 1,
+                    "clone_learning_rate": self.clone_learning_rate > 0})
+        self.check_prior()
+        check_scale(self.residual_scale)
+        bound = tuple(float(b) for b in self.exploration_bound)
+        if len(bound) != 5 or not all(b > 0 for b in bound):
+            raise ConfigError(f"--exploration-bound takes 5 positive stds (latent goal 0 and 1, hand velocity x, y, "
+                              f"z), not {list(self.exploration_bound)}")
+        if self.base != "fit" and "observe_extent" not in self.env_kwargs:  # observe as the base was trained to
+            extent = base_observes_extent(SHIPPED_HIGH_LEVEL if self.base == "shipped" else Path(self.base))
+            if extent is not None:
+                object.__setattr__(self, "env_kwargs", {**self.env_kwargs, "observe_extent": extent})
+        if self.base == "fit" and not self.prior:
+            raise ConfigError("--base fit clones the run's privileged prior: drop --no-prior, or give --base shipped "
+                              "or a phase-clone checkpoint")
+        if self.learns_from_demonstrations:
+            raise ConfigError("the residual learner has no BC term: drop --bc-weight and --bc-pretrain (the base "
+                              "holds the demonstrator)")
+        if self.algorithm != "fast_sac":
+            raise ConfigError("the residual learner runs on fast_sac's update: drop --algorithm")
+
+    @property
+    def uses_demos(self) -> bool:
+        return self.prior and self.demo_share > 0
+
+    def log_std_max(self) -> list[float]:
+        """The actor's log-std cap per dimension: the bound's std of the executed action over the scale."""
+        scale = check_scale(self.residual_scale)
+        return [math.log(b / s) for b, s in zip(self.exploration_bound, scale)]
+
+
+def base_observes_extent(path: Path) -> bool | None:
+    """Whether the phase clone at ``path`` was trained observing the object's extent (None: not readable here;
+    the run then says what is wrong with it)."""
+    try:
+        with zipfile.ZipFile(path) as archive:
+            meta = json.loads(archive.read(phase_clone.META_FILE))
+    except (OSError, KeyError, ValueError, zipfile.BadZipFile):
+        return None
+    kwargs = (meta.get("hingelab_provenance") or {}).get("env_kwargs") or {}
+    return bool(kwargs.get("observe_extent", False))

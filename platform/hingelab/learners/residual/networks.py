@@ -1,0 +1,135 @@
+"""The residual learner's networks, as a stable-baselines3 ``SACPolicy``:
+
+* ``BoundedActor``: SB3's squashed-Gaussian actor whose mean layer starts at zero (the residual is 0: the
+  policy at step 0 is its base) and whose log-std is capped per action dimension, so the executed
+  exploration noise, ``scale * std`` before the tanh compresses it further, stays under the bound each
+  dimension tolerates (``hingelab diagnose noise``).
+* ``EnsembleCritic``: ``n_critics`` Q-networks with LayerNorm after every hidden layer (RLPD, Ball et
+  al. 2023: LayerNorm keeps the critic from extrapolating wildly on actions the data never shows),
+  evaluated as one batched network (weights ``(E, in, out)``, one ``baddbmm`` per layer, not a Python loop
+  over members). Each Q takes the *executed* action, ``clip(base + scale * residual, -1, 1)``, rebuilt
+  from the base's action inside the input, so demonstrations (whose actions the residual may not reach)
+  and the policy's own transitions are valued on one scale.
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Any
+
+import numpy as np
+import torch as th
+from stable_baselines3.common.policies import BaseModel, ContinuousCritic
+from stable_baselines3.sac.policies import Actor, SACPolicy
+from torch import nn
+
+from hingelab.policies.residual import ResidualInputs, compose
+
+
+class BoundedActor(Actor):
+    """SB3's SAC actor with a zero-initialized mean layer and a per-dimension cap on its log-std."""
+
+    def __init__(self, *args: Any, log_std_max=None, **kwargs: Any):
+        super().__init__(*args, **kwargs)
+        cap = th.as_tensor(np.asarray(log_std_max, np.float32))
+        self.register_buffer("log_std_max", cap)
+        with th.no_grad():
+            self.mu.weight.zero_()
+            self.mu.bias.zero_()
+            self.log_std.weight.zero_()  # explore at the bound from the start (the temperature may lower it)
+            self.log_std.bias.copy_(cap)
+
+    def get_action_dist_params(self, obs):
+        mean, log_std, kwargs = super().get_action_dist_params(obs)
+        return mean, th.minimum(log_std, self.log_std_max), kwargs
+
+
+class EnsembleLinear(nn.Module):
+    """``members`` independent Linear layers applied to ``(members, batch, in)`` in one ``baddbmm``."""
+
+    def __init__(self, members: int, in_features: int, out_features: int):
+        super().__init__()
+        self.weight = nn.Parameter(th.empty(members, in_features, out_features))
+        self.bias = nn.Parameter(th.empty(members, 1, out_features))
+        bound = 1.0 / math.sqrt(in_features)  # nn.Linear's default initialization, per member
+        nn.init.uniform_(self.weight, -bound, bound)
+        nn.init.uniform_(self.bias, -bound, bound)
+
+    def forward(self, x: th.Tensor) -> th.Tensor:
+        return th.baddbmm(self.bias, x, self.weight)
+
+
+class EnsembleCritic(ContinuousCritic):
+    """Q(x, clip(base + scale * residual)) for ``n_critics`` members at once (module doc)."""
+
+    def __init__(self, observation_space, action_space, net_arch, features_extractor, features_dim: int,
+                 activation_fn=nn.ReLU, normalize_images: bool = True, n_critics: int = 2,
+                 share_features_extractor: bool = False, scale=None, layer_norm: bool = True):
+        BaseModel.__init__(self, observation_space, action_space, features_extractor=features_extractor,
+                           normalize_images=normalize_images)
+        self.share_features_extractor = share_features_extractor
+        self.n_critics = int(n_critics)
+        self.register_buffer("scale", th.as_tensor(np.asarray(scale, np.float32)))
+        action_dim = int(np.prod(action_space.shape))
+        widths = [features_dim + action_dim, *[int(n) for n in net_arch]]
+        layers: list[nn.Module] = []
+        for w_in, w_out in zip(widths, widths[1:]):
+            layers.append(EnsembleLinear(self.n_critics, w_in, w_out))
+            if layer_norm:
+                layers.append(nn.LayerNorm(w_out))  # over each member's features (the last axis)
+            layers.append(activation_fn())
+        layers.append(EnsembleLinear(self.n_critics, widths[-1], 1))
+        self.q_net = nn.Sequential(*layers)
+        self.q_networks = []  # SB3's per-member list; the members live in q_net
+
+    def q_values(self, obs: th.Tensor, residual: th.Tensor) -> th.Tensor:
+        """(n_critics, batch, 1)."""
+        with th.set_grad_enabled(not self.share_features_extractor):
+            features = self.extract_features(obs, self.features_extractor)
+        executed = compose(ResidualInputs.base_action(obs), residual, self.scale)
+        x = th.cat([features, executed], dim=1)
+        return self.q_net(x.unsqueeze(0).expand(self.n_critics, -1, -1))
+
+    def forward(self, obs: th.Tensor, actions: th.Tensor) -> tuple[th.Tensor, ...]:
+        return tuple(self.q_values(obs, actions).unbind(0))
+
+    def q1_forward(self, obs: th.Tensor, actions: th.Tensor) -> th.Tensor:
+        return self.q_values(obs, actions)[0]
+
+
+class ResidualSACPolicy(SACPolicy):
+    """SB3's SAC policy with ``BoundedActor`` and ``EnsembleCritic`` (module doc)."""
+
+    def __init__(self, *args: Any, residual_scale=None, log_std_max=None, critic_layer_norm: bool = True,
+                 **kwargs: Any):
+        self.residual_scale = [float(s) for s in residual_scale]
+        self.log_std_max = [float(v) for v in log_std_max]
+        self.critic_layer_norm = bool(critic_layer_norm)
+        super().__init__(*args, **kwargs)
+
+    def _get_constructor_parameters(self) -> dict[str, Any]:
+        return {**super()._get_constructor_parameters(), "residual_scale": self.residual_scale,
+                "log_std_max": self.log_std_max, "critic_layer_norm": self.critic_layer_norm}
+
+    def make_actor(self, features_extractor=None) -> BoundedActor:
+        actor_kwargs = self._update_features_extractor(self.actor_kwargs, features_extractor)
+        return BoundedActor(**actor_kwargs, log_std_max=self.log_std_max).to(self.device)
+
+    def make_critic(self, features_extractor=None) -> EnsembleCritic:
+        critic_kwargs = self._update_features_extractor(self.critic_kwargs, features_extractor)
+        return EnsembleCritic(**critic_kwargs, scale=self.residual_scale,
+                              layer_norm=self.critic_layer_norm).to(self.device)
+
+
+def actor_state_for_policy(actor: Actor) -> dict[str, th.Tensor]:
+    """The deterministic part of an SB3 actor (``latent_pi`` then ``mu``) under ``policies.residual.actor_mlp``'s
+    names (its Linear layers at 0, 2, ... and the mean layer last)."""
+    linears = [m for m in actor.latent_pi if isinstance(m, nn.Linear)] + [actor.mu]
+    state = {}
+    for i, layer in enumerate(linears):
+        state[f"{2 * i}.weight"] = layer.weight.detach().clone()
+        state[f"{2 * i}.bias"] = layer.bias.detach().clone()
+    return state
+
+
+__all__ = ["BoundedActor", "EnsembleCritic", "EnsembleLinear", "ResidualSACPolicy", "actor_state_for_policy"]
