@@ -83,3 +83,17 @@ def test_loading_checkpoints_draws_nothing_from_the_global_generators():
         return float(torch.rand(1)), float(np.random.rand()), random.random()
 
     assert draws(load=True) == draws(load=False)
+
+
+def test_object_draws_have_their_own_stream():
+    """A family's draw for episode seed s is not the env's generator for s (default_rng(s)), nor a stream
+    seeded [s, k] (the camera's, the stand-in's, the controller's), and (SEED, s) pairs never share one."""
+    assert seeds.OBJECT_DRAW_KEY > 2**32 > seeds.HELD_OUT_BASE + seeds.SAMPLED_OFFSET + SEEDS[-1] * seeds.SAMPLED_STRIDE
+    for s in (0, 1, 28, seeds.eval_high_seed(3, 5)):
+        draw = np.random.default_rng(seeds.object_draw_entropy(s)).random(4)
+        others = [np.random.default_rng(s)] + [np.random.default_rng([s, k]) for k in (28, 31, 37, 0xDA27)]
+        assert all(not np.array_equal(draw, other.random(4)) for other in others)
+    entropies = [tuple(seeds.object_draw_entropy(s, family)) for s in (0, 1, 2**31 - 1) for family in (None, 0, 1, 7)]
+    states = {np.random.SeedSequence(list(e)).generate_state(4).tobytes() for e in entropies}
+    assert len(states) == len(entropies)  # no two (SEED, s) pairs share a generator, SEED 0 not "no SEED" either
+    assert seeds.object_draw_entropy(5) == seeds.object_draw_entropy(5, None)

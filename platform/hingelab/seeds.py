@@ -16,6 +16,8 @@ training evaluation    the high-level evaluation's block            train high /
 training rollouts      training_episode_seed(S, env, k)             train low / high / flat rollouts
 low-level held out     HELD_OUT_BASE + k (fixed goals);             train low's evaluations; eval low
                        HELD_OUT_BASE + SAMPLED_OFFSET + S * 10_007 + k
+object draws           a generator from object_draw_entropy(s,      ToolPick-v0 with family:NAME[:SEED]
+                       SEED): s the episode's reset seed            objects (sim.object_families)
 =====================  ===========================================  =================================
 
 Within the user-facing domain (``S`` below ``SEED_LIMIT``, ``k`` below ``EPISODE_LIMIT``) the demos,
@@ -25,6 +27,10 @@ below ``TRAINING_SEED_LIMIT`` with up to 16 envs of ``TRAINING_EPISODE_LIMIT`` e
 numbers with the demos' stream: a training run's rollouts can start where a ``generate heuristic`` dataset's
 demos start (both are training data; no evaluation sees them). It is kept as it is because every trained
 checkpoint was made with it: changing it changes what a seed trains.
+
+The object draws are not reset seeds but the entropy of their own generator, ``[OBJECT_DRAW_KEY, SEED or
+NO_FAMILY_SEED, s]``: the key lies above every seed of every stream (and above 2**32), so the draw shares no
+numbers with the env's own generator (seeded with ``s`` alone) nor with the streams seeded ``[s, k]``.
 """
 
 from __future__ import annotations
@@ -49,6 +55,8 @@ HELD_OUT_BASE = 2_000_000_000  # low-level held-out goals, above every training 
 SAMPLED_OFFSET = 1_000_000  # eval low's sampled goals, apart from train low's fixed ones
 SAMPLED_STRIDE = 10_007
 MEMBER_STRIDE = 1_000_003
+OBJECT_DRAW_KEY = 0x4F424A454354  # "OBJECT": the first word of every object draw's entropy (above 2**32)
+NO_FAMILY_SEED = 2**32 - 1  # the family SEED word of family:NAME without one (a SEED is below 2**31)
 
 
 def demo_seed(seed: int, index: int) -> int:
@@ -102,6 +110,15 @@ def preserved_global_rngs():
         torch.random.set_rng_state(states[2])
 
 
+def object_draw_entropy(episode_seed: int, family_seed: int | None = None) -> list[int]:
+    """The entropy (``numpy.random.default_rng(entropy)``) of the generator that draws the object of the
+    episode reset with ``episode_seed`` from ``family:NAME[:family_seed]`` (``hingelab.sim.object_families``).
+    The key is two 32-bit words and the SEED word one, so two different (SEED, seed) pairs never give one
+    entropy (and ``s`` always comes last: numpy's SeedSequence pads short entropy with zeros, so a trailing
+    0 word would not count)."""
+    return [OBJECT_DRAW_KEY, NO_FAMILY_SEED if family_seed is None else int(family_seed), int(episode_seed)]
+
+
 def ensemble_member_seed(seed: int, member: int) -> int:
     """The fit seed of member ``member`` of an ensemble fitted with ``seed`` (member 0: ``seed`` itself)."""
     return int(seed) + int(member) * MEMBER_STRIDE
@@ -110,4 +127,4 @@ def ensemble_member_seed(seed: int, member: int) -> int:
 __all__ = ["STRIDE", "SEED_LIMIT", "EPISODE_LIMIT", "TRAINING_SEED_LIMIT", "TRAINING_EPISODE_LIMIT", "TRIALS_BASE",
            "EVAL_HIGH_BASE", "PRIOR_BASE", "TRAINING_EVALUATION_SEED", "HELD_OUT_BASE", "demo_seed", "trial_seed",
            "eval_high_seed", "prior_block", "training_episode_seed", "held_out_goal_seed", "sampled_goal_seed",
-           "ensemble_member_seed"]
+           "ensemble_member_seed", "OBJECT_DRAW_KEY", "object_draw_entropy"]
