@@ -52,26 +52,39 @@ class SimCore:
                  randomization: RandomizationConfig | None = None, control_hz: float = CONTROL_HZ,
                  seed: int | None = None, camera=None):
         self.scene = scene
-        self.object = obj
-        self.model = load_scene(scene, obj, camera)  # camera: rig_camera.DepthIntrinsics or None
-        self.data = mujoco.MjData(self.model)
+        self.camera = camera  # rig_camera.DepthIntrinsics or None
+        self.randomization = randomization or RandomizationConfig(enabled=False)
         self.control_dt = 1.0 / control_hz
-        self.n_substeps = int(round(self.control_dt / self.model.opt.timestep))
-        if not np.isclose(self.n_substeps * self.model.opt.timestep, self.control_dt):
-            raise ConfigError(f"control rate {control_hz} Hz is not a multiple of the physics step "
-                              f"{self.model.opt.timestep} s")
-        self.hand = HandActuators(self.model)
-        self.has_arm = mujoco.mj_name2id(self.model, mujoco.mjtObj.mjOBJ_JOINT, names.ARM_JOINTS[0]) >= 0
-        self.arm = ArmVelocityController(self.model) if self.has_arm else None
-        self.reader = PrivilegedReader(self.model)
-        self.randomizer = DomainRandomizer(self.model, randomization or RandomizationConfig(enabled=False))
-        self.hinge_actuator = self.model.actuator(names.TOOL_HINGE_ACTUATOR).id
-        self.key = self.model.key(names.GRASP_KEYFRAME).id
+        self._load(obj)
         self.rng = np.random.default_rng(seed)
         self.episode: EpisodeRandomization | None = None
         self.hand_delay = DelayLine(self.control_dt, 0.150)
         self.diverged = False
         self._warnings_at_reset = 0
+
+    def _load(self, obj: ObjectSpec | None) -> None:
+        """Compile the scene with ``obj`` and make everything that holds the model's ids."""
+        self.object = obj
+        self.model = load_scene(self.scene, obj, self.camera)
+        self.data = mujoco.MjData(self.model)
+        self.n_substeps = int(round(self.control_dt / self.model.opt.timestep))
+        if not np.isclose(self.n_substeps * self.model.opt.timestep, self.control_dt):
+            raise ConfigError(f"control rate {1.0 / self.control_dt:g} Hz is not a multiple of the physics step "
+                              f"{self.model.opt.timestep} s")
+        self.hand = HandActuators(self.model)
+        self.has_arm = mujoco.mj_name2id(self.model, mujoco.mjtObj.mjOBJ_JOINT, names.ARM_JOINTS[0]) >= 0
+        self.arm = ArmVelocityController(self.model) if self.has_arm else None
+        self.reader = PrivilegedReader(self.model)
+        self.randomizer = DomainRandomizer(self.model, self.randomization)
+        self.hinge_actuator = self.model.actuator(names.TOOL_HINGE_ACTUATOR).id
+        self.key = self.model.key(names.GRASP_KEYFRAME).id
+
+    def set_object(self, obj: ObjectSpec) -> None:
+        """Rebuild the model and its data with ``obj`` (a family's next draw); ``reset`` next. Whatever holds
+        the old ``model``, ``data`` or their geom ids (renderers, cached geoms) must be refreshed by its owner."""
+        self._load(obj)
+        self.episode = None
+        self.diverged = False
 
     # ------------------------------------------------------------------ episode
     def reset(self, seed: int | None = None, object_xy: np.ndarray | None = None) -> PrivilegedState:

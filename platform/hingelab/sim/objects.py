@@ -7,6 +7,10 @@ cube's or regular tetrahedron's edge; a mesh's largest extent. The paper trains 
 
 ``shape`` may also be ``mesh:PATH``: an STL, OBJ or PLY file, collided through its convex
 hull and scaled so its largest extent is ``size`` (``hingelab.sim.mesh_objects``).
+
+``family:NAME[:SEED]`` is not one object but a procedural family of them, drawn anew every episode
+(``hingelab.sim.object_families``): ToolPick-v0 takes it, and each draw is a ``DrawnObject``, an
+``ObjectSpec`` made of convex pieces.
 """
 
 from __future__ import annotations
@@ -20,6 +24,7 @@ from hingelab.errors import ConfigError
 from hingelab.sim.mesh_objects import MESH_PREFIX, is_mesh, load_unit_hull, mesh_path
 
 SHAPES = ("sphere", "cube", "cylinder", "tetrahedron")
+FAMILY_PREFIX = "family:"  # family:NAME[:SEED], a procedural family (hingelab.sim.object_families)
 TRAINING_OBJECT = ("sphere", 0.02, 0.010)  # shape, size (m), mass (kg): the paper's training sphere
 TEST_SIZE_RANGE = (0.015, 0.025)  # the paper's test objects, metres
 # What the scene accepts: the tweezer's tips open 0 to ~38 mm (hinge 0 to 0.3 rad).
@@ -40,10 +45,13 @@ class ObjectSpec:
     friction: float = 1.0
 
     def __post_init__(self):
+        if isinstance(self.shape, str) and self.shape.startswith(FAMILY_PREFIX):
+            raise ConfigError(f"{self.shape} is a family of objects, drawn per episode: give it to ToolPick-v0 "
+                              f"(--object), or draw one with hingelab.sim.object_families.ObjectFamily")
         if not (self.shape in SHAPES or is_mesh(self.shape)):
             raise ConfigError(
-                f"unknown object {self.shape!r}; choose one of: {', '.join(SHAPES)}, or {MESH_PREFIX}PATH "
-                f"(an STL, OBJ or PLY file)"
+                f"unknown object {self.shape!r}; choose one of: {', '.join(SHAPES)}, {MESH_PREFIX}PATH "
+                f"(an STL, OBJ or PLY file), or {FAMILY_PREFIX}NAME[:SEED] (a procedural family)"
             )
         if not np.isfinite(self.size) or not SIZE_LIMITS[0] <= self.size <= SIZE_LIMITS[1]:
             what = f"mesh {mesh_path(self.shape)} scaled to largest extent" if self.is_mesh else "object size"
@@ -78,7 +86,7 @@ class ObjectSpec:
     def height(self) -> float:
         """Height when resting (a tetrahedron stands on a face, a mesh as in its file), metres."""
         if self.is_mesh:
-            return float(load_unit_hull(self.shape).extent[2]) * self.size
+            return float(self._unit_hull().extent[2]) * self.size
         return self.size * np.sqrt(2.0 / 3.0) if self.shape == "tetrahedron" else self.size
 
     def width_at(self, height: float) -> float:
@@ -86,7 +94,7 @@ class ObjectSpec:
         resting surface, for the object placed unrotated, metres."""
         z = float(np.clip(height, 0.0, self.height))
         if self.is_mesh:  # the hull's slice at that height (exact for the hull)
-            return load_unit_hull(self.shape).width_at(z / self.size) * self.size
+            return self._unit_hull().width_at(z / self.size) * self.size
         if self.shape == "sphere":
             r = self.size / 2
             return 2 * float(np.sqrt(max(r * r - (z - r) ** 2, 0.0)))
@@ -111,7 +119,15 @@ class ObjectSpec:
 
     def mesh_vertices(self) -> np.ndarray:
         """A mesh object's hull vertices in the body frame, metres (n, 3)."""
-        return load_unit_hull(self.shape).vertices * self.size
+        return self._unit_hull().vertices * self.size
+
+    def mesh_pieces(self) -> list[tuple[np.ndarray, float]]:
+        """A mesh object's collision meshes: (vertices in the body frame (n, 3) m, mass kg) each; one here,
+        several convex pieces for a ring drawn from a family."""
+        return [(self.mesh_vertices(), self.mass)]
+
+    def _unit_hull(self):
+        return load_unit_hull(self.shape)
 
 
 def tetrahedron_vertices(edge: float) -> np.ndarray:
@@ -123,7 +139,8 @@ def tetrahedron_vertices(edge: float) -> np.ndarray:
 
 
 def add_object_geom(spec: mujoco.MjSpec, body: mujoco.MjsBody, obj: ObjectSpec) -> None:
-    """Add ``obj``'s collision geom (named ``object_geom``) to ``body``, with its mass."""
+    """Add ``obj``'s collision geom (named ``object_geom``) to ``body``, with its mass; a mesh of several
+    convex pieces adds ``object_geom_1``, ... too, each with its share of the mass."""
     kwargs = dict(name="object_geom", mass=obj.mass, friction=[obj.friction, 0.01, 0.0001],
                   condim=4, rgba=[0.1, 0.2, 0.6, 1.0])
     if obj.shape == "sphere":
@@ -134,9 +151,12 @@ def add_object_geom(spec: mujoco.MjSpec, body: mujoco.MjsBody, obj: ObjectSpec) 
         body.add_geom(type=mujoco.mjtGeom.mjGEOM_CYLINDER, size=[obj.size / 2, obj.size / 2, 0], **kwargs)
     else:
         mesh_name = "object_mesh" if obj.is_mesh else "object_tetrahedron"
-        vertices = obj.mesh_vertices() if obj.is_mesh else tetrahedron_vertices(obj.size)
-        existing = spec.mesh(mesh_name)
-        if existing is not None:
-            spec.delete(existing)
-        spec.add_mesh(name=mesh_name, uservert=vertices.ravel().tolist())
-        body.add_geom(type=mujoco.mjtGeom.mjGEOM_MESH, meshname=mesh_name, **kwargs)
+        pieces = obj.mesh_pieces() if obj.is_mesh else [(tetrahedron_vertices(obj.size), obj.mass)]
+        for index, (vertices, mass) in enumerate(pieces):
+            suffix = f"_{index}" if index else ""
+            existing = spec.mesh(mesh_name + suffix)
+            if existing is not None:
+                spec.delete(existing)
+            spec.add_mesh(name=mesh_name + suffix, uservert=vertices.ravel().tolist())
+            body.add_geom(type=mujoco.mjtGeom.mjGEOM_MESH, meshname=mesh_name + suffix,
+                          **{**kwargs, "name": kwargs["name"] + suffix, "mass": mass})
