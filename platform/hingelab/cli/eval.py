@@ -70,8 +70,12 @@ def add_parser(subparsers) -> None:
                       help="a high-level checkpoint of hingelab train high (a stable-baselines3 SAC zip or a phase "
                            "clone) trained on ToolPick-v0 (or a run folder with model.zip; "
                            "default: the shipped assets/checkpoints/high_level.zip once there is one)")
-    high.add_argument("--object", default="sphere", help="object shape (default sphere)")
-    high.add_argument("--size", type=float, default=0.02, help="object size in m (default 0.02)")
+    high.add_argument("--object", default="sphere",
+                      help="object: sphere, cube, cylinder, tetrahedron, mesh:PATH or family:NAME[:SEED] (a new "
+                           "object each episode from a procedural family: hingelab.sim.object_families) "
+                           "(default sphere)")
+    high.add_argument("--size", type=float, default=0.02,
+                      help="object size in m; a family's size cap, 0.008 to 0.03 (default 0.02)")
     high.add_argument("--episodes", type=int, default=20, help="evaluation episodes (default 20)")
     high.add_argument("--out", type=Path, required=True, help="dataset folder to write (must be new or empty)")
     high.add_argument("--seed", type=int, default=0, help="seed of the episodes (default 0)")

@@ -26,10 +26,14 @@ def add_heuristic_parser(sources) -> None:
     p.add_argument("--object", default=d.object,
                    help="sphere, cube, cylinder, tetrahedron, or mesh:PATH (an STL, OBJ or PLY file: collided "
                         "through its convex hull, scaled so its largest extent is --size, placed unrotated with "
-                        "its z axis up; recorded as mesh:<file name> with the file's sha256) (default sphere)")
+                        "its z axis up; recorded as mesh:<file name> with the file's sha256), or family:NAME[:SEED] "
+                        "(a new object each episode from a procedural family, e.g. family:train or family:holdout; "
+                        "each episode records its draw: hingelab.sim.object_families) (default sphere)")
     p.add_argument("--size", type=float, default=d.size,
-                   help=f"object width in metres; a mesh's largest extent (default {d.size})")
-    p.add_argument("--mass", type=float, default=d.mass, help=f"object mass in kg (default {d.mass})")
+                   help=f"object width in metres; a mesh's largest extent; a family's size cap, 0.008 to 0.03 "
+                        f"(default {d.size})")
+    p.add_argument("--mass", type=float, default=d.mass,
+                   help=f"object mass in kg; a family's masses come from a density (default {d.mass})")
     p.add_argument("--out", type=Path, required=True,
                    help=f"dataset folder to create (for example {DATASETS_DIR / 'heuristic_sphere'})")
     p.add_argument("--workers", type=int, default=d.workers, help="parallel worker processes (default 1)")

@@ -27,8 +27,10 @@ def add_parser(subparsers) -> None:
                    help="the robot (registered in hingelab.robot.interface): sim is the MuJoCo stand-in of the rig "
                         "(the default)")
     p.add_argument("--object", default="sphere",
-                   help="object shape: sphere, cube, cylinder, tetrahedron or mesh:PATH (default sphere)")
-    p.add_argument("--size", type=float, default=0.02, help="object size in m (default 0.02)")
+                   help="object: sphere, cube, cylinder, tetrahedron, mesh:PATH or family:NAME[:SEED] (a new "
+                        "object each trial from a procedural family: hingelab.sim.object_families) (default sphere)")
+    p.add_argument("--size", type=float, default=0.02,
+                   help="object size in m; a family's size cap, 0.008 to 0.03 (default 0.02)")
     p.add_argument("--trials", type=int, default=12, help="trials (default 12, the paper's per shape)")
     p.add_argument("--out", type=Path, required=True, help="dataset folder to write (must be new or empty)")
     p.add_argument("--seed", type=int, default=0,

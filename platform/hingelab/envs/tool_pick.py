@@ -39,7 +39,9 @@ episode: the object stays where it fell and the next grasp is attempt 2
 
 ## Arguments
 ``object`` ("sphere"; a shape of ``hingelab.sim.objects.SHAPES``, or "mesh:PATH" for an STL, OBJ or
-PLY file scaled so its largest extent is ``size``: ``hingelab.sim.mesh_objects``), ``size`` (0.02 m),
+PLY file scaled so its largest extent is ``size``: ``hingelab.sim.mesh_objects``; or "family:NAME[:SEED]",
+a new object drawn at every reset from a procedural family, ``size`` its cap and ``mass`` unused:
+``hingelab.sim.object_families``; ``object_record`` is then the episode's draw), ``size`` (0.02 m),
 ``mass`` (0.01 kg), ``low_level`` ("privileged";
 "policy": the shipped low-level policy ``assets/checkpoints/low_level_experts.json``; or a checkpoint
 path), ``randomize`` (True: object friction 1-5, finger friction, gains
@@ -48,7 +50,7 @@ path), ``randomize`` (True: object friction 1-5, finger friction, gains
 
 ## Version History
 v0: first version. Changed within v0: the observed object position is the centre, not the body
-origin (the same observation for the sphere, cube, cylinder and meshes).
+origin (the same observation for the sphere, cube, cylinder and meshes); ``object`` may be a family.
 """
 
 from __future__ import annotations
@@ -68,6 +70,7 @@ from hingelab.policies.low_level import SHIPPED_LOW_LEVEL
 from hingelab.sim import scripted
 from hingelab.sim.core import SimCore
 from hingelab.sim.delay import DelayLine
+from hingelab.sim.object_families import ObjectFamily, is_family
 from hingelab.sim.objects import ObjectSpec
 from hingelab.sim.randomization import RandomizationConfig
 from hingelab.tasks import MAX_SPEED, Z_SCALE, observation_dim
@@ -86,7 +89,10 @@ class ToolPickEnv(SimRenderMixin, gym.Env):
                  max_episode_steps: int = 200, encoder_path: str | None = None,
                  reward: HighLevelRewardConfig | None = None, render_mode: str | None = None,
                  terminate_on_drop: bool = True, observe_extent: bool = False, perception: str = "synthesized"):
-        self.object = ObjectSpec(object, size, mass)
+        # a family draws a new object at each reset (the model is rebuilt for it); until then its seed-0 draw
+        self.object_family = ObjectFamily.parse(object, size) if is_family(object) else None
+        self.object = self.object_family.draw(0) if self.object_family else ObjectSpec(object, size, mass)
+        self.object_record: dict | None = self.object.record if self.object_family else None
         if max_episode_steps < 1:
             raise ConfigError(f"max_episode_steps must be positive, not {max_episode_steps}")
         self.sim = SimCore("tool_pick", obj=self.object, randomization=RandomizationConfig(enabled=randomize),
@@ -112,15 +118,8 @@ class ToolPickEnv(SimRenderMixin, gym.Env):
         self.action_space = spaces.Box(-1.0, 1.0, (5,), np.float32)
         self.observe_extent = bool(observe_extent)
         self.observation_space = spaces.Box(-np.inf, np.inf, (observation_dim(self.observe_extent),), np.float64)
-        self._object_body = self.sim.reader.object_body
-        # the object's geoms and their bounding boxes' corners in the geom frames: fixed for the env's life
-        model = self.sim.model
-        self._object_geoms = np.flatnonzero(model.geom_bodyid == self._object_body)  # a mesh's convex parts
-        signs = np.array([[sx, sy, sz] for sx in (-1, 1) for sy in (-1, 1) for sz in (-1, 1)], float)
-        self._object_corners = model.geom_aabb[self._object_geoms, None, :3] + \
-            signs * model.geom_aabb[self._object_geoms, None, 3:]  # (geoms, 8, 3)
+        self._cache_object_geometry()
         self.delay = DelayLine(self.sim.control_dt, 0.150)
-        self._hand_body = self.sim.reader.hand_body  # hand_base's body id (by-name access costs ~1 us a call)
         self._privileged_command = None
         self.steps = 0
         self.last_record: dict = {}
@@ -129,6 +128,8 @@ class ToolPickEnv(SimRenderMixin, gym.Env):
     def reset(self, *, seed: int | None = None, options: dict | None = None):
         super().reset(seed=seed)
         episode_seed = int(self.np_random.integers(2**31))
+        if self.object_family is not None:  # this episode's object, from its reset seed (else the derived one)
+            self._use_object(self.object_family.draw(episode_seed if seed is None else seed))
         center = scripted.platform_center(self.sim.model)
         xy = center + self.np_random.uniform(-self.placement_half_width, self.placement_half_width, 2)
         if options and "object_xy" in options:
@@ -210,6 +211,37 @@ class ToolPickEnv(SimRenderMixin, gym.Env):
 
     def _camera(self):
         return self.object_start, 0.5, 135, -25
+
+    # ------------------------------------------------------------------ the object
+    def _cache_object_geometry(self) -> None:
+        """Ids and the object's geoms with their bounding boxes' corners in the geom frames, for the model."""
+        self._object_body = self.sim.reader.object_body
+        self._hand_body = self.sim.reader.hand_body  # hand_base's body id (by-name access costs ~1 us a call)
+        model = self.sim.model
+        self._object_geoms = np.flatnonzero(model.geom_bodyid == self._object_body)  # a mesh's convex parts
+        signs = np.array([[sx, sy, sz] for sx in (-1, 1) for sy in (-1, 1) for sz in (-1, 1)], float)
+        self._object_corners = model.geom_aabb[self._object_geoms, None, :3] + \
+            signs * model.geom_aabb[self._object_geoms, None, 3:]  # (geoms, 8, 3)
+        if self.object_family is not None:
+            # a drawn piece's box sits in MuJoCo's mesh frame (its principal axes), turned against the world's
+            # under a yaw: its vertices instead (repeated up to the longest piece's count), for the exact box
+            meshes = model.geom_dataid[self._object_geoms]
+            count = int(model.mesh_vertnum[meshes].max())
+            self._object_corners = np.stack([model.mesh_vert[a + np.minimum(np.arange(count), n - 1)]
+                                             for a, n in zip(model.mesh_vertadr[meshes], model.mesh_vertnum[meshes])])
+
+    def _use_object(self, obj) -> None:
+        """Make ``obj`` (a family's draw) the object: the model rebuilt, and what held the old one refreshed."""
+        self.object_record = obj.record
+        if obj == self.object:
+            return
+        self.object = obj
+        self.sim.set_object(obj)
+        self._cache_object_geometry()
+        self.perception.close()  # the camera's renderer held the old model; the next frame makes a new one
+        if self._renderer is not None:
+            self._renderer.close()
+            self._renderer = None
 
     # ------------------------------------------------------------------ parts
     def _finger_action(self, action: np.ndarray) -> tuple[dict, np.ndarray]:

@@ -31,7 +31,7 @@ from scipy.spatial.transform import Rotation
 from tqdm import tqdm
 
 from hingelab.analysis.pick_table import FAILURE_REASONS, pick_rates
-from hingelab.envs.recording import privileged_fields
+from hingelab.envs.recording import object_metadata, privileged_fields
 from hingelab.episodes import EpisodeWriter, create_dataset
 from hingelab.episodes import schemas as S
 from hingelab.errors import ConfigError
@@ -42,6 +42,7 @@ from hingelab.robot.interface import ROBOTS, Robot, RobotReadings
 from hingelab.seeds import STRIDE, TRIALS_BASE, trial_seed
 from hingelab.sim import names
 from hingelab.sim.mesh_objects import object_label
+from hingelab.sim.object_families import episode_record
 
 FLUSH_EVERY = 20  # steps: what a crash can lose at most
 ANSWERS = {"s": "success", "success": "success", "f": "failure", "failure": "failure", "a": "abort", "abort": "abort"}
@@ -166,7 +167,9 @@ def run_trials(robot: Robot, controller: HierarchicalController, dataset_dir, co
                                keep_partial_on_error=True,
                                extra_metadata={"object_size": config.size, "trial": index, S.KEY_SUCCESS_VERDICT:
                                                "operator" if config.operator else "object_within_1cm",
-                                               **(extra_metadata or {})})
+                                               **(extra_metadata or {}),
+                                               # a family's draw for this seed: what the stand-in's env draws
+                                               **object_metadata(episode_record(config.object, config.size, seed))})
         with writer:
             row = run_trial(robot, controller, writer, seed, config, read=read, write=write,
                             label=f"trial {index + 1}/{config.trials}")

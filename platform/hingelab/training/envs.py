@@ -19,6 +19,7 @@ from stable_baselines3.common.vec_env import DummyVecEnv
 from hingelab.envs.recording import RecordingWrapper
 from hingelab.envs.vec_env import PinnedVecEnv
 from hingelab.seeds import training_episode_seed
+from hingelab.sim.object_families import check_object
 
 
 class SeededEpisodes(gym.Wrapper):
@@ -50,6 +51,9 @@ def make_training_vec_env(config, dataset_dir: Path | None):
     """``config.n_envs`` seeded envs: one process each (spawned, each held to a core, arrays through
     shared memory: ``PinnedVecEnv``), or all in this process (one env, or asked to)."""
 
+    arguments = config.env_arguments()
+    if "object" in arguments:  # a bad object: one line here, not a worker's traceback
+        check_object(arguments["object"], arguments["size"], arguments.get("mass", 0.01))
     factories = [functools.partial(_make_training_env, type(config), config.to_dict(),
                                    None if dataset_dir is None else str(dataset_dir), i)
                  for i in range(config.n_envs)]
