@@ -220,3 +220,27 @@ def test_a_trial_on_the_stand_in_records_the_draw_its_env_made(tmp_path):
         assert robot.pick.object_record == record  # the last trial's object is the one recorded
     finally:
         robot.close()
+
+
+def test_picksets_draws_the_pick_tables_twelve_primitives_as_the_fixed_objects_are():
+    import gymnasium as gym
+
+    from hingelab.sim.objects import PICK_SETS
+
+    family = F.ObjectFamily.parse("family:picksets", 0.02)
+    drawn = [family.draw(seed) for seed in range(300)]
+    assert {(o.shape, o.size) for o in drawn} == set(PICK_SETS)  # every set comes up, nothing else
+    assert all(o.mass == 0.010 and not o.is_mesh for o in drawn)
+    with pytest.raises(ConfigError, match="a MuJoCo primitive, not a drawn mesh"):
+        F.rebuild(drawn[0].record)
+    env = gym.make("hingelab/ToolPick-v0", object="family:picksets", low_level="privileged", randomize=False)
+    seed = next(s for s, o in enumerate(drawn) if o.shape == "tetrahedron")
+    env.reset(seed=seed)
+    pick = env.unwrapped
+    assert pick.object_record["kind"] == "tetrahedron"
+    fixed = gym.make("hingelab/ToolPick-v0", object="tetrahedron", size=drawn[seed].size, low_level="privileged",
+                     randomize=False)
+    fixed.reset(seed=seed)
+    np.testing.assert_allclose(pick.observed_object_extent(), fixed.unwrapped.observed_object_extent(), atol=1e-9)
+    env.close()
+    fixed.close()

@@ -222,7 +222,7 @@ class ToolPickEnv(SimRenderMixin, gym.Env):
         signs = np.array([[sx, sy, sz] for sx in (-1, 1) for sy in (-1, 1) for sz in (-1, 1)], float)
         self._object_corners = model.geom_aabb[self._object_geoms, None, :3] + \
             signs * model.geom_aabb[self._object_geoms, None, 3:]  # (geoms, 8, 3)
-        if self.object_family is not None:
+        if getattr(self.object, "pieces", None):  # a drawn mesh (family:picksets draws primitives)
             # a drawn piece's box sits in MuJoCo's mesh frame (its principal axes), turned against the world's
             # under a yaw: its vertices instead (repeated up to the longest piece's count), for the exact box
             meshes = model.geom_dataid[self._object_geoms]

@@ -29,6 +29,9 @@ unrotated. ``NAME`` is a kind, or a group of kinds drawn with equal chances:
   families and none of the paper's 12 test sets (sphere, cube, cylinder, tetrahedron at 1.5, 2 and
   2.5 cm), never to be trained or tuned on. Each of them is a NAME too, so a held-out evaluation can
   run 30 episodes of each (``--object family:prism5``, ...) or pool them (``family:holdout``).
+* ``picksets``: not a drawn mesh but one of the pick table's 12 sets (sphere, cube, cylinder,
+  tetrahedron at 1.5, 2 and 2.5 cm, 10 g) per episode, uniformly, as MuJoCo's primitives: training on
+  all the sets the pick table measures; ``--size`` does not apply.
 
 Sizes: the largest extent is at most the size cap, ``--size`` (ToolPick-v0's ``size``), which must be
 8 to 30 mm (``FAMILY_SIZE_RANGE``; give 0.03 for the whole range: the default 0.02 draws 8 to 20 mm).
@@ -59,11 +62,12 @@ import trimesh
 from hingelab.errors import ConfigError
 from hingelab.seeds import object_draw_entropy
 from hingelab.sim.mesh_objects import UnitHull
-from hingelab.sim.objects import FAMILY_PREFIX, MASS_LIMITS, MESH_MIN_THICKNESS, SIZE_LIMITS, ObjectSpec
+from hingelab.sim.objects import FAMILY_PREFIX, MASS_LIMITS, MESH_MIN_THICKNESS, PICK_SETS, SIZE_LIMITS, ObjectSpec
 
 FAMILY_SIZE_RANGE = (0.008, 0.030)  # m, the drawn largest extent; the upper end is the size cap's largest value
 MIN_HEIGHT = 0.003  # m: lower objects lie under the tips' pads
-TRAINING_DENSITY = 0.010 / (4.0 / 3.0 * np.pi * 0.01 ** 3)  # kg/m^3: the 10 g sphere of 2 cm diameter
+TRAINING_MASS = 0.010  # kg: the paper's training sphere
+TRAINING_DENSITY = TRAINING_MASS / (4.0 / 3.0 * np.pi * 0.01 ** 3)  # kg/m^3: the 10 g sphere of 2 cm diameter
 FAMILY_SEED_LIMIT = 2 ** 31  # a family SEED is an integer 0 <= SEED < this
 MAX_DRAWS = 100  # attempts at a graspable draw before giving up (none needs more than a few)
 
@@ -72,7 +76,8 @@ HOLDOUT_KINDS = ("prism3", "prism5", "prism6", "torus", "washer", "polytope")
 KINDS = TRAIN_KINDS + HOLDOUT_KINDS
 GROUPS = {"prism": ("prism3", "prism5", "prism6"), "ring": ("torus", "washer"),
           "train": TRAIN_KINDS, "holdout": HOLDOUT_KINDS}
-NAMES = KINDS + tuple(GROUPS)
+PICK_SETS_NAME = "picksets"  # not drawn meshes: one of the pick table's 12 primitive sets per episode
+NAMES = KINDS + tuple(GROUPS) + (PICK_SETS_NAME,)
 
 
 def is_family(shape) -> bool:
@@ -332,6 +337,17 @@ class DrawnObject(ObjectSpec):
 
 
 @dataclass(frozen=True)
+class ChosenObject(ObjectSpec):
+    """A fixed shape drawn by a family (``family:picksets``): an ``ObjectSpec`` with the draw's ``record``."""
+
+    record_json: str = ""
+
+    @property
+    def record(self) -> dict:
+        return json.loads(self.record_json)
+
+
+@dataclass(frozen=True)
 class ObjectFamily:
     """``family:NAME[:SEED]`` with its size cap (m) and density (kg/m^3): ``draw(episode_seed)``."""
 
@@ -385,8 +401,19 @@ class ObjectFamily:
         raise ConfigError(f"{self.label}: no graspable {kind} in {MAX_DRAWS} draws up to {self.size_cap:g} m "
                           f"(the last: {problem}); give a larger --size")
 
-    def draw(self, episode_seed: int) -> DrawnObject:
+    def draw(self, episode_seed: int) -> ObjectSpec:
+        if self.name == PICK_SETS_NAME:
+            return self.draw_pick_set(episode_seed)
         return drawn_object(self.draw_mesh(episode_seed), self.density, self.label)
+
+    def draw_pick_set(self, episode_seed: int) -> ChosenObject:
+        """``family:picksets``: one of the pick table's 12 shape-size sets, uniformly, at the training object's
+        mass (what ``eval high --object SHAPE --size SIZE`` picks), as MuJoCo's own primitives."""
+        rng = np.random.default_rng(object_draw_entropy(episode_seed, self.seed))
+        shape, size = PICK_SETS[int(rng.integers(len(PICK_SETS)))]
+        record = {"family": self.label, "kind": shape, "params": {"size": size}, "size_m": size,
+                  "mass_kg": TRAINING_MASS, "mesh_sha256": None}
+        return ChosenObject(shape, size, TRAINING_MASS, record_json=_canonical(record))
 
 
 def drawn_object(mesh: FamilyMesh, density: float = TRAINING_DENSITY, label: str = "") -> DrawnObject:
@@ -426,6 +453,9 @@ def episode_record(object: str, size_cap: float, episode_seed: int) -> dict | No
 def rebuild(record: dict, check: bool = True) -> FamilyMesh:
     """The mesh an episode recorded (its ``record``): built again from kind and parameters; ``check``:
     a ConfigError unless its sha256 is the recorded one."""
+    if record.get("mesh_sha256") is None:
+        raise ConfigError(f"{record.get('family')}'s {record['kind']} is a MuJoCo primitive, not a drawn mesh: "
+                          f"build it as ObjectSpec({record['kind']!r}, {record['size_m']})")
     mesh = build(record["kind"], record["params"])
     if check and mesh.sha256 != record.get("mesh_sha256"):
         raise ConfigError(f"the {record['kind']} rebuilt from its parameters has sha256 {mesh.sha256[:12]}..., "
@@ -436,9 +466,11 @@ def rebuild(record: dict, check: bool = True) -> FamilyMesh:
 
 def _unknown(name: str) -> str:
     return (f"unknown object family {name!r}; choose family:NAME[:SEED] with NAME one of: {', '.join(NAMES)} "
-            f"(train: {', '.join(TRAIN_KINDS)}; holdout: {', '.join(HOLDOUT_KINDS)})")
+            f"(train: {', '.join(TRAIN_KINDS)}; holdout: {', '.join(HOLDOUT_KINDS)}; {PICK_SETS_NAME}: the pick "
+            "table's 12 shape-size sets)")
 
 
-__all__ = ["FAMILY_SIZE_RANGE", "GROUPS", "HOLDOUT_KINDS", "KINDS", "MIN_HEIGHT", "NAMES", "TRAINING_DENSITY",
+__all__ = ["FAMILY_SIZE_RANGE", "GROUPS", "PICK_SETS_NAME", "ChosenObject",
+           "HOLDOUT_KINDS", "KINDS", "MIN_HEIGHT", "NAMES", "TRAINING_DENSITY",
            "TRAIN_KINDS", "DrawnObject", "FamilyMesh", "ObjectFamily", "build", "check_object", "drawn_object",
            "episode_record", "graspable_problem", "is_family", "mesh_sha256", "rebuild"]

@@ -27,6 +27,9 @@ SHAPES = ("sphere", "cube", "cylinder", "tetrahedron")
 FAMILY_PREFIX = "family:"  # family:NAME[:SEED], a procedural family (hingelab.sim.object_families)
 TRAINING_OBJECT = ("sphere", 0.02, 0.010)  # shape, size (m), mass (kg): the paper's training sphere
 TEST_SIZE_RANGE = (0.015, 0.025)  # the paper's test objects, metres
+# the pick table's 12 shape-size sets: the paper's test objects (Fig. 7), at the training object's mass
+PICK_SETS = tuple((shape, size) for shape in ("sphere", "cube", "cylinder", "tetrahedron")
+                  for size in (0.015, 0.02, 0.025))
 # What the scene accepts: the tweezer's tips open 0 to ~38 mm (hinge 0 to 0.3 rad).
 SIZE_LIMITS = (0.005, 0.035)
 MASS_LIMITS = (0.001, 0.2)

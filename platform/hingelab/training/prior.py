@@ -44,12 +44,10 @@ from hingelab.rollouts.heuristic_demos import HeuristicRunConfig, generate_heuri
 from hingelab.rollouts.high_level import DemonstratorLabels, FailureReasonWrapper, evaluate
 from hingelab.seeds import prior_block
 from hingelab.sim.mesh_objects import object_label
+from hingelab.sim.objects import PICK_SETS  # noqa: F401  (the pick table's sets: --prior-objects all)
 
 PRIOR_SOURCES = ("scripted", "scripted-feedback", "heuristic")
 PRIOR_OBJECTS = ("run", "all")
-# the pick table's shape-size sets (--prior-objects all)
-PICK_SETS = tuple((shape, size) for shape in ("sphere", "cube", "cylinder", "tetrahedron")
-                  for size in (0.015, 0.02, 0.025))
 
 
 def prior_parts(config) -> list[tuple[str, object, float, int]]:
