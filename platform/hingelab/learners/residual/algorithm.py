@@ -12,6 +12,12 @@ from the privileged buffer showed (``analysis/high-level/``):
 * **A critic ensemble** (``EnsembleCritic``, LayerNorm): the bootstrap target takes the minimum over a
   random subset of ``target_critics`` members (REDQ, Chen et al. 2021; RLPD, Ball et al. 2023), the
   actor the members' mean; several updates per env step (``gradient_steps``) are then stable.
+* **A pull back to the base** (``residual_penalty``): the actor's loss adds
+  ``residual_penalty * mean|Q| * mean(tanh(mu)^2)``, the squared deterministic residual scaled by the
+  batch's mean |Q| as TD3+BC scales its BC term (Fujimoto and Gu 2021). Adam takes steps of the learning
+  rate's size whatever the gradient's, so without it a critic's small, noisy action gradients still walk
+  the zero-initialized residual to its bounds within a few thousand updates; with it the residual moves
+  only where the critic's gain outweighs the pull (a BC term toward the base: the base is residual 0).
 """
 
 from __future__ import annotations
@@ -28,9 +34,11 @@ from hingelab.learners.sac.fast_sac import FastSAC, _mean
 class ResidualSAC(FastSAC):
     """FastSAC with policy-driven warm-up, a critic-only warm-up and an ensemble target (module doc)."""
 
-    def __init__(self, *args: Any, actor_start: int = 0, target_critics: int = 2, **kwargs: Any):
+    def __init__(self, *args: Any, actor_start: int = 0, target_critics: int = 2, residual_penalty: float = 0.0,
+                 **kwargs: Any):
         self.actor_start = int(actor_start)
         self.target_critics = int(target_critics)
+        self.residual_penalty = float(residual_penalty)
         super().__init__(*args, **kwargs)
 
     def _sample_action(self, learning_starts: int, action_noise=None, n_envs: int = 1):
@@ -97,6 +105,10 @@ class ResidualSAC(FastSAC):
                 try:
                     q_pi = self.critic.q_values(data.observations, actions_pi).mean(dim=0)
                     actor_loss = (ent_coef * log_prob - q_pi).mean()
+                    if self.residual_penalty:
+                        mean, _, _ = self.actor.get_action_dist_params(data.observations)
+                        pull = (th.tanh(mean) ** 2).mean()
+                        actor_loss = actor_loss + self.residual_penalty * q_pi.detach().abs().mean() * pull
                     extra = self._extra_actor_loss(batch_size)
                     if extra is not None:
                         actor_loss = actor_loss + extra

@@ -21,6 +21,7 @@ import io
 from pathlib import Path
 
 import numpy as np
+import torch
 
 from hingelab.errors import ConfigError
 from hingelab.learners.phase_clone.fit import PhaseDemos, fit_phase_clone_members
@@ -38,6 +39,7 @@ from hingelab.training.high_level_demos import DemoShareReplayBuffer
 from hingelab.training.pick_run_parts import PriorData
 
 BASE_FILE = "base.zip"
+ACTION_NAMES = ("z_goal_0", "z_goal_1", "velocity_x", "velocity_y", "velocity_z")
 
 
 def residual_transitions(demos, policy: ResidualPolicy):
@@ -130,7 +132,7 @@ class ResidualRun(PickRun):
         kwargs = sac_arguments(c)
         kwargs["policy_kwargs"].update(residual_scale=self.policy.scale.tolist(), log_std_max=c.log_std_max(),
                                        critic_layer_norm=c.critic_layer_norm, n_critics=c.critics)
-        kwargs.update(actor_start=c.actor_start, target_critics=c.target_critics)
+        kwargs.update(actor_start=c.actor_start, target_critics=c.target_critics, residual_penalty=c.residual_penalty)
         if self.demos is not None:
             kwargs.update(replay_buffer_class=DemoShareReplayBuffer,
                           replay_buffer_kwargs={"demos": self.demos, "demo_share": c.demo_share})
@@ -146,7 +148,23 @@ class ResidualRun(PickRun):
 
     def evaluate_policy(self) -> dict:
         self.model.actor.set_training_mode(False)
-        return self.evaluation(self.current_policy())
+        return {**self.evaluation(self.current_policy()), **self.residual_statistics()}
+
+    def residual_statistics(self, rows: int = 2000) -> dict:
+        """On the newest ``rows`` transitions of the ring buffer: the deterministic residual's mean |.| per
+        action dimension (action units, after the scale) and the critics' mean Q of the policy's action."""
+        buffer = self.model.replay_buffer
+        n = buffer.buffer_size if buffer.full else buffer.pos
+        if n == 0:
+            return {}
+        newest = (buffer.pos - 1 - np.arange(min(rows, n))) % buffer.buffer_size
+        obs = torch.as_tensor(buffer.observations[newest, 0])
+        with torch.no_grad():
+            residual = self.model.actor(obs, deterministic=True)
+            q = self.model.critic.q_values(obs, residual).mean()
+        executed = (residual.abs().mean(0).numpy() * self.policy.scale).tolist()
+        return {**{f"residual_abs_{name}": round(v, 6) for name, v in zip(ACTION_NAMES, executed)},
+                "q_policy_mean": float(q)}
 
     def save_policy(self, path: Path) -> None:
         self.current_policy().save(path, actor_state_for_policy(self.model.actor), tuple(self.config.net_arch))
