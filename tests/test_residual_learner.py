@@ -28,7 +28,7 @@ from hingelab.training import checkpoints as ckpt
 TINY = ResidualSACConfig(
     steps=240, n_envs=1, max_episode_steps=40, learning_starts=40, actor_start=120, batch_size=16, buffer_size=2000,
     net_arch=(32, 32), critics=4, eval_every=120, eval_episodes=1, checkpoint_every=80, keep_checkpoints=10,
-    prior_episodes=2, low_level="privileged", randomize=False)
+    prior_episodes=2, critic_pretrain_updates=10, low_level="privileged", randomize=False)
 
 
 @pytest.fixture(scope="module")
@@ -100,6 +100,8 @@ def test_critic_warm_up_leaves_the_actor_untouched_then_the_actor_moves(tmp_path
         assert torch.equal(alpha, model.log_ent_coef.detach())
         assert any(not torch.equal(v, model.critic.state_dict()[k]) for k, v in critic.items())
         model.num_timesteps = TINY.actor_start
+        model.pretrain_critic(5, batch_size=16)  # --critic-pretrain: critic-only whatever the step
+        assert all(torch.equal(v, model.actor.state_dict()[k]) for k, v in actor.items())
         model.train(gradient_steps=5, batch_size=16)
         assert any(not torch.equal(v, model.actor.state_dict()[k]) for k, v in actor.items())
     finally:
@@ -142,6 +144,8 @@ def test_the_demos_residuals_execute_the_demonstrated_actions(tmp_path):
             state = state_next
         np.testing.assert_allclose(np.array(seen), residual.observations[first], atol=1e-6)
         assert run.model.replay_buffer.demos.size() == len(demos)
+        # a residual that would execute the demos' actions: the critic values those, not clipped residuals
+        assert np.abs(residual.actions).max() > 1.0
     finally:
         _close(run)
 

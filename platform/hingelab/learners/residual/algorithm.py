@@ -51,7 +51,16 @@ class ResidualSAC(FastSAC):
     @property
     def actor_moves(self) -> bool:
         """Whether the actor and the temperature update now (after the critic-only warm-up)."""
-        return self.num_timesteps >= self.actor_start
+        return self.num_timesteps >= self.actor_start and not getattr(self, "_critic_only", False)
+
+    def pretrain_critic(self, updates: int, batch_size: int) -> None:
+        """``updates`` critic-only updates on what the replay buffer holds (before the first env step: the
+        demos), the actor and the temperature untouched whatever ``actor_start`` says."""
+        self._critic_only = True
+        try:
+            self.train(gradient_steps=updates, batch_size=batch_size)
+        finally:
+            self._critic_only = False
 
     def train(self, gradient_steps: int, batch_size: int = 64) -> None:
         self.policy.set_training_mode(True)

@@ -55,6 +55,8 @@ class ResidualSACConfig(PickTask, PickReward, PriorDemos, SACTrainConfig):
     critic_layer_norm: bool = option(True, "critics without LayerNorm", flag="--no-critic-layer-norm", negate=True)
     actor_start: int = option(5_000, "env steps before the actor and the temperature first move: until then the "
                                      "critics alone learn, on the prior's rollouts (and the demos)")
+    critic_pretrain_updates: int = option(0, "critic-only updates on the prior's demos before the first env step",
+                                          flag="--critic-pretrain", metavar="UPDATES")
     residual_penalty: float = option(1.0, "weight of the pull of the residual back to 0 (the base) in the actor's "
                                           "loss, times the batch's mean |Q| (TD3+BC's scaling); 0: none")
     demo_share: float = option(0.25, "share of every batch drawn from the privileged prior's demos (0: none; "
@@ -82,6 +84,7 @@ class ResidualSACConfig(PickTask, PickReward, PriorDemos, SACTrainConfig):
         self.check({**self.sac_checks(), **self.task_checks(), **self.prior_checks(),
                     "critics": self.critics >= 1, "target_critics": 1 <= self.target_critics <= self.critics,
                     "actor_start": self.actor_start >= 0, "residual_penalty": self.residual_penalty >= 0,
+                    "critic_pretrain_updates": self.critic_pretrain_updates >= 0,
                     "demo_share": 0 <= self.demo_share <= 1,
                     "clone_net_arch": len(self.clone_net_arch) >= 1 and all(int(n) >= 1 for n in self.clone_net_arch),
                     "clone_updates": self.clone_updates >= 1, "clone_batch_size": self.clone_batch_size >= 1,
