@@ -71,6 +71,7 @@ def test_report_files_and_learning_curves(dataset, tmp_path, capsys):
     assert len(by_seed) == 4 * (3 + 2) and set(by_seed.groupby("run")["seed"].nunique()) == {3, 2}
     assert by_seed.set_index(["run", "seed", "env_steps"]).loc[("sac_a", 1, 2000), "success_rate"] == \
         pytest.approx(0.6)
+    assert "return" in by_seed.columns  # the paper's Fig. 5a plots the return: per seed too
     # per seed: the first evaluation at success >= 0.5 (success = steps / 4000 + 0.1 seed), and the last
     seeds = pd.read_csv(out / "seeds.csv").set_index(["run", "seed"])
     assert seeds.loc[("sac_a", 0), "env_steps_to_0.5"] == 2000 and seeds.loc[("sac_a", 2), "env_steps_to_0.5"] == 2000

@@ -117,7 +117,7 @@ def learning_curves(metrics: pd.DataFrame) -> pd.DataFrame:
     return table.reset_index()
 
 
-SEED_CURVE_METRICS = ("success_rate", "first_attempt_success_rate")
+SEED_CURVE_METRICS = ("success_rate", "first_attempt_success_rate", "return")
 
 
 def load_seed_curves(run_dirs) -> pd.DataFrame:

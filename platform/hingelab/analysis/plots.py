@@ -127,8 +127,9 @@ def learning_curve_plot(curves: pd.DataFrame, path: Path) -> Path:
 
 
 def seed_curve_plot(seeds: pd.DataFrame, path: Path) -> Path:
-    """Success rate against env steps: every seed's curve (thin) and their mean (thick), per run."""
-    metrics = [m for m in ("success_rate", "first_attempt_success_rate") if m in seeds.columns]
+    """Success rate (and the return: the paper's Fig. 5a plots it) against env steps: every seed's curve (thin)
+    and their mean (thick), per run."""
+    metrics = [m for m in ("success_rate", "first_attempt_success_rate", "return") if m in seeds.columns]
     fig, axes = plt.subplots(1, len(metrics), figsize=(6 * len(metrics), 4), squeeze=False)
     for j, (run, part) in enumerate(seeds.groupby("run", sort=True)):
         color = PALETTE[j % len(PALETTE)]
@@ -141,10 +142,12 @@ def seed_curve_plot(seeds: pd.DataFrame, path: Path) -> Path:
     for ax, metric in zip(axes[0], metrics):
         ax.set_xlabel("environment steps")
         ax.set_ylabel(CURVE_PANELS[metric])
-        ax.set_ylim(-0.02, 1.02)
+        if metric != "return":
+            ax.set_ylim(-0.02, 1.02)
         ax.grid(alpha=0.3)
     axes[0][0].legend(fontsize=8)
-    fig.suptitle("success against env steps: each seed (thin) and the mean (thick)")
+    fig.suptitle(f"{' and '.join(CURVE_PANELS[m] for m in metrics)} against env steps: each seed (thin) and the "
+                 "mean (thick)")
     return _save(fig, path)
 
 
