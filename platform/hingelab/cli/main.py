@@ -23,6 +23,7 @@ VERB_MODULES = [
     "hingelab.cli.generate",
     "hingelab.cli.train",
     "hingelab.cli.sweep",
+    "hingelab.cli.reproduce",
     "hingelab.cli.eval",
     "hingelab.cli.trial",
     "hingelab.cli.diagnose",

@@ -1,0 +1,333 @@
+"""hingelab reproduce: the stage plan follows the shipped recipes; a reproduction killed during a stage
+resumes that stage (with its command's --resume) and runs the later ones only; the one-line errors; and
+(slow) the whole pipeline at --scale tiny with real commands."""
+
+from __future__ import annotations
+
+import json
+import os
+import signal
+import subprocess
+import sys
+import textwrap
+import time
+import zipfile
+from pathlib import Path
+
+import pandas as pd
+import pytest
+
+from hingelab.cli.main import main
+from hingelab.errors import ConfigError, HingelabError
+from hingelab.paths import ASSETS_DIR
+from hingelab.sweeps import reproduce_plan as P
+from hingelab.sweeps.reproduce import STATE_FILE, group_alive, read_state, run_reproduction
+
+REPO = Path(__file__).resolve().parents[1]
+SHIPPED_ENCODER = ASSETS_DIR / "checkpoints" / "encoder.pt"
+
+
+def _value(argv, flag):
+    return argv[list(argv).index(flag) + 1]
+
+
+# ---------------------------------------------------------------------------- the plan (no process)
+def test_the_plan_runs_the_shipped_recipes_in_dependency_order(tmp_path):
+    stages = P.plan_stages(tmp_path / "r")
+    names = [s.name for s in stages]
+    assert names[:8] == ["clouds", "encoder", "low_demos", "low_open", "low_closed", "low_experts", "high_clone",
+                         "high_rl"]
+    for i, s in enumerate(stages):  # every stage after the stages it waits for
+        assert all(names.index(d) < i for d in s.deps), s.name
+    by = {s.name: s for s in stages}
+    root = (tmp_path / "r").resolve()
+    stage_dir = lambda name: str(root / "stages" / name)  # noqa: E731
+    # the shipped commands' flags and seeds (assets/checkpoints/README.md, analysis/high-level/README.md)
+    assert by["clouds"].argv == (*P.CLOUDS, "--out", stage_dir("clouds"))
+    assert "--n 20000 --noise 0.002 --noise-max 0.006 --seed 0" in " ".join(by["clouds"].argv)
+    assert "--epochs 24 --seed 0 --threads 1" in " ".join(by["encoder"].argv)
+    assert _value(by["encoder"].argv, "--data") == stage_dir("clouds")
+    assert "--baseline synergy --episodes 200 --seed 11" in " ".join(by["low_demos"].argv)
+    for name, steps, seed in (("low_open", "50000", "2"), ("low_closed", "40000", "4")):
+        argv = by[name].argv
+        assert (_value(argv, "--steps"), _value(argv, "--seed")) == (steps, seed)
+        assert _value(argv, "--from") == stage_dir("low_demos")
+        for flag, value in (("--buffer-size", "200000"), ("--learning-starts", "1000"), ("--eval-every", "2500"),
+                            ("--eval-goals", "5"), ("--bc-weight", "1"), ("--bc-pretrain", "2000"),
+                            ("--drift-weight", "60"), ("--envs", "1")):
+            assert _value(argv, flag) == value, (name, flag)
+        assert "--bc-no-q-filter" in argv and "--in-process" in argv
+    assert "--goal-openings=-1:0.10" in by["low_closed"].argv and "--goal-openings=-1:0.10" not in by["low_open"].argv
+    experts = f"{stage_dir('low_experts')}/low_level_experts.json"
+    assert by["low_experts"].argv == ("compose", "low", "--expert", f"{stage_dir('low_closed')}/model.zip:0.10",
+                                      "--expert", f"{stage_dir('low_open')}/model.zip", "--out", experts)
+    clone = by["high_clone"].argv
+    assert clone[:len(P.HIGH_CLONE)] == P.HIGH_CLONE
+    assert "--learner phase-clone --env-kwargs {\"observe_extent\": true} --prior-objects all --prior-episodes 720 " \
+           "--net-arch 512 512 --clone-members 3 --seed 0" in " ".join(clone)
+    assert _value(clone, "--low-level") == experts
+    rl = by["high_rl"].argv
+    assert rl[:len(P.RL_FINE_TUNING)] == P.RL_FINE_TUNING
+    assert (_value(rl, "--base"), _value(rl, "--low-level")) == (f"{stage_dir('high_clone')}/model.zip", experts)
+    for s in stages:
+        assert _value(s.argv, "--out").startswith(stage_dir(s.name))
+    # the products perceive through the reproduced encoder; the encoder's own stages and the shipped evaluations not
+    plain = {"clouds", "encoder", "eval_low_shipped"} | {n for n in names if n.startswith("picks_shipped")}
+    assert {s.name for s in stages if not s.reproduced_assets} == plain
+    assert P.stage_environment(by["low_open"], root) == {"HINGELAB_ASSETS": str(root / "assets")}
+    assert P.stage_environment(by["encoder"], root) == {}
+    # the comparisons: the same command and seeds for the reproduced and the shipped policy
+    c = P.COMPARISON
+    assert by["eval_low_reproduced"].argv[2] == experts and "eval_low_shipped" in by
+    assert by["eval_low_reproduced"].argv[3:-2] == by["eval_low_shipped"].argv[2:-2]
+    for shape, size in c["pick_sets"]:
+        ours, theirs = by[P.pick_stage_name("clone", shape, size)], by[P.pick_stage_name("shipped", shape, size)]
+        assert ours.argv[2] == f"{stage_dir('high_clone')}/model.zip" and ours.argv[3:-2] == theirs.argv[2:-2]
+        assert _value(ours.argv, "--seed") == str(c["pick_seed"]) and by[P.pick_stage_name("rl", shape, size)]
+
+
+def test_tiny_scale_changes_sizes_only(tmp_path):
+    shipped, tiny = P.plan_stages(tmp_path), P.plan_stages(tmp_path, "tiny")
+    assert [s.name for s in shipped[:10]] == [t.name for t in tiny[:10]]  # the pick sets differ (fewer)
+    for s, t in zip(shipped[:10], tiny[:10]):
+        assert s.deps == t.deps
+        for flag in ("--seed", "--learner", "--base", "--low-level", "--from", "--out", "--goal-openings"):
+            if flag in s.argv:
+                assert _value(s.argv, flag) == _value(t.argv, flag), (s.name, flag)
+    by = {t.name: t for t in tiny}
+    assert _value(by["encoder"].argv, "--epochs") == "1" and _value(by["low_open"].argv, "--steps") == "150"
+    assert by["high_clone"].argv[by["high_clone"].argv.index("--net-arch") + 1:][:3] == ("16", "16", "--clone-members")
+    assert len([t for t in tiny if t.name.startswith("picks_")]) == 3  # one set, three policies
+    with pytest.raises(ConfigError, match="choose one of shipped, tiny"):
+        P.plan_stages(tmp_path, "huge")
+
+
+def test_with_flags_replaces_values_and_appends_missing_flags():
+    argv = ("train", "high", "--net-arch", "512", "512", "--goal-openings=-1:0.10", "--in-process", "--seed", "0")
+    assert P.with_flags(argv, {"--net-arch": ("16", "16"), "--goal-openings": "0:1", "--steps": "5"}) == (
+        "train", "high", "--net-arch", "16", "16", "--goal-openings", "0:1", "--in-process", "--seed", "0",
+        "--steps", "5")
+
+
+def test_linked_assets_hold_the_reproduced_encoder_and_no_policy(tmp_path):
+    root = P.link_assets(tmp_path)
+    assert (root / "scenes").resolve() == (ASSETS_DIR / "scenes").resolve()
+    encoder = root / "checkpoints" / "encoder.pt"
+    assert encoder.is_symlink() and not encoder.exists()  # dangling until the encoder stage is done
+    assert encoder.resolve() == (tmp_path / "stages" / "encoder" / "encoder.pt").resolve()
+    assert sorted(p.name for p in (root / "checkpoints").iterdir()) == ["README.md", "encoder.pt"]
+    assert P.link_assets(tmp_path) == root  # again: nothing to redo
+
+
+# ---------------------------------------------------------------------------- stand-in stages (real processes)
+FAKE_STAGE = textwrap.dedent("""
+    # A stand-in for `hingelab ARGS`: writes what the command's stage must leave, logs its launch, and hangs
+    # (in a train run with a checkpoint) or fails where the test says.
+    import json, os, pathlib, shutil, sys, time
+    argv = sys.argv[1:]
+    out = pathlib.Path(argv[argv.index("--out") + 1])
+    with open(os.environ["FAKE_LAUNCHES"], "a") as f:
+        f.write(json.dumps({"argv": argv, "assets": os.environ.get("HINGELAB_ASSETS"), "t": time.time()}) + "\\n")
+    print("fake", " ".join(argv[:2]), flush=True)
+    parts = out.parts
+    stage = parts[len(parts) - 1 - parts[::-1].index("stages") + 1]
+    if stage == os.environ.get("FAKE_FAIL"):
+        print("boom: a fake failure", flush=True)
+        sys.exit(3)
+    command = argv[:2]
+    if command == ["train", "encoder"]:
+        shutil.copy(os.environ["FAKE_ENCODER"], out)
+    elif command == ["compose", "low"]:
+        out.write_text("{}")
+    elif command[0] == "generate":
+        out.mkdir()
+        (out / "dataset.json").write_text("{}")
+    elif command[0] == "eval":
+        out.mkdir(exist_ok=True)
+        (out / "dataset.json").write_text("{}")
+        columns = ("success,tool_drift_mm_max\\n1,3\\n0,12\\n" if command[1] == "low" else
+                   "success,first_attempt_success,attempts,failure_reason\\n1,1,1,\\n1,0,2,\\n")
+        (out / "episodes.csv").write_text(columns)
+    else:  # train low | high
+        out.mkdir(exist_ok=True)
+        (out / "config.json").write_text("{}")
+        checkpoint = out / "checkpoints" / "step_000000000010"
+        checkpoint.mkdir(parents=True, exist_ok=True)
+        (checkpoint / "state.json").write_text("{}")
+        if stage == os.environ.get("FAKE_HANG") and "--resume" not in argv:
+            print("hanging", flush=True)
+            time.sleep(600)
+        (out / "model.zip").write_text("fake")
+""")
+
+
+@pytest.fixture
+def fake(tmp_path, monkeypatch):
+    script = tmp_path / "fake_stage.py"
+    script.write_text(FAKE_STAGE)
+    launches = tmp_path / "launches.jsonl"
+    monkeypatch.setenv("FAKE_LAUNCHES", str(launches))
+    monkeypatch.setenv("FAKE_ENCODER", str(SHIPPED_ENCODER))
+    for name in ("FAKE_FAIL", "FAKE_HANG"):
+        monkeypatch.delenv(name, raising=False)
+
+    def read_launches():
+        lines = launches.read_text().splitlines() if launches.exists() else []
+        return [json.loads(line) for line in lines]
+
+    return [sys.executable, str(script)], read_launches
+
+
+def _stage_of(launch) -> str:
+    """The stage a launch was for: the folder under stages/ of its --out."""
+    parts = Path(launch["argv"][launch["argv"].index("--out") + 1]).parts
+    return parts[len(parts) - 1 - parts[::-1].index("stages") + 1]
+
+
+def _wait_for(condition, timeout_s: float, what: str):
+    deadline = time.monotonic() + timeout_s
+    while time.monotonic() < deadline:
+        if condition():
+            return
+        time.sleep(0.1)
+    raise AssertionError(f"timed out waiting for {what}")
+
+
+def test_resume_after_a_kill_continues_the_unfinished_stage_and_runs_only_the_later_ones(tmp_path, fake,
+                                                                                           monkeypatch):
+    command, launches = fake
+    out = tmp_path / "repro"
+    monkeypatch.setenv("FAKE_HANG", "low_open")
+    driver = subprocess.Popen(
+        [sys.executable, "-c", "import sys; from hingelab.sweeps.reproduce import run_reproduction; "
+         "run_reproduction(sys.argv[1], scale='tiny', jobs=1, command=sys.argv[2:], progress=False)",
+         str(out), *command], cwd=REPO)
+
+    def hanging() -> bool:
+        log = out / "logs" / "low_open.log"
+        return log.exists() and "hanging" in log.read_text()
+
+    try:
+        _wait_for(hanging, 120, "the low_open stage to start")
+        running = read_state(out)
+        assert [s["status"] for s in running["stages"][:4]] == ["done", "done", "done", "running"]
+        driver.send_signal(signal.SIGKILL)  # a kill during stage 4 of the plan (a crash, an OOM kill)
+        driver.wait(timeout=30)
+    finally:
+        if driver.poll() is None:
+            driver.kill()
+    pgid = read_state(out)["stages"][3]["pgid"]
+    _wait_for(lambda: not group_alive(pgid), 30, "the stage's process to die with the reproduction")
+    before = launches()
+    assert [_stage_of(x) for x in before] == ["clouds", "encoder", "low_demos", "low_open"]
+    killed_at = time.time()
+
+    monkeypatch.delenv("FAKE_HANG")
+    result = run_reproduction(out, resume=True, jobs=1, command=command, progress=False)
+    after = launches()[len(before):]
+    names = [_stage_of(x) for x in after]
+    plan = [s["name"] for s in result.state["stages"]]
+    assert names[0] == "low_open" and "--resume" in after[0]["argv"]  # its own --resume: it had a checkpoint
+    assert sorted(names) == sorted(plan[3:]) and len(names) == len(set(names))  # the later stages, once each
+    assert all(x["t"] > killed_at for x in after)
+    assert result.ran == names
+    state = read_state(out)
+    by = {s["name"]: s for s in state["stages"]}
+    assert all(s["status"] == "done" for s in state["stages"])
+    for name in ("clouds", "encoder", "low_demos"):  # not run again: one session, ended before the kill
+        assert len(by[name]["sessions"]) == 1 and by[name]["ended_unix"] < killed_at
+    first, second = by["low_open"]["sessions"]
+    assert first["returncode"] == "killed" and not first["resumed"] and first["wall_time_s"] >= 0
+    assert second["resumed"] and second["argv"][-1] == "--resume" and second["started_unix"] > killed_at
+    assert by["low_open"]["wall_time_s"] == pytest.approx(first["wall_time_s"] + second["wall_time_s"], abs=1e-3)
+    for name in plan[4:]:
+        assert len(by[name]["sessions"]) == 1 and by[name]["started_unix"] > killed_at
+    assert len(state["sessions"]) == 2 and state["sessions"][0]["killed"] and state["sessions"][1]["resume"]
+    # the products perceived through the linked assets; the shipped evaluations through the checkout's
+    assets = {_stage_of(x): x["assets"] for x in launches()}
+    assert assets["low_open"] == str(out.resolve() / "assets") and assets["encoder"] is None
+    assert assets["eval_low_shipped"] is None and assets["eval_low_reproduced"] == str(out.resolve() / "assets")
+    # the table: both sides of every product, and the stages' times
+    table = pd.read_csv(out / "reproduce.csv")
+    assert list(table["product"]) == ["encoder", "encoder", "low level", "low level", "high level (phase clone)",
+                                      "high level (phase clone)", "high level (RL fine-tuning)",
+                                      "high level (RL fine-tuning)"]
+    assert table["reproduced_value"].iloc[0] == pytest.approx(table["shipped_value"].iloc[0])  # the same encoder
+    assert table["reproduced_k"].iloc[2] == 1 and table["reproduced_n"].iloc[2] == 2
+    md = (out / "reproduce.md").read_text()
+    assert "## The stages" in md and "low_open" in md and result.summary.startswith("Reproduced the shipped set")
+    # everything done: a resume runs nothing and writes the table again
+    again = run_reproduction(out, resume=True, jobs=1, command=command, progress=False)
+    assert again.ran == [] and len(launches()) == len(before) + len(after)
+
+
+def test_a_failed_stage_names_its_log_and_stops_the_stages_after_it(tmp_path, fake, monkeypatch):
+    command, launches = fake
+    out = tmp_path / "repro"
+    monkeypatch.setenv("FAKE_FAIL", "encoder")
+    with pytest.raises(HingelabError) as error:
+        run_reproduction(out, scale="tiny", jobs=2, command=command, progress=False)
+    message = str(error.value)
+    assert "stage encoder failed (exit 3: boom: a fake failure)" in message
+    assert str(out.resolve() / "logs" / "encoder.log") in message and "--resume" in message
+    assert "\n" not in message
+    by = {s["name"]: s for s in read_state(out)["stages"]}
+    assert by["encoder"]["status"] == "failed" and by["low_demos"]["status"] == "pending"
+    assert "encoder" in [_stage_of(x) for x in launches()] and "low_demos" not in [_stage_of(x) for x in launches()]
+    assert not (out / "reproduce.md").exists()
+
+
+def test_the_one_line_errors(tmp_path, capsys):
+    taken = tmp_path / "taken"
+    taken.mkdir()
+    (taken / "something").write_text("x")
+    assert main(["reproduce", "--out", str(taken), "--scale", "tiny"]) == 1
+    assert capsys.readouterr().err.strip() == (f"hingelab: error: {taken} is not empty; give a new or empty --out "
+                                               "(or --resume a reproduction there)")
+    assert main(["reproduce", "--out", str(tmp_path / "none"), "--resume"]) == 1
+    err = capsys.readouterr().err.strip()
+    assert err.startswith("hingelab: error: --resume: ") and "holds no reproduction (reproduce.json is missing)" in err
+    assert main(["reproduce", "--out", str(tmp_path / "x"), "--jobs", "0"]) == 1
+    assert "--jobs must be at least 1" in capsys.readouterr().err
+    assert not (tmp_path / "none").exists() and not (tmp_path / "x").exists()
+    started = tmp_path / "started"
+    started.mkdir()
+    (started / STATE_FILE).write_text(json.dumps({"format": "hingelab reproduce", "format_version": 1,
+                                                  "scale": "tiny", "stages": [], "sessions": []}))
+    assert main(["reproduce", "--out", str(started), "--resume", "--scale", "shipped"]) == 1
+    assert "was started with --scale tiny, not shipped" in capsys.readouterr().err
+    assert main(["reproduce", "--out", str(started)]) == 1
+    assert "holds a reproduction; continue it with --resume" in capsys.readouterr().err
+    assert main(["reproduce", "--out", str(tmp_path / "p"), "--plan"]) == 0
+    printed = capsys.readouterr().out
+    assert "hingelab train encoder --epochs 24" in printed and not (tmp_path / "p").exists()
+
+
+# ---------------------------------------------------------------------------- the real pipeline, tiny
+@pytest.mark.slow
+def test_tiny_reproduction_end_to_end(tmp_path):
+    from hingelab.perception.encoder import load_encoder, shipped_encoder_fingerprint
+    from hingelab.policies.sb3_zip import read_plain_data
+
+    out = tmp_path / "repro"
+    started = time.monotonic()
+    run = subprocess.run([sys.executable, "-m", "hingelab.cli.main", "reproduce", "--out", str(out), "--scale", "tiny",
+                          "--no-progress"], cwd=REPO, capture_output=True, text=True,
+                         env={**os.environ, "MUJOCO_GL": os.environ.get("MUJOCO_GL", "egl")})
+    assert run.returncode == 0, run.stderr[-3000:]
+    print(f"tiny reproduction: {time.monotonic() - started:.0f} s")
+    state = read_state(out)
+    assert all(s["status"] == "done" and len(s["sessions"]) == 1 for s in state["stages"])
+    table = pd.read_csv(out / "reproduce.csv")
+    assert len(table) == 8 and table["shipped_value"].notna().all() and table["reproduced_value"].notna().all()
+    assert "Reproduced the shipped set at --scale tiny" in run.stdout
+    # the later stages learned on the reproduced encoder's latents, not the shipped one's
+    reproduced = load_encoder(out / "stages" / "encoder" / "encoder.pt").fingerprint
+    assert reproduced != shipped_encoder_fingerprint()
+    for name in ("low_open", "low_closed"):
+        plain, _ = read_plain_data(out / "stages" / name / "model.zip")
+        assert plain["hingelab_provenance"]["encoder_fingerprint"] == reproduced
+    with zipfile.ZipFile(out / "stages" / "high_clone" / "model.zip") as clone:
+        provenance = json.loads(clone.read("phase_clone.json"))["hingelab_provenance"]
+    assert provenance["encoder_fingerprint"] == reproduced
+    assert provenance["low_level"] == str((out / "stages" / "low_experts" / "low_level_experts.json").resolve())
