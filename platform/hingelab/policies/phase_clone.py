@@ -51,6 +51,19 @@ def next_memory(phase: np.ndarray, steps: np.ndarray, next_phase: np.ndarray) ->
     return next_phase, np.where(next_phase == phase, steps + 1, 0)
 
 
+def batch_with_memory(observation, state, episode_start, observation_dim: int):
+    """(observations ``(n, D)`` float32, whether one observation came, the memory ``(n, 2)``: ``state``, or
+    the start of an episode where it is None or ``episode_start`` says so)."""
+    obs = np.asarray(observation, np.float32)
+    single = obs.ndim == 1
+    obs = obs.reshape(-1, observation_dim)
+    n = len(obs)
+    memory = np.zeros((n, 2), np.int64) if state is None else np.array(state, np.int64).reshape(n, 2)
+    if episode_start is not None:
+        memory[np.asarray(episode_start, bool).reshape(n)] = 0
+    return obs, single, memory
+
+
 class PhaseCloneNet(nn.Module):
     """MLP(standardized observation, phase one-hot, steps / MAX_PHASE_STEPS) -> (action in (-1, 1),
     next-phase logits)."""
@@ -94,13 +107,7 @@ class PhaseClone:
 
     def predict(self, observation, state=None, episode_start=None, deterministic: bool = True):
         """(action, state) for one observation ``(D,)`` or a batch ``(n, D)``; see the module doc."""
-        obs = np.asarray(observation, np.float32)
-        single = obs.ndim == 1
-        obs = obs.reshape(-1, self.observation_dim)
-        n = len(obs)
-        memory = np.zeros((n, 2), np.int64) if state is None else np.array(state, np.int64).reshape(n, 2)
-        if episode_start is not None:
-            memory[np.asarray(episode_start, bool).reshape(n)] = 0
+        obs, single, memory = batch_with_memory(observation, state, episode_start, self.observation_dim)
         inputs = (torch.as_tensor(obs), torch.as_tensor(memory[:, 0]), torch.as_tensor(memory[:, 1]))
         with torch.no_grad():
             outputs = [net(*inputs) for net in self.nets]
@@ -172,5 +179,5 @@ def is_phase_clone(path) -> bool:
         return False
 
 
-__all__ = ["PHASES", "LABELS", "ACTION_DIM", "PhaseClone", "PhaseCloneNet", "is_phase_clone", "next_memory",
-           "phase_index"]
+__all__ = ["PHASES", "LABELS", "ACTION_DIM", "PhaseClone", "PhaseCloneNet", "batch_with_memory", "is_phase_clone",
+           "next_memory", "phase_index"]

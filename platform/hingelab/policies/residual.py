@@ -34,7 +34,14 @@ import torch
 from torch import nn
 
 from hingelab.errors import ConfigError
-from hingelab.policies.phase_clone import ACTION_DIM, MAX_PHASE_STEPS, PHASES, PhaseClone, is_phase_clone
+from hingelab.policies.phase_clone import (
+    ACTION_DIM,
+    MAX_PHASE_STEPS,
+    PHASES,
+    PhaseClone,
+    batch_with_memory,
+    is_phase_clone,
+)
 from hingelab.seeds import preserved_global_rngs
 
 META_FILE, BASE_FILE, ACTOR_FILE = "residual.json", "base.zip", "actor.npz"
@@ -136,13 +143,7 @@ class ResidualPolicy:
         return self.inputs(obs, memory, base_action), base_action, next_memory
 
     def predict(self, observation, state=None, episode_start=None, deterministic: bool = True):
-        obs = np.asarray(observation, np.float32)
-        single = obs.ndim == 1
-        obs = obs.reshape(-1, self.observation_dim)
-        n = len(obs)
-        memory = np.zeros((n, 2), np.int64) if state is None else np.array(state, np.int64).reshape(n, 2)
-        if episode_start is not None:
-            memory[np.asarray(episode_start, bool).reshape(n)] = 0
+        obs, single, memory = batch_with_memory(observation, state, episode_start, self.observation_dim)
         x, base_action, next_memory = self.step(obs, memory)
         with torch.no_grad():
             residual = self.actor(torch.as_tensor(x)).numpy()

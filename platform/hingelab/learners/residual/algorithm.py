@@ -28,7 +28,7 @@ import numpy as np
 import torch as th
 import torch.nn.functional as F
 
-from hingelab.learners.sac.fast_sac import FastSAC, _mean
+from hingelab.learners.sac.fast_sac import FastSAC
 
 
 class ResidualSAC(FastSAC):
@@ -132,14 +132,7 @@ class ResidualSAC(FastSAC):
             if gradient_step % self.target_update_interval == 0:
                 self._polyak(critic_params, target_params, True)
 
-        self._n_updates += gradient_steps
-        self.logger.record("train/n_updates", self._n_updates, exclude="tensorboard")
-        self.logger.record("train/ent_coef", _mean(ent_coefs))
-        self.logger.record("train/critic_loss", _mean(critic_losses))
-        if actor_losses:
-            self.logger.record("train/actor_loss", _mean(actor_losses))
-        if ent_coef_losses:
-            self.logger.record("train/ent_coef_loss", _mean(ent_coef_losses))
+        self._record_update(gradient_steps, ent_coefs, actor_losses, critic_losses, ent_coef_losses)
 
 
 __all__ = ["ResidualSAC"]

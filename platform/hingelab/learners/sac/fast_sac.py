@@ -298,12 +298,17 @@ class FastSAC(SAC):
             if gradient_step % self.target_update_interval == 0:
                 self._polyak(critic_params, target_params, foreach_polyak)
 
+        self._record_update(gradient_steps, ent_coefs, actor_losses, critic_losses, ent_coef_losses)
+
+    def _record_update(self, gradient_steps: int, ent_coefs, actor_losses, critic_losses, ent_coef_losses) -> None:
+        """Count the updates and log their mean losses (as SB3's ``train`` does; empty lists are not logged)."""
         self._n_updates += gradient_steps
         self.logger.record("train/n_updates", self._n_updates, exclude="tensorboard")
         self.logger.record("train/ent_coef", _mean(ent_coefs))
-        self.logger.record("train/actor_loss", _mean(actor_losses))
+        if actor_losses:
+            self.logger.record("train/actor_loss", _mean(actor_losses))
         self.logger.record("train/critic_loss", _mean(critic_losses))
-        if len(ent_coef_losses) > 0:
+        if ent_coef_losses:
             self.logger.record("train/ent_coef_loss", _mean(ent_coef_losses))
 
     def _polyak(self, params: list[th.Tensor], targets: list[th.Tensor], foreach: bool) -> None:
