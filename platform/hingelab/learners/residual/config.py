@@ -8,23 +8,20 @@ them). The privileged prior's demos also stay in every batch (``--demo-share``, 
 
 from __future__ import annotations
 
-import json
 import math
-import zipfile
 from dataclasses import dataclass
 from pathlib import Path
 
 from hingelab.errors import ConfigError
 from hingelab.learners.sac.config import SACTrainConfig
-from hingelab.paths import ASSETS_DIR
-from hingelab.policies import phase_clone
+from hingelab.policies.high_level import SHIPPED_HIGH_LEVEL, observes_extent
+from hingelab.policies.phase_clone import PhaseClone
 from hingelab.policies.residual import check_scale
 from hingelab.tasks import TOOL_PICK_ID
 from hingelab.training.config_parts import PickReward, PickTask, PriorDemos
 from hingelab.training.run_config import option
 
 BASES = ("shipped", "fit")  # or a phase-clone checkpoint's path
-SHIPPED_HIGH_LEVEL = ASSETS_DIR / "checkpoints" / "high_level.zip"  # policies.high_level's (which loads torch)
 # The largest executed exploration noise (std, action units) per action dimension, below what the scripted
 # demonstrator tolerates (``hingelab diagnose noise``, analysis/high-level/exploration/noise_tolerance.md:
 # the latent goal 0.02 and 0.01, 20 of 20 picked; at 0.02 on the second latent 5 tool drops in 20; the hand's
@@ -120,13 +117,11 @@ class ResidualSACConfig(PickTask, PickReward, PriorDemos, SACTrainConfig):
         return [math.log(b / s) for b, s in zip(self.exploration_bound, scale)]
 
 
+
 def base_observes_extent(path: Path) -> bool | None:
     """Whether the phase clone at ``path`` was trained observing the object's extent (None: not readable here;
     the run then says what is wrong with it)."""
     try:
-        with zipfile.ZipFile(path) as archive:
-            meta = json.loads(archive.read(phase_clone.META_FILE))
-    except (OSError, KeyError, ValueError, zipfile.BadZipFile):
+        return observes_extent(PhaseClone.load(path))
+    except ConfigError:
         return None
-    kwargs = (meta.get("hingelab_provenance") or {}).get("env_kwargs") or {}
-    return bool(kwargs.get("observe_extent", False))

@@ -117,12 +117,9 @@ class ResidualRun(PickRun):
                   f"({c.clone_updates} updates)")
         nets, fit = fit_phase_clone_members(demos, 1, tuple(c.clone_net_arch), c.clone_updates, c.clone_batch_size,
                                             c.clone_learning_rate, c.seed, progress=self.progress)
-        clone = PhaseClone(nets, {**self.env_record(), **self._context_record(), "learner": "phase-clone",
+        clone = PhaseClone(nets, {**self.env_record(), **training_context(c.low_level), "learner": "phase-clone",
                                   "fit": fit, "fitted_by": "train high --learner residual-sac --base fit"})
         clone.save(path)
-
-    def _context_record(self) -> dict:
-        return training_context(self.config.low_level)
 
     # ------------------------------------------------------------------ env and model
     def wrap_env(self, env):
