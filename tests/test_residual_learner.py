@@ -15,6 +15,7 @@ from scipy.spatial.transform import Rotation
 
 from hingelab.cli.main import main
 from hingelab.errors import ConfigError
+from hingelab.learners import registry
 from hingelab.learners.residual.config import ResidualSACConfig
 from hingelab.learners.residual.networks import EnsembleCritic
 from hingelab.learners.residual.run import ResidualRun, residual_transitions, train_residual
@@ -175,6 +176,7 @@ def test_the_ensemble_is_each_members_own_network():
 def test_run_trains_records_and_resumes_exactly(tiny_run, tmp_path):
     run, summary = tiny_run
     assert summary["env_steps"] == TINY.steps and summary["base"] == str(SHIPPED_HIGH_LEVEL)
+    assert registry.run_learner(run) == "residual-sac"  # what train --resume checks
     metrics = pd.read_csv(run / "metrics.csv")
     assert metrics["env_steps"].tolist() == [0, 120, 240]
     policy = load_policy(run / "model.zip", level="high")

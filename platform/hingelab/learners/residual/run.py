@@ -71,6 +71,7 @@ def residual_transitions(demos, policy: ResidualPolicy):
 
 class ResidualRun(PickRun):
     label = "train high (residual)"
+    learner_name = "residual-sac"
     dataset_description = "every training rollout of a hingelab train high --learner residual-sac run"
 
     # ------------------------------------------------------------------ data: the prior, the base, the demos

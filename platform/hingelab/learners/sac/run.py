@@ -60,6 +60,7 @@ class SACRun:
     """One run folder: set up (new or resumed), train, evaluate, checkpoint."""
 
     label = "train"  # the progress bar's
+    learner_name = "sac"  # what config.json records, checked by train's --resume
     dataset_description = "every training rollout of a hingelab run"
 
     def __init__(self, config, run_dir: Path, resume: bool = False, progress: bool = True, name: str | None = None):
@@ -129,7 +130,7 @@ class SACRun:
         configure_torch(self.config.torch_threads)
         if not self.resume:
             self.prepare_new_run()
-            self.folder.write_run_files({"learner": "sac"})
+            self.folder.write_run_files({"learner": self.learner_name})
         self.prepare_data()
         self.env = self.wrap_env(make_training_vec_env(self.config, self.folder.dataset(self.dataset_description)))
         self.make_evaluator()
