@@ -244,3 +244,19 @@ def test_picksets_draws_the_pick_tables_twelve_primitives_as_the_fixed_objects_a
     np.testing.assert_allclose(pick.observed_object_extent(), fixed.unwrapped.observed_object_extent(), atol=1e-9)
     env.close()
     fixed.close()
+
+
+def test_train_plus_picksets_draws_the_pick_sets_or_a_train_kind_as_those_families_would():
+    mix = F.ObjectFamily.parse("family:train+picksets", 0.03)
+    picksets, train = F.ObjectFamily.parse("family:picksets", 0.03), F.ObjectFamily.parse("family:train", 0.03)
+    drawn = [mix.draw(seed) for seed in range(120)]
+    sets = [seed for seed, o in enumerate(drawn) if not o.is_mesh]
+    assert 8 <= len(sets) <= 35  # about one in six
+    assert {o.record["kind"] for o in drawn if o.is_mesh} == set(F.TRAIN_KINDS)
+    for seed in sets[:5]:
+        assert drawn[seed].record["kind"] == picksets.draw(seed).record["kind"]
+    meshes = [seed for seed in range(120) if seed not in sets]
+    for seed in meshes[:5]:
+        own, train_draw = drawn[seed].record, train.draw(seed).record
+        assert own["mesh_sha256"] == train_draw["mesh_sha256"] and own["family"] == "family:train+picksets"
+    assert [mix.draw(seed).record for seed in range(20)] == [o.record for o in drawn[:20]]  # repeatable

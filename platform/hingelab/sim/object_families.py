@@ -32,6 +32,9 @@ unrotated. ``NAME`` is a kind, or a group of kinds drawn with equal chances:
 * ``picksets``: not a drawn mesh but one of the pick table's 12 sets (sphere, cube, cylinder,
   tetrahedron at 1.5, 2 and 2.5 cm, 10 g) per episode, uniformly, as MuJoCo's primitives: training on
   all the sets the pick table measures; ``--size`` does not apply.
+* ``train+picksets``: everything there is to train on: per episode the pick sets (as ``picksets``
+  draws them) or one of ``train``'s kinds, the six with equal chances (a separate stream of the
+  episode's seed chooses, so a kind's draw is the one ``family:train`` would make of it).
 
 Sizes: the largest extent is at most the size cap, ``--size`` (ToolPick-v0's ``size``), which must be
 8 to 30 mm (``FAMILY_SIZE_RANGE``; give 0.03 for the whole range: the default 0.02 draws 8 to 20 mm).
@@ -77,7 +80,8 @@ KINDS = TRAIN_KINDS + HOLDOUT_KINDS
 GROUPS = {"prism": ("prism3", "prism5", "prism6"), "ring": ("torus", "washer"),
           "train": TRAIN_KINDS, "holdout": HOLDOUT_KINDS}
 PICK_SETS_NAME = "picksets"  # not drawn meshes: one of the pick table's 12 primitive sets per episode
-NAMES = KINDS + tuple(GROUPS) + (PICK_SETS_NAME,)
+TRAINING_MIX_NAME = "train+picksets"  # the pick sets (as one entry) or a train kind, the six with equal chances
+NAMES = KINDS + tuple(GROUPS) + (PICK_SETS_NAME, TRAINING_MIX_NAME)
 
 
 def is_family(shape) -> bool:
@@ -379,6 +383,8 @@ class ObjectFamily:
 
     @property
     def kinds(self) -> tuple[str, ...]:
+        if self.name == TRAINING_MIX_NAME:
+            return TRAIN_KINDS
         return GROUPS.get(self.name, (self.name,))
 
     @property
@@ -404,6 +410,10 @@ class ObjectFamily:
     def draw(self, episode_seed: int) -> ObjectSpec:
         if self.name == PICK_SETS_NAME:
             return self.draw_pick_set(episode_seed)
+        if self.name == TRAINING_MIX_NAME:
+            choice = np.random.default_rng([*object_draw_entropy(episode_seed, self.seed), 1])
+            if int(choice.integers(len(TRAIN_KINDS) + 1)) == 0:
+                return self.draw_pick_set(episode_seed)
         return drawn_object(self.draw_mesh(episode_seed), self.density, self.label)
 
     def draw_pick_set(self, episode_seed: int) -> ChosenObject:
@@ -467,10 +477,10 @@ def rebuild(record: dict, check: bool = True) -> FamilyMesh:
 def _unknown(name: str) -> str:
     return (f"unknown object family {name!r}; choose family:NAME[:SEED] with NAME one of: {', '.join(NAMES)} "
             f"(train: {', '.join(TRAIN_KINDS)}; holdout: {', '.join(HOLDOUT_KINDS)}; {PICK_SETS_NAME}: the pick "
-            "table's 12 shape-size sets)")
+            f"table's 12 shape-size sets; {TRAINING_MIX_NAME}: either)")
 
 
-__all__ = ["FAMILY_SIZE_RANGE", "GROUPS", "PICK_SETS_NAME", "ChosenObject",
+__all__ = ["FAMILY_SIZE_RANGE", "GROUPS", "PICK_SETS_NAME", "TRAINING_MIX_NAME", "ChosenObject",
            "HOLDOUT_KINDS", "KINDS", "MIN_HEIGHT", "NAMES", "TRAINING_DENSITY",
            "TRAIN_KINDS", "DrawnObject", "FamilyMesh", "ObjectFamily", "build", "check_object", "drawn_object",
            "episode_record", "graspable_problem", "is_family", "mesh_sha256", "rebuild"]
