@@ -171,6 +171,8 @@ def test_the_ensemble_is_each_members_own_network():
             else:
                 h = layer(h)
         torch.testing.assert_close(together[member], h)
+    chosen = torch.tensor([2, 0])  # a REDQ subset: only those members computed, the same values
+    torch.testing.assert_close(critic.q_values(obs, residual, chosen), together.index_select(0, chosen))
 
 
 def test_run_trains_records_and_resumes_exactly(tiny_run, tmp_path):

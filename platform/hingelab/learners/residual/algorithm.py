@@ -86,10 +86,10 @@ class ResidualSAC(FastSAC):
 
             with th.no_grad():
                 next_actions, next_log_prob = self._action_log_prob(data.next_observations)
-                next_q = self.critic_target.q_values(data.next_observations, next_actions)  # (E, B, 1)
-                if subset < members:  # REDQ: the minimum over a random subset of members
+                chosen = None
+                if subset < members:  # REDQ: the minimum over a random subset of members (only theirs computed)
                     chosen = th.from_numpy(np.random.choice(members, subset, replace=False))
-                    next_q = next_q.index_select(0, chosen)
+                next_q = self.critic_target.q_values(data.next_observations, next_actions, chosen)  # (subset, B, 1)
                 next_q = next_q.min(dim=0).values - ent_coef * next_log_prob.reshape(-1, 1)
                 target_q = data.rewards + (1 - data.dones) * discounts * next_q
 
@@ -101,7 +101,7 @@ class ResidualSAC(FastSAC):
             self.critic.optimizer.step()
 
             if actor_moves:
-                actions_pi, log_prob = self._action_log_prob(data.observations)
+                actions_pi, log_prob, mean = self._action_log_prob_mean(data.observations)
                 log_prob = log_prob.reshape(-1, 1)
                 if self.ent_coef_optimizer is not None and self.log_ent_coef is not None:
                     ent_coef_loss = -(self.log_ent_coef * (log_prob + self.target_entropy).detach()).mean()
@@ -114,8 +114,7 @@ class ResidualSAC(FastSAC):
                 try:
                     q_pi = self.critic.q_values(data.observations, actions_pi).mean(dim=0)
                     actor_loss = (ent_coef * log_prob - q_pi).mean()
-                    if self.residual_penalty:
-                        mean, _, _ = self.actor.get_action_dist_params(data.observations)
+                    if self.residual_penalty:  # the mean of the same forward as actions_pi
                         pull = (th.tanh(mean) ** 2).mean()
                         actor_loss = actor_loss + self.residual_penalty * q_pi.detach().abs().mean() * pull
                     extra = self._extra_actor_loss(batch_size)

@@ -55,8 +55,11 @@ class EnsembleLinear(nn.Module):
         nn.init.uniform_(self.weight, -bound, bound)
         nn.init.uniform_(self.bias, -bound, bound)
 
-    def forward(self, x: th.Tensor) -> th.Tensor:
-        return th.baddbmm(self.bias, x, self.weight)
+    def forward(self, x: th.Tensor, members: th.Tensor | None = None) -> th.Tensor:
+        """``x`` (members or len(members), batch, in); ``members``: the indices of the members to apply."""
+        if members is None:
+            return th.baddbmm(self.bias, x, self.weight)
+        return th.baddbmm(self.bias.index_select(0, members), x, self.weight.index_select(0, members))
 
 
 class EnsembleCritic(ContinuousCritic):
@@ -82,13 +85,16 @@ class EnsembleCritic(ContinuousCritic):
         self.q_net = nn.Sequential(*layers)
         self.q_networks = []  # SB3's per-member list; the members live in q_net
 
-    def q_values(self, obs: th.Tensor, residual: th.Tensor) -> th.Tensor:
-        """(n_critics, batch, 1)."""
+    def q_values(self, obs: th.Tensor, residual: th.Tensor, members: th.Tensor | None = None) -> th.Tensor:
+        """(n_critics, batch, 1), or (len(members), batch, 1): only the members at those indices."""
         with th.set_grad_enabled(not self.share_features_extractor):
             features = self.extract_features(obs, self.features_extractor)
         executed = compose(ResidualInputs.base_action(obs), residual, self.scale)
         x = th.cat([features, executed], dim=1)
-        return self.q_net(x.unsqueeze(0).expand(self.n_critics, -1, -1))
+        h = x.unsqueeze(0).expand(self.n_critics if members is None else len(members), -1, -1)
+        for layer in self.q_net:
+            h = layer(h, members) if isinstance(layer, EnsembleLinear) else layer(h)
+        return h
 
     def forward(self, obs: th.Tensor, actions: th.Tensor) -> tuple[th.Tensor, ...]:
         return tuple(self.q_values(obs, actions).unbind(0))

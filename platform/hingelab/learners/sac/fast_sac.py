@@ -169,6 +169,12 @@ class FastSAC(SAC):
         if self.use_sde or "actor_math" not in self.speedups:
             actions, log_prob = self.actor.action_log_prob(obs)
             return actions, log_prob
+        actions, log_prob, _ = self._action_log_prob_mean(obs)
+        return actions, log_prob
+
+    def _action_log_prob_mean(self, obs: Any) -> tuple[th.Tensor, th.Tensor, th.Tensor]:
+        """``_action_log_prob``'s actions and log-probabilities and the Gaussian's mean they came from (one
+        forward of the actor for a loss that needs the mean too)."""
         mean, log_std, _ = self.actor.get_action_dist_params(obs)
         std = th.ones_like(mean) * log_std.exp()
         gaussian = mean + th.empty(mean.shape, dtype=mean.dtype, device=mean.device).normal_() * std
@@ -176,7 +182,7 @@ class FastSAC(SAC):
         log_prob = -((gaussian - mean) ** 2) / (2 * std**2) - std.log() - math.log(math.sqrt(2 * math.pi))
         log_prob = log_prob.sum(dim=1)
         log_prob = log_prob - th.sum(th.log(1 - actions**2 + self.actor.action_dist.epsilon), dim=1)
-        return actions, log_prob
+        return actions, log_prob, mean
 
     def _critic_features(self, obs: Any) -> th.Tensor | None:
         """Critic features of ``obs`` when they can be reused within a step, else None.
