@@ -42,6 +42,7 @@ from hingelab.analysis.learning_curves import (
     load_seed_curves,
     seed_summary,
 )
+from hingelab.analysis.rollout_success import FIRST_STEPS, early_rollout_success
 from hingelab.analysis.success_tables import (
     attempt_rates,
     failure_reasons,
@@ -85,6 +86,8 @@ def compute_tables(episodes: pd.DataFrame, curves: pd.DataFrame, attempts_k=(1, 
     }
     if len(curves):
         tables["learning_curves"] = curves
+    if len(curves) and "mtime_ns" in episodes:  # with run folders: their datasets are training rollouts
+        tables["early_rollouts"] = early_rollout_success(episodes)
     if seed_curves is not None and len(seed_curves):
         tables["learning_curves_by_seed"] = seed_curves
         tables["seeds"] = seed_summary(seed_curves)
@@ -132,6 +135,12 @@ def _sections(tables: dict[str, pd.DataFrame], plot_files: dict[str, str]) -> li
             "0.5 s; its metrics.csv written before schema v2 recorded the last step as success_rate and the "
             "settled verdict as settled_success_rate: read here as last_step_success_rate and success_rate).",
             None, "learning_curves.csv", [plot_files["learning_curves"]]))
+    if "early_rollouts" in tables:
+        sections.append(Section(
+            "Training rollouts early on", f"Per dataset, its episodes in the order written (a training run's "
+            f"rollouts: the running sum of lengths is its env steps): those that ended within the first "
+            f"{FIRST_STEPS:,} steps and their success (Wilson 95%), then the whole dataset's.",
+            tables["early_rollouts"], "early_rollouts.csv"))
     if "learning_curves_by_seed" in tables:
         sections.append(Section(
             "Success of every seed", "Each seed's evaluations (thin) and their mean (thick), per run label: "
