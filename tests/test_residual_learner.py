@@ -222,3 +222,34 @@ def test_bad_input_gets_one_line_errors(tmp_path, capsys):
                  str(tmp_path / "cli")]) == 1
     assert "residual scale is the largest correction" in capsys.readouterr().err
     assert not (tmp_path / "cli").exists()
+
+
+def test_choose_by_q_acts_with_the_residual_only_where_the_critics_prefer_it_and_saves_them(tmp_path):
+    run = _setup(tmp_path, choose_by_q=True)
+    try:
+        model = run.model
+        with torch.no_grad():  # a residual far from 0, so the two proposals differ
+            model.actor.mu.bias.fill_(2.0)
+        policy = run.current_policy()
+        obs = np.random.default_rng(2).normal(0, 0.05, (64, policy.observation_dim)).astype(np.float32)
+        x, base_action, _ = policy.step(obs, np.zeros((64, 2), np.int64))
+        inputs = torch.as_tensor(x)
+        residual = torch.tanh(torch.full((64, 5), 2.0))
+        with torch.no_grad():  # the critics' minimum over members, for each proposal, by hand
+            q_residual = model.critic.q_values(inputs, residual).min(0).values[:, 0]
+            q_base = model.critic.q_values(inputs, torch.zeros_like(residual)).min(0).values[:, 0]
+        wins = (q_residual > q_base).numpy()
+        expected = np.where(wins[:, None], compose(base_action, residual.numpy(), policy.scale), base_action)
+        np.testing.assert_allclose(policy.predict(obs)[0], expected, atol=1e-6)
+        # the rollouts choose alike: SB3's sample becomes residual 0 where the base wins
+        model._last_obs = x[:1]
+        action, buffer_action = model._sample_action(0)
+        chosen = model.chooser().wins(inputs[:1], torch.as_tensor(buffer_action)).numpy()
+        assert (np.abs(buffer_action).sum() == 0) == (not chosen[0]) and np.array_equal(action, buffer_action)
+        # the file carries the critics, and the loaded policy chooses as the run's did
+        run.save_policy(tmp_path / "chooses.zip")
+        loaded = load_policy(tmp_path / "chooses.zip", level="high")
+        assert isinstance(loaded, ResidualPolicy) and loaded.chooser is not None
+        np.testing.assert_array_equal(loaded.predict(obs)[0], policy.predict(obs)[0])
+    finally:
+        _close(run)

@@ -15,10 +15,15 @@ episode to the next) replaced by the first two columns of the rotation matrix, t
 one-hot, steps / 60) and the base's action. The residual's last layer starts at zero, so the policy at
 step 0 *is* its base, and whatever it learns it stays within ``scale`` of it.
 
+A policy trained with ``--choose-by-q`` (IBRL, Hu et al. 2023: the base proposes too) also carries the
+learner's critics, and at every step acts with the residual only where their pessimistic value (the minimum
+over the members) of ``base + residual`` beats that of the base's own action; elsewhere it acts as its base.
+
 ``ResidualPolicy.predict(observation, state, episode_start, deterministic)`` returns ``(action, state)``
 with the base's memory as state, so ``hingelab.policies.ModelPolicy`` drives it as it drives the phase
 clone. A checkpoint is a zip of ``residual.json`` (layout, scale, provenance), ``base.zip`` (the base's
-own checkpoint, bytes unchanged) and ``actor.npz`` (plain arrays): loading unpickles nothing.
+own checkpoint, bytes unchanged), ``actor.npz`` and, for a policy that chooses by Q, ``critic.npz`` (plain
+arrays): loading unpickles nothing.
 """
 
 from __future__ import annotations
@@ -26,6 +31,7 @@ from __future__ import annotations
 import hashlib
 import io
 import json
+import math
 import zipfile
 from pathlib import Path
 
@@ -44,8 +50,9 @@ from hingelab.policies.phase_clone import (
 )
 from hingelab.seeds import preserved_global_rngs
 
-META_FILE, BASE_FILE, ACTOR_FILE = "residual.json", "base.zip", "actor.npz"
+META_FILE, BASE_FILE, ACTOR_FILE, CRITIC_FILE = "residual.json", "base.zip", "actor.npz", "critic.npz"
 FORMAT = "hingelab residual policy 1"
+FORMAT_CHOOSING = "hingelab residual policy 2"  # with critic.npz: chooses between base and residual by Q
 EULER = slice(3, 6)  # ToolPick-v0's observation: the tool's Euler angles (xyz, rad)
 MIN_STD = 1e-3  # observation dimensions the base saw (nearly) constant are scaled by this, not by ~0
 
@@ -123,11 +130,76 @@ def actor_mlp(input_dim: int, hidden: tuple[int, ...]) -> nn.Sequential:
     return nn.Sequential(*layers)
 
 
-class ResidualPolicy:
-    """Base + bounded residual (module doc); ``actor`` maps a batch of inputs to residuals in [-1, 1]."""
+class EnsembleLinear(nn.Module):
+    """``members`` independent Linear layers applied to ``(members, batch, in)`` in one ``baddbmm``."""
 
-    def __init__(self, base: PhaseClone, actor, scale, provenance: dict | None = None, base_bytes: bytes = b""):
-        self.base, self.actor = base, actor
+    def __init__(self, members: int, in_features: int, out_features: int):
+        super().__init__()
+        self.weight = nn.Parameter(torch.empty(members, in_features, out_features))
+        self.bias = nn.Parameter(torch.empty(members, 1, out_features))
+        bound = 1.0 / math.sqrt(in_features)  # nn.Linear's default initialization, per member
+        nn.init.uniform_(self.weight, -bound, bound)
+        nn.init.uniform_(self.bias, -bound, bound)
+
+    def forward(self, x: torch.Tensor, members: torch.Tensor | None = None) -> torch.Tensor:
+        """``x`` (members or len(members), batch, in); ``members``: the indices of the members to apply."""
+        if members is None:
+            return torch.baddbmm(self.bias, x, self.weight)
+        return torch.baddbmm(self.bias.index_select(0, members), x, self.weight.index_select(0, members))
+
+
+def ensemble_q_net(members: int, input_dim: int, hidden: tuple[int, ...], layer_norm: bool) -> nn.Sequential:
+    """The critics' layers (``input_dim``: the residual's input and the executed action): EnsembleLinear, then
+    LayerNorm over each member's features where ``layer_norm``, then ReLU, per hidden layer; then Q."""
+    widths = [int(input_dim), *[int(n) for n in hidden]]
+    layers: list[nn.Module] = []
+    for w_in, w_out in zip(widths, widths[1:]):
+        layers.append(EnsembleLinear(members, w_in, w_out))
+        if layer_norm:
+            layers.append(nn.LayerNorm(w_out))  # over the last axis: each member's features
+        layers.append(nn.ReLU())
+    layers.append(EnsembleLinear(members, widths[-1], 1))
+    return nn.Sequential(*layers)
+
+
+def ensemble_q_values(q_net: nn.Sequential, features: torch.Tensor, executed: torch.Tensor, members: int,
+                      chosen: torch.Tensor | None = None) -> torch.Tensor:
+    """(members or len(chosen), batch, 1): each member's Q of (``features``, ``executed`` action)."""
+    x = torch.cat([features, executed], dim=1)
+    h = x.unsqueeze(0).expand(members if chosen is None else len(chosen), -1, -1)
+    for layer in q_net:
+        h = layer(h, chosen) if isinstance(layer, EnsembleLinear) else layer(h)
+    return h
+
+
+class ChooseByQ:
+    """Acts with the residual only where the critics' minimum Q of ``base + residual`` exceeds their minimum Q
+    of the base's own action (IBRL's choice between the proposals, module doc)."""
+
+    def __init__(self, q_net: nn.Sequential, members: int, scale):
+        self.q_net, self.members = q_net, int(members)
+        self.scale = torch.as_tensor(np.asarray(scale, np.float32))
+
+    def wins(self, x: torch.Tensor, residual: torch.Tensor) -> torch.Tensor:
+        """(batch,) bool: where the residual's action is worth more than the base's."""
+        base = ResidualInputs.base_action(x)
+        with torch.no_grad():
+            q_residual = ensemble_q_values(self.q_net, x, compose(base, residual, self.scale), self.members)
+            q_base = ensemble_q_values(self.q_net, x, compose(base, torch.zeros_like(residual), self.scale),
+                                       self.members)
+        return q_residual.min(dim=0).values[:, 0] > q_base.min(dim=0).values[:, 0]
+
+    def __call__(self, x: torch.Tensor, residual: torch.Tensor) -> torch.Tensor:
+        return torch.where(self.wins(x, residual)[:, None], residual, torch.zeros_like(residual))
+
+
+class ResidualPolicy:
+    """Base + bounded residual (module doc); ``actor`` maps a batch of inputs to residuals in [-1, 1];
+    ``chooser`` (optional, ``ChooseByQ``) keeps the residual only where the critics prefer it."""
+
+    def __init__(self, base: PhaseClone, actor, scale, provenance: dict | None = None, base_bytes: bytes = b"",
+                 chooser: ChooseByQ | None = None):
+        self.base, self.actor, self.chooser = base, actor, chooser
         self.scale = check_scale(scale)
         self.inputs = ResidualInputs.of_base(base)
         self.hingelab_provenance = provenance or {}
@@ -146,25 +218,35 @@ class ResidualPolicy:
         obs, single, memory = batch_with_memory(observation, state, episode_start, self.observation_dim)
         x, base_action, next_memory = self.step(obs, memory)
         with torch.no_grad():
-            residual = self.actor(torch.as_tensor(x)).numpy()
-        action = compose(base_action, residual, self.scale).astype(np.float32)
+            inputs = torch.as_tensor(x)
+            residual = self.actor(inputs)
+            if self.chooser is not None:
+                residual = self.chooser(inputs, residual)
+        action = compose(base_action, residual.numpy(), self.scale).astype(np.float32)
         return (action[0] if single else action), next_memory
 
     # ------------------------------------------------------------------ files
-    def save(self, path, actor_state: dict[str, torch.Tensor], hidden: tuple[int, ...]) -> None:
-        """Write the checkpoint; ``actor_state`` holds the actor MLP's weights (``actor_mlp``'s names)."""
+    def save(self, path, actor_state: dict[str, torch.Tensor], hidden: tuple[int, ...],
+             critic: dict | None = None) -> None:
+        """Write the checkpoint; ``actor_state`` holds the actor MLP's weights (``actor_mlp``'s names);
+        ``critic`` (a policy that chooses by Q): ``{"state": the q_net's state dict, "members": E, "hidden":
+        [...], "layer_norm": bool}``."""
         path = Path(path)
-        weights = io.BytesIO()
-        np.savez(weights, **{k: v.detach().cpu().numpy() for k, v in actor_state.items()})
         meta = {"format": FORMAT, "observation_dim": self.observation_dim, "input_dim": self.inputs.dim,
                 "hidden": list(hidden), "scale": self.scale.tolist(),
                 "base_sha256": hashlib.sha256(self.base_bytes).hexdigest(),
                 "hingelab_provenance": self.hingelab_provenance}
+        if critic is not None:
+            meta["format"] = FORMAT_CHOOSING
+            meta["critic"] = {"members": int(critic["members"]), "hidden": [int(n) for n in critic["hidden"]],
+                              "layer_norm": bool(critic["layer_norm"])}
         tmp = path.with_name(path.name + ".tmp")
         with zipfile.ZipFile(tmp, "w", zipfile.ZIP_DEFLATED) as archive:
             archive.writestr(META_FILE, json.dumps(meta, indent=1, default=str))
             archive.writestr(BASE_FILE, self.base_bytes)
-            archive.writestr(ACTOR_FILE, weights.getvalue())
+            archive.writestr(ACTOR_FILE, _npz(actor_state))
+            if critic is not None:
+                archive.writestr(CRITIC_FILE, _npz(critic["state"]))
         tmp.replace(path)  # a crash mid-write leaves the previous file
 
     @classmethod
@@ -173,12 +255,12 @@ class ResidualPolicy:
         try:
             with zipfile.ZipFile(path) as archive:
                 meta = json.loads(archive.read(META_FILE))
-                if meta.get("format") != FORMAT:
+                if meta.get("format") not in (FORMAT, FORMAT_CHOOSING):
                     raise ConfigError(f"{path} is a residual policy of another layout ({meta.get('format')}); this "
-                                      f"hingelab reads {FORMAT!r}")
+                                      f"hingelab reads {FORMAT!r} and {FORMAT_CHOOSING!r}")
                 base_bytes = archive.read(BASE_FILE)
-                arrays = np.load(io.BytesIO(archive.read(ACTOR_FILE)), allow_pickle=False)
-                state = {k: torch.as_tensor(arrays[k]) for k in arrays.files}
+                state = _tensors(archive.read(ACTOR_FILE))
+                critic_state = _tensors(archive.read(CRITIC_FILE)) if meta["format"] == FORMAT_CHOOSING else None
         except (OSError, KeyError, ValueError, EOFError, zipfile.BadZipFile) as exc:
             raise ConfigError(f"{path} is not a readable residual-policy checkpoint ({type(exc).__name__}: {exc}); "
                               "train one with `hingelab train high --learner residual-sac`") from exc
@@ -192,11 +274,35 @@ class ResidualPolicy:
         except RuntimeError as exc:
             raise ConfigError(f"{path}: its actor weights do not fit its own layout ({exc})") from exc
         actor.eval()
-        return cls(base, _squashed(actor), meta["scale"], meta.get("hingelab_provenance") or {}, base_bytes)
+        chooser = None
+        if critic_state is not None:
+            layout = meta["critic"]
+            with preserved_global_rngs():
+                q_net = ensemble_q_net(layout["members"], int(meta["input_dim"]) + ACTION_DIM,
+                                       tuple(layout["hidden"]), layout["layer_norm"])
+            try:
+                q_net.load_state_dict(critic_state)
+            except RuntimeError as exc:
+                raise ConfigError(f"{path}: its critic weights do not fit its own layout ({exc})") from exc
+            q_net.eval()
+            chooser = ChooseByQ(q_net, layout["members"], meta["scale"])
+        return cls(base, _squashed(actor), meta["scale"], meta.get("hingelab_provenance") or {}, base_bytes,
+                   chooser)
 
 
 def _squashed(mlp: nn.Module):
     return lambda x: torch.tanh(mlp(x))
+
+
+def _npz(state: dict[str, torch.Tensor]) -> bytes:
+    buffer = io.BytesIO()
+    np.savez(buffer, **{k: v.detach().cpu().numpy() for k, v in state.items()})
+    return buffer.getvalue()
+
+
+def _tensors(npz_bytes: bytes) -> dict[str, torch.Tensor]:
+    arrays = np.load(io.BytesIO(npz_bytes), allow_pickle=False)
+    return {k: torch.as_tensor(arrays[k]) for k in arrays.files}
 
 
 def load_base(source, where: str = "") -> PhaseClone:
@@ -219,5 +325,6 @@ def is_residual_policy(path) -> bool:
         return False
 
 
-__all__ = ["ResidualPolicy", "ResidualInputs", "compose", "actor_mlp", "check_scale", "load_base",
-           "euler_xyz_to_6d", "is_residual_policy", "FORMAT"]
+__all__ = ["ResidualPolicy", "ResidualInputs", "ChooseByQ", "EnsembleLinear", "compose", "actor_mlp", "check_scale",
+           "ensemble_q_net", "ensemble_q_values", "load_base", "euler_xyz_to_6d", "is_residual_policy", "FORMAT",
+           "FORMAT_CHOOSING"]

@@ -12,6 +12,10 @@ from the privileged buffer showed (``analysis/high-level/``):
 * **A critic ensemble** (``EnsembleCritic``, LayerNorm): the bootstrap target takes the minimum over a
   random subset of ``target_critics`` members (REDQ, Chen et al. 2021; RLPD, Ball et al. 2023), the
   actor the members' mean; several updates per env step (``gradient_steps``) are then stable.
+* **The base proposes too** (``choose_by_q``, IBRL, Hu et al. 2024): the rollouts act with the residual's
+  sample only where the critics' minimum Q of it beats that of the base's own action (residual 0), and the
+  bootstrap target takes the better of the two at the next state, so the critic values what the base
+  already achieves from the first update and a bad residual is not what the policy executes.
 * **A pull back to the base** (``residual_penalty``): the actor's loss adds
   ``residual_penalty * mean|Q| * mean(tanh(mu)^2)``, the squared deterministic residual scaled by the
   batch's mean |Q| as TD3+BC scales its BC term (Fujimoto and Gu 2021). Adam takes steps of the learning
@@ -29,21 +33,33 @@ import torch as th
 import torch.nn.functional as F
 
 from hingelab.learners.sac.fast_sac import FastSAC
+from hingelab.policies.residual import ChooseByQ
 
 
 class ResidualSAC(FastSAC):
     """FastSAC with policy-driven warm-up, a critic-only warm-up and an ensemble target (module doc)."""
 
     def __init__(self, *args: Any, actor_start: int = 0, target_critics: int = 2, residual_penalty: float = 0.0,
-                 **kwargs: Any):
+                 choose_by_q: bool = False, **kwargs: Any):
         self.actor_start = int(actor_start)
         self.target_critics = int(target_critics)
         self.residual_penalty = float(residual_penalty)
+        self.choose_by_q = bool(choose_by_q)
         super().__init__(*args, **kwargs)
+
+    def chooser(self) -> ChooseByQ:
+        """The choice between the base's and the residual's action by the current critics."""
+        return ChooseByQ(self.critic.q_net, self.critic.n_critics, self.critic.scale)
 
     def _sample_action(self, learning_starts: int, action_noise=None, n_envs: int = 1):
         # the policy acts from the first step (SB3 would act uniformly at random before learning_starts)
-        return super()._sample_action(0, action_noise, n_envs)
+        action, buffer_action = super()._sample_action(0, action_noise, n_envs)
+        if self.choose_by_q:  # the base's action where the critics prefer it (stored as residual 0)
+            wins = self.chooser().wins(th.as_tensor(self._last_obs, dtype=th.float32),
+                                       th.as_tensor(buffer_action, dtype=th.float32)).numpy()
+            action = np.where(wins[:, None], action, 0.0).astype(action.dtype)
+            buffer_action = np.where(wins[:, None], buffer_action, 0.0).astype(buffer_action.dtype)
+        return action, buffer_action
 
     def _q_values(self, critic: Any, obs: Any, features: Any, actions: th.Tensor) -> tuple[th.Tensor, ...]:
         return critic(obs, actions)  # the ensemble rebuilds the executed action from obs: never skip its forward
@@ -90,7 +106,11 @@ class ResidualSAC(FastSAC):
                 if subset < members:  # REDQ: the minimum over a random subset of members (only theirs computed)
                     chosen = th.from_numpy(np.random.choice(members, subset, replace=False))
                 next_q = self.critic_target.q_values(data.next_observations, next_actions, chosen)  # (subset, B, 1)
-                next_q = next_q.min(dim=0).values - ent_coef * next_log_prob.reshape(-1, 1)
+                next_q = next_q.min(dim=0).values
+                if self.choose_by_q:  # the better of the residual's and the base's action at the next state
+                    base_q = self.critic_target.q_values(data.next_observations, th.zeros_like(next_actions), chosen)
+                    next_q = th.maximum(next_q, base_q.min(dim=0).values)
+                next_q = next_q - ent_coef * next_log_prob.reshape(-1, 1)
                 target_q = data.rewards + (1 - data.dones) * discounts * next_q
 
             current_q = self.critic.q_values(data.observations, data.actions)  # (E, B, 1)

@@ -58,6 +58,9 @@ class ResidualSACConfig(PickTask, PickReward, PriorDemos, SACTrainConfig):
     # at 1.0 and 0.1; at 1.0 the residual stayed near 0.002 (of 0.2), at 0.1 near 0.01-0.02: room to correct
     residual_penalty: float = option(0.1, "weight of the pull of the residual back to 0 (the base) in the actor's "
                                           "loss, times the batch's mean |Q| (TD3+BC's scaling); 0: none")
+    choose_by_q: bool = option(False, "the base proposes too (IBRL): act, bootstrap and deploy with the residual "
+                                      "only where the critics value it above the base's own action (the policy "
+                                      "file then carries the critics)", flag="--choose-by-q")
     demo_share: float = option(0.25, "share of every batch drawn from the privileged prior's demos (0: none; "
                                      "--no-prior: no demos)")
     # the base fitted by the run (--base fit): the phase clone's settings

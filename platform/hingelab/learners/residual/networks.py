@@ -14,7 +14,6 @@
 
 from __future__ import annotations
 
-import math
 from typing import Any
 
 import numpy as np
@@ -23,7 +22,7 @@ from stable_baselines3.common.policies import BaseModel, ContinuousCritic
 from stable_baselines3.sac.policies import Actor, SACPolicy
 from torch import nn
 
-from hingelab.policies.residual import ResidualInputs, compose
+from hingelab.policies.residual import EnsembleLinear, ResidualInputs, compose, ensemble_q_net, ensemble_q_values
 
 
 class BoundedActor(Actor):
@@ -44,24 +43,6 @@ class BoundedActor(Actor):
         return mean, th.minimum(log_std, self.log_std_max), kwargs
 
 
-class EnsembleLinear(nn.Module):
-    """``members`` independent Linear layers applied to ``(members, batch, in)`` in one ``baddbmm``."""
-
-    def __init__(self, members: int, in_features: int, out_features: int):
-        super().__init__()
-        self.weight = nn.Parameter(th.empty(members, in_features, out_features))
-        self.bias = nn.Parameter(th.empty(members, 1, out_features))
-        bound = 1.0 / math.sqrt(in_features)  # nn.Linear's default initialization, per member
-        nn.init.uniform_(self.weight, -bound, bound)
-        nn.init.uniform_(self.bias, -bound, bound)
-
-    def forward(self, x: th.Tensor, members: th.Tensor | None = None) -> th.Tensor:
-        """``x`` (members or len(members), batch, in); ``members``: the indices of the members to apply."""
-        if members is None:
-            return th.baddbmm(self.bias, x, self.weight)
-        return th.baddbmm(self.bias.index_select(0, members), x, self.weight.index_select(0, members))
-
-
 class EnsembleCritic(ContinuousCritic):
     """Q(x, clip(base + scale * residual)) for ``n_critics`` members at once (module doc)."""
 
@@ -73,16 +54,12 @@ class EnsembleCritic(ContinuousCritic):
         self.share_features_extractor = share_features_extractor
         self.n_critics = int(n_critics)
         self.register_buffer("scale", th.as_tensor(np.asarray(scale, np.float32)))
+        if activation_fn is not nn.ReLU:
+            raise ValueError("the residual learner's critics are ReLU networks (a policy that chooses by Q rebuilds "
+                             "them as hingelab.policies.residual.ensemble_q_net)")
         action_dim = int(np.prod(action_space.shape))
-        widths = [features_dim + action_dim, *[int(n) for n in net_arch]]
-        layers: list[nn.Module] = []
-        for w_in, w_out in zip(widths, widths[1:]):
-            layers.append(EnsembleLinear(self.n_critics, w_in, w_out))
-            if layer_norm:
-                layers.append(nn.LayerNorm(w_out))  # over each member's features (the last axis)
-            layers.append(activation_fn())
-        layers.append(EnsembleLinear(self.n_critics, widths[-1], 1))
-        self.q_net = nn.Sequential(*layers)
+        self.net_arch, self.layer_norm = [int(n) for n in net_arch], bool(layer_norm)
+        self.q_net = ensemble_q_net(self.n_critics, features_dim + action_dim, tuple(self.net_arch), layer_norm)
         self.q_networks = []  # SB3's per-member list; the members live in q_net
 
     def q_values(self, obs: th.Tensor, residual: th.Tensor, members: th.Tensor | None = None) -> th.Tensor:
@@ -90,11 +67,12 @@ class EnsembleCritic(ContinuousCritic):
         with th.set_grad_enabled(not self.share_features_extractor):
             features = self.extract_features(obs, self.features_extractor)
         executed = compose(ResidualInputs.base_action(obs), residual, self.scale)
-        x = th.cat([features, executed], dim=1)
-        h = x.unsqueeze(0).expand(self.n_critics if members is None else len(members), -1, -1)
-        for layer in self.q_net:
-            h = layer(h, members) if isinstance(layer, EnsembleLinear) else layer(h)
-        return h
+        return ensemble_q_values(self.q_net, features, executed, self.n_critics, members)
+
+    def policy_record(self) -> dict:
+        """What ``ResidualPolicy.save`` keeps of the critics for a policy that chooses by Q."""
+        return {"state": {k: v.detach().clone() for k, v in self.q_net.state_dict().items()},
+                "members": self.n_critics, "hidden": self.net_arch, "layer_norm": self.layer_norm}
 
     def forward(self, obs: th.Tensor, actions: th.Tensor) -> tuple[th.Tensor, ...]:
         return tuple(self.q_values(obs, actions).unbind(0))
@@ -139,3 +117,4 @@ def actor_state_for_policy(actor: Actor) -> dict[str, th.Tensor]:
 
 
 __all__ = ["BoundedActor", "EnsembleCritic", "EnsembleLinear", "ResidualSACPolicy", "actor_state_for_policy"]
+# EnsembleLinear lives in hingelab.policies.residual (a policy that chooses by Q rebuilds the critics without SB3)

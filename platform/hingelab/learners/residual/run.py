@@ -131,7 +131,8 @@ class ResidualRun(PickRun):
         kwargs = sac_arguments(c)
         kwargs["policy_kwargs"].update(residual_scale=self.policy.scale.tolist(), log_std_max=c.log_std_max(),
                                        critic_layer_norm=c.critic_layer_norm, n_critics=c.critics)
-        kwargs.update(actor_start=c.actor_start, target_critics=c.target_critics, residual_penalty=c.residual_penalty)
+        kwargs.update(actor_start=c.actor_start, target_critics=c.target_critics, residual_penalty=c.residual_penalty,
+                      choose_by_q=c.choose_by_q)
         if self.demos is not None:
             kwargs.update(replay_buffer_class=DemoShareReplayBuffer,
                           replay_buffer_kwargs={"demos": self.demos, "demo_share": c.demo_share})
@@ -152,7 +153,8 @@ class ResidualRun(PickRun):
     def current_policy(self) -> ResidualPolicy:
         actor = self.model.actor
         return ResidualPolicy(self.policy.base, lambda x: actor(x, deterministic=True), self.policy.scale,
-                              getattr(self.model, PROVENANCE_ATTRIBUTE, {}), self.policy.base_bytes)
+                              getattr(self.model, PROVENANCE_ATTRIBUTE, {}), self.policy.base_bytes,
+                              self.model.chooser() if self.config.choose_by_q else None)
 
     def evaluate_policy(self) -> dict:
         self.model.actor.set_training_mode(False)
@@ -175,7 +177,8 @@ class ResidualRun(PickRun):
                 "q_policy_mean": float(q)}
 
     def save_policy(self, path: Path) -> None:
-        self.current_policy().save(path, actor_state_for_policy(self.model.actor), tuple(self.config.net_arch))
+        critic = self.model.critic.policy_record() if self.config.choose_by_q else None
+        self.current_policy().save(path, actor_state_for_policy(self.model.actor), tuple(self.config.net_arch), critic)
 
     # ------------------------------------------------------------------ records
     def env_record(self) -> dict:
