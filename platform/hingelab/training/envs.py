@@ -49,7 +49,8 @@ def _make_training_env(config_class, config_dict: dict, dataset_dir: str | None,
 
 def make_training_vec_env(config, dataset_dir: Path | None):
     """``config.n_envs`` seeded envs: one process each (spawned, each held to a core, arrays through
-    shared memory: ``PinnedVecEnv``), or all in this process (one env, or asked to)."""
+    shared memory: ``PinnedVecEnv``), or all in this process (asked to, or one env unless the run overlaps
+    its updates with the env steps: ``hingelab.learners.sac.overlap``)."""
 
     arguments = config.env_arguments()
     if "object" in arguments:  # a bad object: one line here, not a worker's traceback
@@ -57,7 +58,7 @@ def make_training_vec_env(config, dataset_dir: Path | None):
     factories = [functools.partial(_make_training_env, type(config), config.to_dict(),
                                    None if dataset_dir is None else str(dataset_dir), i)
                  for i in range(config.n_envs)]
-    if config.n_envs == 1 or not config.subprocess_envs:
+    if not config.subprocess_envs or (config.n_envs == 1 and not getattr(config, "overlap", False)):
         return DummyVecEnv(factories)
     return PinnedVecEnv(factories, start_method="spawn")
 

@@ -13,8 +13,9 @@ None of them holds the run: each gets the functions it calls. SB3's loop is
 ``collect_rollouts`` (``on_rollout_start``, then ``on_step`` after every vectorized env
 step) and then the gradient updates of that rollout. Evaluations and checkpoints happen in
 ``on_rollout_start``, i.e. after the previous rollout's updates, so a checkpoint holds a
-model that has had every update for the steps it has seen; ``on_training_end`` (after the
-last updates) evaluates and checkpoints the final step.
+model that has had every update for the steps it has seen (with ``--overlap``, all but the last
+step's, which run during the next step: ``hingelab.learners.sac.overlap``); ``on_training_end``
+(after the last updates) evaluates and checkpoints the final step.
 """
 
 from __future__ import annotations

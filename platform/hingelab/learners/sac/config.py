@@ -11,6 +11,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
+from hingelab.errors import ConfigError
 from hingelab.training.config_parts import RunSettings
 from hingelab.training.run_config import option
 
@@ -25,6 +26,9 @@ class SACTrainConfig(RunSettings):
     n_envs: int = option(2, "parallel rollout envs", flag="--envs")
     subprocess_envs: bool = option(True, "step the envs in this process, one after another (several runs side by "
                                          "side)", flag="--in-process", negate=True)
+    overlap: bool = option(False, "run each env step's gradient updates while the env processes compute the next "
+                                  "step (one env gets a process too); the updates sample a buffer one env step "
+                                  "behind, the policy acts with the newest weights (fast_sac only)")
     # SAC
     net_arch: tuple = option((256, 256), "hidden layers of the actor and both critics (ReLU)", item=int)
     learning_rate: float = option(3e-4, "Adam learning rate of actor, critics and entropy coefficient")
@@ -58,6 +62,8 @@ class SACTrainConfig(RunSettings):
     bc_q_scaled: bool = option(False, "scale the BC term by the batch's mean |Q| (TD3+BC's normalization)")
 
     def sac_checks(self) -> dict[str, bool]:
+        if self.overlap and self.algorithm != "fast_sac":
+            raise ConfigError("--overlap is fast_sac's training loop: drop --algorithm sac or --overlap")
         return {
             "steps": self.steps >= 0, "n_envs": self.n_envs >= 1, "batch_size": self.batch_size >= 1,
             "buffer_size": self.buffer_size >= self.batch_size, "learning_rate": self.learning_rate > 0,

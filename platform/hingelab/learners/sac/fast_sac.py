@@ -36,6 +36,7 @@ from stable_baselines3.common.buffers import DictReplayBuffer, ReplayBuffer
 from stable_baselines3.common.type_aliases import DictReplayBufferSamples, ReplayBufferSamples
 from stable_baselines3.common.utils import polyak_update
 
+from hingelab.learners.sac.overlap import OverlappedLearning
 from hingelab.training.torch_process import configure_torch  # noqa: F401  (re-exported: the bench applies it)
 
 #: Every speed-up ``FastSAC`` applies by default; pass a subset as ``speedups=`` to ablate.
@@ -122,8 +123,9 @@ class _TorchViewSampler:
                    rewards=rewards)
 
 
-class FastSAC(SAC):
-    """``stable_baselines3.SAC`` with a faster ``train()``; same algorithm and arguments.
+class FastSAC(OverlappedLearning, SAC):
+    """``stable_baselines3.SAC`` with a faster ``train()``; same algorithm and arguments. With
+    ``overlap`` set, ``learn`` runs the updates while the envs step (``hingelab.learners.sac.overlap``).
 
     Extra argument ``speedups``: a subset of ``ALL_SPEEDUPS`` (default: all). Adam is fused
     unless ``policy_kwargs["optimizer_kwargs"]`` says otherwise. gSDE and replay buffers other

@@ -7,8 +7,9 @@ subclasses it and gives its task's pieces: the evaluation (``make_evaluator``,
 (``env_record``), and what it learns from datasets (``use_datasets``).
 
 Checkpoints are taken where every env has just finished an episode (its next episode is
-fully determined by its seed and count), after the updates of that step: resuming from one
-continues the run as if it had never stopped. Evaluations use held-out seeds with
+fully determined by its seed and count), after the updates of that step (an overlapped run's
+checkpoints record that step's updates as pending: ``hingelab.learners.sac.overlap``): resuming
+from one continues the run as if it had never stopped. Evaluations use held-out seeds with
 deterministic actions and do not touch the training RNG.
 """
 
@@ -24,6 +25,7 @@ from hingelab.errors import ConfigError
 from hingelab.learners.sac.callbacks import CHECKPOINT_PATIENCE_EPISODES, RunClock, run_callbacks
 from hingelab.learners.sac.demo_sac import DemoSAC
 from hingelab.learners.sac.fast_sac import FastSAC
+from hingelab.learners.sac.overlap import lag_record
 from hingelab.provenance import code_version
 from hingelab.training import checkpoints as ckpt
 from hingelab.training import resume_state
@@ -130,7 +132,8 @@ class SACRun:
         configure_torch(self.config.torch_threads)
         if not self.resume:
             self.prepare_new_run()
-            self.folder.write_run_files({"learner": self.learner_name})
+            self.folder.write_run_files({"learner": self.learner_name,
+                                         "training_loop": lag_record(self.config.overlap)})
         self.prepare_data()
         self.env = self.wrap_env(make_training_vec_env(self.config, self.folder.dataset(self.dataset_description)))
         self.make_evaluator()
@@ -140,6 +143,8 @@ class SACRun:
             raise ConfigError(f"cannot resume: {self.run_dir} has no complete checkpoint yet; start it anew "
                               "(delete the folder or pass another --out)")
         self.model = self.build_model(self.env)
+        if self.config.overlap:  # FastSAC's overlapped learn (hingelab.learners.sac.overlap)
+            self.model.overlap = True
         if latest is not None:
             state = ckpt.load_checkpoint(latest, self.model)  # weights, counters, buffer: nothing unpickled
         else:
@@ -152,6 +157,8 @@ class SACRun:
             set_episode_counts(self.env, state["episode_counts"])
             self.metrics.truncate_after(self.model.num_timesteps)
             self.mid_episode = state.get("mid_episode", False)
+            if state.get("pending_updates"):  # an overlapped run's updates of its last step, run in the next one
+                self.model.pending_updates = state["pending_updates"]
             self._state_rng = (state["rng"], state["action_space_rng"])
         else:
             self.next_eval, self.next_checkpoint = 0, self.config.checkpoint_every
@@ -180,7 +187,7 @@ class SACRun:
         schedules = {k: v for cb in self.callbacks.callbacks if hasattr(cb, "state_dict")
                      for k, v in cb.state_dict().items()}
         state = {"elapsed_s": self.clock.elapsed(), "best": self.best, **schedules, "episode_counts": counts,
-                 "mid_episode": mid_episode,
+                 "mid_episode": mid_episode, "pending_updates": getattr(self.model, "pending_updates", 0),
                  # random actions before learning_starts come from the action space's own generator
                  "action_space_rng": self.model.action_space.np_random.bit_generator.state}
         return ckpt.save_checkpoint(self.run_dir, self.model, state, keep=self.config.keep_checkpoints)
