@@ -1,25 +1,25 @@
 """``hingelab bench train``: SAC update rate, env steps/s while training, replay pre-fill rate.
 
-Three measurements, each ours against a bare stable-baselines3 baseline in the same run:
+Measurements, each ours against a bare stable-baselines3 baseline in the same run:
 
 1. Updates per second: ``SAC.train`` on the low-level task's spaces (Dict observations,
    2 x 256 ReLU, batch 256, buffers holding the same transitions): bare SB3 ``SAC`` at
    torch's default threads vs the trainer's algorithm and thread setting, in alternating
    blocks (the median block rate each).
-2. Environment steps per second of a whole training loop on ToolShape-v0 after the
-   random warm-up: bare ``SAC.learn`` on one env with 1 update per step vs ``train_low``
-   (recording every rollout) with the same 1 env / 1 update per step, and with its
-   defaults (2 env processes, 1 update per 2 steps).
+2. Environment steps per second of a whole training loop on ToolShape-v0 after the random
+   warm-up, at equal work: one env and the same updates per env step (UTD 1 and UTD 2), the same
+   twin critics. Bare ``SAC.learn`` against ``train_low --envs 1`` (recording every rollout) in
+   its serial loop and with ``--overlap`` (the updates run while an env process computes the
+   step: ``hingelab.learners.sac.overlap``); the overlapped loop is also compared with the serial.
 3. Replay pre-fill from MCAP: transitions per second from a dataset on disk into an SB3
    buffer: per-transition ``buffer.add`` (SB3's way) vs ``prefill_replay_buffer``.
-4. High-level env steps per second while training on ToolPick-v0 (the shipped low-level policy
-   inside, perception on): bare ``SAC.learn`` on one env with 1 update per step vs ``train_high``
-   (recording every rollout, no prior) with 1 env / 1 update per step and with its defaults
-   (2 env processes, 1 update per 2 steps).
+4. The same as 2 on ToolPick-v0 (the shipped low-level policy inside, perception on):
+   bare ``SAC.learn`` against ``train_high --envs 1 --no-prior``, serial and overlapped.
 """
 
 from __future__ import annotations
 
+import os
 import statistics
 import tempfile
 import time
@@ -110,7 +110,7 @@ def bench_updates(blocks: int, per_block: int, rows: list, ratios: dict, notes: 
                  "; ".join(f"{name} {', '.join(f'{r:.0f}' for r in rates[name])}" for name, _, _ in arms))
 
 
-def _bare_learn_rate(warmup: int, steps: int, env=None) -> float:
+def _bare_learn_rate(warmup: int, steps: int, gradient_steps: int = 1, env=None) -> float:
     class Clock(BaseCallback):
         def _on_step(self) -> bool:
             if self.num_timesteps == warmup:
@@ -119,8 +119,8 @@ def _bare_learn_rate(warmup: int, steps: int, env=None) -> float:
 
     env = env if env is not None else make_eval_env({})
     policy = "MultiInputPolicy" if hasattr(env.observation_space, "spaces") else "MlpPolicy"
-    model = SAC(policy, env, learning_starts=warmup, batch_size=256, seed=SEED, device="cpu",
-                policy_kwargs={"net_arch": [256, 256], "activation_fn": torch.nn.ReLU})
+    model = SAC(policy, env, learning_starts=warmup, batch_size=256, gradient_steps=gradient_steps, seed=SEED,
+                device="cpu", policy_kwargs={"net_arch": [256, 256], "activation_fn": torch.nn.ReLU})
     clock = Clock()
     model.learn(warmup + steps, callback=clock)
     rate = steps / (time.perf_counter() - clock.start)
@@ -138,39 +138,53 @@ def _our_learn_rate(train, config, warmup: int, steps: int, run_dir: Path, **qui
     return float(rows["env_steps_per_s_learning"].iloc[-1])  # timed from the first update on
 
 
+UTDS = (1, 2)  # updates per env step of every loop compared (1 env: gradient_steps = UTD)
+
+
+def _equal_work_rows(level: str, command: str, bare_env, rates: dict, rows: list, ratios: dict) -> None:
+    """The rows and ratios of one level's loops: ``rates[(arm, utd)]`` for arms bare, serial, overlap."""
+    for utd in UTDS:
+        what = f"{level} env steps/s while training, 1 env, {utd} update{'s' if utd > 1 else ''}/step"
+        bare, serial, overlap = (rates[(arm, utd)] for arm in ("bare", "serial", "overlap"))
+        flags = f"--envs 1{' --gradient-steps 2' if utd == 2 else ''}"
+        ours_serial, ours_overlap = f"{command} {flags} (recording)", f"{command} {flags} --overlap (recording)"
+        for baseline, baseline_rate, ours, rate in ((f"bare SB3 SAC.learn{bare_env}", bare, ours_serial, serial),
+                                                    (f"bare SB3 SAC.learn{bare_env}", bare, ours_overlap, overlap),
+                                                    (ours_serial, serial, ours_overlap, overlap)):
+            rows.append({"what": what, "baseline": baseline, "baseline rate": baseline_rate, "ours": ours,
+                         "our rate": rate, "ours / baseline": rate / baseline_rate})
+        ratios[f"{level} UTD {utd}: serial / bare"] = serial / bare
+        ratios[f"{level} UTD {utd}: overlapped / bare"] = overlap / bare
+        ratios[f"{level} UTD {utd}: overlapped / serial"] = overlap / serial
+
+
 def bench_learn(warmup: int, steps: int, rows: list, ratios: dict, notes: list, tmp: Path) -> Path:
-    base = LowLevelTrainConfig(seed=SEED)
-    bare = _bare_learn_rate(warmup, steps)
-    same = _our_learn_rate(train_low, replace(base, n_envs=1), warmup, steps, tmp / "one_env", eval_goals_per_region=1)
-    default = _our_learn_rate(train_low, base, warmup, steps, tmp / "defaults", eval_goals_per_region=1)
-    rows.append({"what": "env steps/s while training, 1 env, 1 update/step", "baseline": "bare SB3 SAC.learn",
-                 "baseline rate": bare, "ours": "hingelab train low --envs 1 (recording)", "our rate": same,
-                 "ours / baseline": same / bare})
-    rows.append({"what": "env steps/s while training, defaults", "baseline": "bare SB3 SAC.learn",
-                 "baseline rate": bare, "ours": f"hingelab train low (--envs {base.n_envs}, 1 update per "
-                 f"{base.n_envs} steps)", "our rate": default, "ours / baseline": default / bare})
-    ratios["training env steps/s, same updates per step, ours / bare"] = same / bare
-    ratios["training env steps/s, defaults, ours / bare"] = default / bare
-    notes.append(f"training loops: {warmup} random warm-up steps, then {steps} steps with updates; the bare "
-                 "loop and ours are both timed from the end of the warm-up")
-    return tmp / "defaults" / "dataset"
+    base = LowLevelTrainConfig(seed=SEED, n_envs=1)
+    rates = {}
+    for utd in UTDS:
+        rates[("bare", utd)] = _bare_learn_rate(warmup, steps, gradient_steps=utd)
+        for arm in ("serial", "overlap"):
+            config = replace(base, gradient_steps=utd, overlap=arm == "overlap")
+            rates[(arm, utd)] = _our_learn_rate(train_low, config, warmup, steps, tmp / f"low_{arm}_{utd}",
+                                                eval_goals_per_region=1)
+    _equal_work_rows("low-level", "hingelab train low", "", rates, rows, ratios)
+    notes.append(f"low-level training loops: {warmup} random warm-up steps, then {steps} steps with updates; the "
+                 "bare loop and ours are both timed from the end of the warm-up; arms in the order bare, serial, "
+                 "overlapped, UTD 1 then UTD 2")
+    return tmp / "low_serial_1" / "dataset"
 
 
 def bench_learn_high(warmup: int, steps: int, rows: list, ratios: dict, notes: list, tmp: Path) -> None:
-    base = HighLevelTrainConfig(seed=SEED, prior=False)
-    bare = _bare_learn_rate(warmup, steps, env=gym.make(base.env_id, **base.env_arguments()))
-    same = _our_learn_rate(train_high, replace(base, n_envs=1), warmup, steps, tmp / "high_one_env", eval_episodes=1)
-    default = _our_learn_rate(train_high, base, warmup, steps, tmp / "high_defaults", eval_episodes=1)
-    rows.append({"what": "high-level env steps/s while training, 1 env, 1 update/step",
-                 "baseline": "bare SB3 SAC.learn on ToolPick-v0", "baseline rate": bare,
-                 "ours": "hingelab train high --envs 1 --no-prior (recording)", "our rate": same,
-                 "ours / baseline": same / bare})
-    rows.append({"what": "high-level env steps/s while training, defaults", "baseline": "bare SB3 SAC.learn on "
-                 "ToolPick-v0", "baseline rate": bare, "ours": f"hingelab train high --no-prior (--envs "
-                 f"{base.n_envs}, 1 update per {base.n_envs} steps)", "our rate": default,
-                 "ours / baseline": default / bare})
-    ratios["high-level training env steps/s, same updates per step, ours / bare"] = same / bare
-    ratios["high-level training env steps/s, defaults, ours / bare"] = default / bare
+    base = HighLevelTrainConfig(seed=SEED, prior=False, n_envs=1)
+    rates = {}
+    for utd in UTDS:
+        env = gym.make(base.env_id, **base.env_arguments())
+        rates[("bare", utd)] = _bare_learn_rate(warmup, steps, gradient_steps=utd, env=env)
+        for arm in ("serial", "overlap"):
+            config = replace(base, gradient_steps=utd, overlap=arm == "overlap")
+            rates[(arm, utd)] = _our_learn_rate(train_high, config, warmup, steps, tmp / f"high_{arm}_{utd}",
+                                                eval_episodes=1)
+    _equal_work_rows("high-level", "hingelab train high --no-prior", " on ToolPick-v0", rates, rows, ratios)
     notes.append(f"high-level training loops: ToolPick-v0 over the shipped low-level policy, {warmup} random warm-up "
                  f"steps, then {steps} steps with updates, timed from the end of the warm-up")
 
@@ -194,18 +208,19 @@ def bench_prefill(dataset: Path, repeats: int, rows: list, ratios: dict, notes: 
                  "transition", "baseline rate": slow, "ours": "prefill_replay_buffer (bulk)", "our rate": fast,
                  "ours / baseline": fast / slow})
     ratios["replay pre-fill ours / per-transition add"] = fast / slow
-    notes.append(f"pre-fill: {n} transitions of {len(Dataset(dataset))} episodes (the defaults run's rollouts), "
-                 f"read from disk each time, median of {repeats}")
+    notes.append(f"pre-fill: {n} transitions of {len(Dataset(dataset))} episodes (the rollouts of the serial UTD 1 "
+                 f"low-level run), read from disk each time, median of {repeats}")
 
 
 def run(quick: bool = False) -> BenchTable:
     rows, ratios, notes = [], {}, []
+    notes.append("load average (1, 5, 15 min) at the start: " + ", ".join(f"{v:.2f}" for v in os.getloadavg()))
     bench_updates(3 if quick else 7, 20 if quick else 200, rows, ratios, notes)
     with tempfile.TemporaryDirectory() as tmp:
         dataset = bench_learn(100 if quick else 1000, 60 if quick else 1000, rows, ratios, notes, Path(tmp))
         bench_prefill(dataset, 2 if quick else 5, rows, ratios, notes)
         bench_learn_high(100 if quick else 500, 60 if quick else 1000, rows, ratios, notes, Path(tmp))
-    return BenchTable(name="train", title="SAC training: update rate, env steps/s (low and high level), replay "
-                                          "pre-fill",
+    return BenchTable(name="train", title="SAC training: update rate, env steps/s at equal work (low and high level, "
+                                          "serial and overlapped), replay pre-fill",
                       columns=["what", "baseline", "baseline rate", "ours", "our rate", "ours / baseline"],
                       rows=rows, ratios=ratios, notes=notes, config={"quick": quick})
