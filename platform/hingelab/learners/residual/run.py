@@ -161,8 +161,9 @@ class ResidualRun(PickRun):
         return {**self.evaluation(self.current_policy()), **self.residual_statistics()}
 
     def residual_statistics(self, rows: int = 2000) -> dict:
-        """On the newest ``rows`` transitions of the ring buffer: the deterministic residual's mean |.| per
-        action dimension (action units, after the scale) and the critics' mean Q of the policy's action."""
+        """On the newest ``rows`` transitions of the ring buffer: the deterministic residual's mean |.| and mean
+        (signed: a drift one way, e.g. the hand pushed down) per action dimension (action units, after the scale)
+        and the critics' mean Q of the policy's action."""
         buffer = self.model.replay_buffer
         n = buffer.buffer_size if buffer.full else buffer.pos
         if n == 0:
@@ -172,8 +173,10 @@ class ResidualRun(PickRun):
         with torch.no_grad():
             residual = self.model.actor(obs, deterministic=True)
             q = self.model.critic.q_values(obs, residual).mean()
-        executed = (residual.abs().mean(0).numpy() * self.policy.scale).tolist()
-        return {**{f"residual_abs_{name}": round(v, 6) for name, v in zip(ACTION_NAMES, executed)},
+        size = (residual.abs().mean(0).numpy() * self.policy.scale).tolist()
+        drift = (residual.mean(0).numpy() * self.policy.scale).tolist()
+        return {**{f"residual_abs_{name}": round(v, 6) for name, v in zip(ACTION_NAMES, size)},
+                **{f"residual_mean_{name}": round(v, 6) for name, v in zip(ACTION_NAMES, drift)},
                 "q_policy_mean": float(q)}
 
     def save_policy(self, path: Path) -> None:
