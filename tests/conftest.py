@@ -9,6 +9,27 @@ import pytest
 os.environ.setdefault("MUJOCO_GL", "egl")
 
 
+@pytest.fixture(scope="session", autouse=True)
+def torch_on_one_thread():
+    """Tests train tiny nets, where a second OpenMP thread only spins (and crawls when the other core
+    is busy); one intra-op thread is also what a run sets by default (``--threads 1``). Session-scoped
+    so that module-scoped fixtures (a tiny run shared by a file's tests) train on it too."""
+    import torch
+
+    threads = torch.get_num_threads()
+    torch.set_num_threads(1)
+    yield
+    torch.set_num_threads(threads)
+
+
+@pytest.fixture(autouse=True)
+def back_to_one_torch_thread(torch_on_one_thread):
+    """Each test starts on one thread again, whatever the test before it set (``train encoder --threads``)."""
+    import torch
+
+    torch.set_num_threads(1)
+
+
 @pytest.fixture(scope="session")
 def synergy():
     from hingelab.sim.finger_synergy import FingerSynergy
