@@ -185,8 +185,11 @@ def test_nan_action_is_refused(shape_env):
         shape_env.step(np.full(9, np.nan))
 
 
+SB3_STEPS = 500  # ten ToolShape-v0 episodes, several ToolPick-v0 ones: every check below sees episode ends
+
+
 def test_sb3_sac_and_her_run_on_the_envs(tmp_path):
-    """SAC + HER on ToolShape-v0 and SAC on ToolPick-v0 (2000 steps each). What learn stored is checked
+    """SAC + HER on ToolShape-v0 and SAC on ToolPick-v0 (``SB3_STEPS`` steps each). What learn stored is checked
     against the envs: ToolShape's buffer holds whole episodes (one goal each, next observation = the
     following observation), its rewards are the env's compute_reward of the stored goals and infos,
     and HER's relabelled goals are achieved goals of the same episode at or after the transition, with
@@ -196,11 +199,12 @@ def test_sb3_sac_and_her_run_on_the_envs(tmp_path):
     shape = gym.make(TOOL_SHAPE_ID)
     model = SAC("MultiInputPolicy", shape, replay_buffer_class=HerReplayBuffer,
                 replay_buffer_kwargs=dict(n_sampled_goal=4, goal_selection_strategy="future", copy_info_dict=True),
-                learning_starts=100, batch_size=32, policy_kwargs=dict(net_arch=[16]), seed=0, verbose=0)
-    model.learn(total_timesteps=2000)
+                buffer_size=2 * SB3_STEPS, learning_starts=100, batch_size=32, policy_kwargs=dict(net_arch=[16]),
+                seed=0, verbose=0)
+    model.learn(total_timesteps=SB3_STEPS)
     buffer, env = model.replay_buffer, shape.unwrapped
     n = buffer.pos
-    assert n == 2000 and buffer.size() == 2000
+    assert n == SB3_STEPS and buffer.size() == SB3_STEPS
     obs = {k: v[:n, 0] for k, v in buffer.observations.items()}
     nxt = {k: v[:n, 0] for k, v in buffer.next_observations.items()}
     infos = list(buffer.infos[:n, 0])
@@ -218,7 +222,7 @@ def test_sb3_sac_and_her_run_on_the_envs(tmp_path):
         assert steps <= 50 and (dropped or steps == 50)
         assert bool(buffer.timeouts[end, 0]) == (steps == 50 and not dropped)
         first = end + 1
-    assert len(ends) >= 2000 // 50 - 1
+    assert len(ends) >= SB3_STEPS // 50 - 1
     recomputed = env.compute_reward(nxt["achieved_goal"], obs["desired_goal"], infos)
     np.testing.assert_allclose(buffer.rewards[:n, 0], recomputed, rtol=1e-5, atol=1e-6)
     assert np.ptp(recomputed) > 0.1  # rewards that vary: the check compares something
@@ -241,14 +245,15 @@ def test_sb3_sac_and_her_run_on_the_envs(tmp_path):
     assert 0.6 * 256 < relabelled < 0.95 * 256  # 4 sampled goals per real one: 80% relabelled
 
     pick = gym.make(TOOL_PICK_ID)
-    model = SAC("MlpPolicy", pick, learning_starts=100, batch_size=32, policy_kwargs=dict(net_arch=[16]),
-                seed=0, verbose=0)
-    model.learn(total_timesteps=2000)
+    model = SAC("MlpPolicy", pick, buffer_size=2 * SB3_STEPS, learning_starts=100, batch_size=32,
+                policy_kwargs=dict(net_arch=[16]), seed=0, verbose=0)
+    model.learn(total_timesteps=SB3_STEPS)
     buffer = model.replay_buffer
-    assert buffer.pos == 2000
+    assert buffer.pos == SB3_STEPS
     replay = gym.make(TOOL_PICK_ID)  # SB3 reset the env with seed 0 once, then without a seed
     expected_obs, _ = replay.reset(seed=0)
-    for i in range(2000):
+    resets = 0
+    for i in range(SB3_STEPS):
         np.testing.assert_array_equal(buffer.observations[i, 0], expected_obs)
         expected_obs, reward, terminated, truncated, _ = replay.step(buffer.actions[i, 0])
         np.testing.assert_array_equal(buffer.next_observations[i, 0], expected_obs)
@@ -256,7 +261,9 @@ def test_sb3_sac_and_her_run_on_the_envs(tmp_path):
         assert buffer.timeouts[i, 0] == (truncated and not terminated)
         if terminated or truncated:
             expected_obs, _ = replay.reset()
+            resets += 1
     replay.close()
+    assert resets >= 1  # the replay went through SB3's unseeded resets too
 
 
 def test_diverging_episode_is_truncated_with_its_reason(pick_env):
