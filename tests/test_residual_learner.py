@@ -253,3 +253,39 @@ def test_choose_by_q_acts_with_the_residual_only_where_the_critics_prefer_it_and
         np.testing.assert_array_equal(loaded.predict(obs)[0], policy.predict(obs)[0])
     finally:
         _close(run)
+
+
+def test_choose_by_q_bootstraps_from_the_better_of_the_residual_and_the_base(tmp_path, monkeypatch):
+    import hingelab.learners.residual.algorithm as algorithm
+
+    run = _setup(tmp_path, choose_by_q=True)
+    try:
+        from stable_baselines3.common.logger import configure
+
+        model, rng = run.model, np.random.default_rng(3)
+        model.set_logger(configure(folder=None, format_strings=[]))
+        dim = model.observation_space.shape[0]
+        for _ in range(64):  # transitions of random inputs: the target's arithmetic is what is checked
+            obs, next_obs = rng.normal(0, 1, (2, 1, dim)).astype(np.float32)
+            model.replay_buffer.add(obs, next_obs, rng.uniform(-1, 1, (1, 5)).astype(np.float32),
+                                    rng.normal(size=1).astype(np.float32), np.zeros(1, bool), [{}])
+        targets = []
+        real_mse = algorithm.F.mse_loss
+        monkeypatch.setattr(algorithm.F, "mse_loss", lambda q, target: targets.append(target[0]) or real_mse(q, target))
+        np.random.seed(7), torch.manual_seed(7)  # the draws the update makes, by hand, before it moves the nets
+        data = model._sample(16)
+        with torch.no_grad():
+            next_residual, log_prob = model._action_log_prob(data.next_observations)
+            chosen = torch.from_numpy(np.random.choice(model.critic.n_critics, model.target_critics, replace=False))
+            q_residual = model.critic_target.q_values(data.next_observations, next_residual, chosen).min(0).values
+            q_base = model.critic_target.q_values(data.next_observations, torch.zeros_like(next_residual),
+                                                  chosen).min(0).values
+            alpha = torch.exp(model.log_ent_coef)
+            best = torch.maximum(q_residual, q_base) - alpha * log_prob.reshape(-1, 1)
+            expected = data.rewards + (1 - data.dones) * model.gamma * best
+        np.random.seed(7), torch.manual_seed(7)
+        model.train(gradient_steps=1, batch_size=16)
+        assert (q_base > q_residual).any() and (q_residual > q_base).any()  # the max picks each somewhere
+        torch.testing.assert_close(targets[0], expected)
+    finally:
+        _close(run)
