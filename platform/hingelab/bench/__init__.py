@@ -24,6 +24,7 @@ BENCHMARKS = {
     "envs": "hingelab.bench.envs",
     "train": "hingelab.bench.train",
     "sac": "hingelab.bench.sac",
+    "ensemble": "hingelab.bench.ensemble",
     "cluster": "hingelab.bench.cluster",
 }
 
