@@ -68,7 +68,15 @@ def _verify_clean(root: Path, capsys) -> None:
     assert not list((root / "episodes").glob("*.partial"))
 
 
+@pytest.mark.slow
 def test_generate_heuristic_on_ray_killed_and_resumed_equals_an_uninterrupted_run(tmp_path, capsys):
+    """Slow (a minute: three commands, two local Rays). The default run covers it in parts:
+    ``test_eval_on_ray_killed_and_resumed_equals_an_uninterrupted_run[high]`` (a --ray driver SIGKILLed
+    mid-write, resumed at once over Ray, equal to an uninterrupted run), ``test_ray_rollouts.py::
+    test_generate_heuristic_on_ray_equals_local_workers`` (generate heuristic over Ray = local workers),
+    ``test_disk_full.py::test_disk_full_stops_cleanly_and_resume_completes_the_same_dataset`` (its --resume
+    = an uninterrupted run) and ``test_an_episode_still_being_written_when_resume_starts_cannot_land``
+    (its resume against a worker of the killed run)."""
     common = ["generate", "heuristic", "--episodes", "6", "--seed", "9", "--workers", "2", "--no-progress"]
     out = tmp_path / "killed"
     done, partial = _kill_after([*common, "--out", str(out), "--ray"], out, finished=2)
@@ -83,10 +91,13 @@ def test_generate_heuristic_on_ray_killed_and_resumed_equals_an_uninterrupted_ru
 
 
 @pytest.mark.parametrize("command", [
-    ["eval", "low", "--baseline", "hold-still", "--episodes", "6", "--seed", "3"],
+    pytest.param(["eval", "low", "--baseline", "hold-still", "--episodes", "6", "--seed", "3"], marks=pytest.mark.slow),
     ["eval", "high", "--baseline", "heuristic", "--episodes", "5", "--seed", "3"],
 ], ids=["low", "high"])
 def test_eval_on_ray_killed_and_resumed_equals_an_uninterrupted_run(tmp_path, capsys, command):
+    """[low] is slow (a minute); eval low and eval high over Ray share the fan-out and the journal
+    (``rollouts.on_ray._run``), so [high] covers it by default, with ``test_ray_rollouts.py::
+    test_eval_low_and_high_on_ray_equal_the_local_evaluation`` for eval low over Ray itself."""
     common = [*command, "--no-progress"]
     out = tmp_path / "killed"
     done, partial = _kill_after([*common, "--out", str(out), "--ray"], out, finished=2)
