@@ -39,15 +39,22 @@ def test_generate_heuristic_on_ray_equals_local_workers(tmp_path, capsys):
 
 
 def test_eval_low_and_high_on_ray_equal_the_local_evaluation(tmp_path):
+    """Both --ray evaluations run on one local Ray that the test starts (``ray_session`` uses a Ray already
+    initialized as it is; the fan-out's workers serve one run after another): a Ray start and its workers'
+    start-up, not two. A command starting its own local Ray and shutting it down: the test above,
+    ``test_ray_resume.py`` and ``test_local_ray_reaper.py``."""
+    from hingelab.workers.ray_runtime import ray_session
+
     low = ["eval", "low", "--baseline", "hold-still", "--episodes", "3", "--seed", "2", "--no-progress"]
+    high = ["eval", "high", "--baseline", "heuristic", "--episodes", "2", "--no-progress"]
     assert main([*low, "--out", str(tmp_path / "low_local")]) == 0
-    assert main([*low, "--out", str(tmp_path / "low_ray"), "--ray"]) == 0
+    assert main([*high, "--out", str(tmp_path / "high_local")]) == 0
+    with ray_session():
+        assert main([*low, "--out", str(tmp_path / "low_ray"), "--ray"]) == 0
+        assert main([*high, "--out", str(tmp_path / "high_ray"), "--ray"]) == 0
     pd.testing.assert_frame_equal(pd.read_csv(tmp_path / "low_local" / "episodes.csv"),
                                   pd.read_csv(tmp_path / "low_ray" / "episodes.csv"))
     _same_episodes(tmp_path / "low_local", tmp_path / "low_ray", 3)
-    high = ["eval", "high", "--baseline", "heuristic", "--episodes", "2", "--no-progress"]
-    assert main([*high, "--out", str(tmp_path / "high_local")]) == 0
-    assert main([*high, "--out", str(tmp_path / "high_ray"), "--ray"]) == 0
     pd.testing.assert_frame_equal(pd.read_csv(tmp_path / "high_local" / "episodes.csv"),
                                   pd.read_csv(tmp_path / "high_ray" / "episodes.csv"))
     _same_episodes(tmp_path / "high_local", tmp_path / "high_ray", 2)
