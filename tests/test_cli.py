@@ -123,9 +123,12 @@ def test_unknown_benchmark_is_a_one_line_error():
 
 
 def test_output_into_a_closed_pipe_stops_quietly(tmp_path):
-    """`hingelab datasets info X | head -1`: the reader leaves early; no traceback, exit 141."""
+    """`hingelab datasets info X | head -1`: the reader leaves early; no traceback, exit 141. (The dataset is
+    made in this process: only the command under test pays a process start.)"""
+    from hingelab.cli.main import main
+
     data = tmp_path / "clouds"
-    hingelab("generate", "clouds", "--n", "40", "--per-episode", "20", "--out", str(data), "--no-progress")
+    assert main(["generate", "clouds", "--n", "40", "--per-episode", "20", "--out", str(data), "--no-progress"]) == 0
     proc = subprocess.Popen([sys.executable, "-m", "hingelab.cli.main", "datasets", "info", str(data)],
                             stdout=subprocess.PIPE, stderr=subprocess.PIPE)
     proc.stdout.close()  # nobody reads: the first flush fails with a broken pipe
