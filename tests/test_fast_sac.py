@@ -232,7 +232,13 @@ def _head():
                           check=True).stdout.strip()
 
 
+@pytest.mark.slow
 def test_bench_sac_quick_writes_a_table_whose_figures_agree(tmp_path):
+    """Slow (about a minute: three spawned worker processes building 2 x 256 nets over a 100,000-row
+    buffer). By default its figures are covered by ``test_update_rate_is_the_updates_it_ran_over_the_time_they_took``
+    and ``test_bench_table_figures_are_medians_of_the_blocks_and_ratios_of_the_medians`` (the same
+    ``update_rate`` and ``build_table``), and a benchmark's command end to end (table files, code version)
+    by ``test_cli.py::test_bench_sim_writes_its_table``."""
     from hingelab import __version__, provenance
 
     head_before = _head()

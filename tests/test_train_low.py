@@ -184,7 +184,13 @@ def test_prefill_refuses_another_tasks_data(tiny_run):
         read_transitions([run / "no_such_dataset"])
 
 
+@pytest.mark.slow
 def test_parallel_envs_give_the_same_rollouts_as_in_process(tmp_path):
+    """Slow (two runs, one with two spawned env processes). By default ``test_vec_env.py::
+    test_steps_resets_and_attributes_match_dummy_vec_env`` checks the env processes (PinnedVecEnv) step,
+    reset and answer attributes as in-process envs do, and ``test_overlap.py::
+    test_overlap_is_recorded_resumed_and_resumes_exactly`` trains ``train low`` on a spawned env process
+    (its seeded episodes, checkpoints and an exact resume)."""
     config = replace(TINY, steps=40, n_envs=2, learning_starts=20, eval_every=1000, checkpoint_every=1000,
                      eval_goals_per_region=1, record=False)
     train_low(replace(config, subprocess_envs=True), tmp_path / "subprocess", progress=False)
