@@ -2,8 +2,10 @@
 
 from __future__ import annotations
 
+import hashlib
 import os
 
+import numpy as np
 import pytest
 
 os.environ.setdefault("MUJOCO_GL", "egl")
@@ -28,6 +30,31 @@ def back_to_one_torch_thread(torch_on_one_thread):
     import torch
 
     torch.set_num_threads(1)
+
+
+@pytest.fixture(scope="session", autouse=True)
+def registration_grids_built_once():
+    """Every env's perception builds ``CanonicalRegistration``, whose three nearest-point voxel maps
+    (``registration._GridNearest``) take ~1 s to compute and are the same for the same model points:
+    here each map is computed once per session and shared, as ``with_search`` copies share them. The
+    suite builds a few hundred registrations (338 in-process), most of them of the shipped tool."""
+    from hingelab.perception.registration import _GridNearest
+
+    compute = _GridNearest.__init__
+    built = {}
+
+    def share(self, points, resolution, margin):
+        points = np.array(points)  # the map's own copy: the caller's array stays as it was
+        key = (points.shape, points.dtype.str, hashlib.sha256(points.tobytes()).hexdigest(), float(resolution),
+               float(margin))
+        if key not in built:  # (not set read-only: numba would compile its kernels again for such arrays)
+            built[key] = first = object.__new__(_GridNearest)
+            compute(first, points, resolution, margin)
+        self.__dict__.update(built[key].__dict__)  # the same arrays; still a _GridNearest (pickles as one)
+
+    _GridNearest.__init__ = share
+    yield
+    _GridNearest.__init__ = compute
 
 
 @pytest.fixture(scope="session")
