@@ -202,6 +202,25 @@ def test_run_trains_records_and_resumes_exactly(tiny_run, tmp_path):
     assert pd.read_csv(copy / "metrics.csv")["return"].tolist() == metrics["return"].tolist()
 
 
+def test_a_training_checkpoint_loads_as_the_policy_the_run_saved_at_that_step(tiny_run, tmp_path):
+    """eval high RUNDIR/checkpoints/step_N: the residual learner's SB3 training zip, read as plain tensors with
+    the run's base, acts as the policy file the run wrote at the same step."""
+    run, _ = tiny_run
+    last = ckpt.checkpoint_dirs(run)[-1]
+    assert last.name.endswith(f"{TINY.steps:012d}")
+    from_checkpoint, saved = load_policy(last, level="high"), load_policy(run / "model.zip", level="high")
+    assert isinstance(from_checkpoint, ResidualPolicy)
+    assert from_checkpoint.hingelab_provenance["checkpoint"] == str(last.resolve())
+    obs = np.random.default_rng(0).normal(0, 0.05, (64, saved.observation_dim)).astype(np.float32)
+    ours, theirs = from_checkpoint.predict(obs)[0], saved.predict(obs)[0]
+    np.testing.assert_array_equal(ours, theirs)
+    assert np.abs(ours - saved.base.predict(obs)[0]).max() > 0  # it has learned a residual: not the base
+    alone = tmp_path / "model.zip"  # outside its run folder: the base is unknown
+    shutil.copy(last / "model.zip", alone)
+    with pytest.raises(ConfigError, match="outside its run folder"):
+        load_policy(alone, level="high")
+
+
 def test_bad_input_gets_one_line_errors(tmp_path, capsys):
     with pytest.raises(ConfigError, match=r"residual scale is the largest correction .* in \(0, 1\]"):
         replace(TINY, residual_scale=(1.5,))

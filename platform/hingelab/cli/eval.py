@@ -68,7 +68,8 @@ def add_parser(subparsers) -> None:
                     "report.md) and one row per episode (episodes.csv).")
     high.add_argument("checkpoint", type=Path, nargs="?", default=None,
                       help="a high-level checkpoint of hingelab train high (a stable-baselines3 SAC zip or a phase "
-                           "clone) trained on ToolPick-v0 (or a run folder with model.zip; "
+                           "clone, or a residual over one) trained on ToolPick-v0 (or a run folder with model.zip, "
+                           "or a run's checkpoints/step_N folder: the policy at that step; "
                            "default: the shipped assets/checkpoints/high_level.zip once there is one)")
     high.add_argument("--object", default="sphere",
                       help="object: sphere, cube, cylinder, tetrahedron, mesh:PATH or family:NAME[:SEED] (a new "

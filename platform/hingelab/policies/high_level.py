@@ -29,6 +29,7 @@ from hingelab.policies.loading import register_policy_format
 from hingelab.policies.low_level import load_sac_checkpoint, resolve_low_level
 from hingelab.policies.phase_clone import PhaseClone, is_phase_clone
 from hingelab.policies.residual import ResidualPolicy, is_residual_policy
+from hingelab.policies.residual_checkpoint import is_residual_training_zip, load_residual_training_zip
 from hingelab.policies.sb3_zip import is_sac_zip, load_sac_zip, read_plain_data
 from hingelab.tasks import HIGH_LEVEL_ACTION_SHAPE as ACTION_SHAPE
 from hingelab.tasks import observation_dim
@@ -93,8 +94,10 @@ def load_high_level_checkpoint(path, low_level: str | None = None):
     low level and encoder it learned beside."""
     path = resolve_checkpoint(path)
     residual = is_residual_policy(path)  # train high --learner residual-sac: a phase clone and a residual
-    if residual or is_phase_clone(path):  # the phase clone (train high --learner phase-clone): a policy with memory
-        model = ResidualPolicy.load(path) if residual else PhaseClone.load(path)
+    training_zip = not residual and is_residual_training_zip(path)  # that learner's checkpoints/step_N
+    if residual or training_zip or is_phase_clone(path):  # a phase clone (--learner phase-clone): a policy with memory
+        model = (ResidualPolicy.load(path) if residual else load_residual_training_zip(path) if training_zip
+                 else PhaseClone.load(path))
         env_kwargs = model.hingelab_provenance.get("env_kwargs") or {}
         expected = observation_dim(bool(env_kwargs.get("observe_extent", False)))
         if model.observation_dim != expected:
@@ -140,6 +143,7 @@ def _load_sac_zip(path, encoder=None, low_level=None, level=None):
 
 register_policy_format("hingelab phase clone", is_phase_clone, _load_phase_clone)
 register_policy_format("hingelab residual policy", is_residual_policy, _load_phase_clone)
+register_policy_format("residual-sac training checkpoint", is_residual_training_zip, _load_phase_clone)
 register_policy_format("stable-baselines3 SAC zip", is_sac_zip, _load_sac_zip)
 
 __all__ = ["load_high_level_checkpoint", "resolve_checkpoint", "training_context", "check_context",
