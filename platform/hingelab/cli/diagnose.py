@@ -11,11 +11,12 @@ import shlex
 from pathlib import Path
 
 from hingelab.provenance import code_version, require_clean_for
-from hingelab.rollouts import noise_tolerance, reward_diagnostic
+from hingelab.rollouts import noise_tolerance, residual_diagnostic, reward_diagnostic
 
 
 def add_parser(subparsers) -> None:
-    p = subparsers.add_parser("diagnose", help="diagnostics of the high level's learning problem (reward, noise)",
+    p = subparsers.add_parser("diagnose",
+                              help="diagnostics of the high level's learning problem (reward, noise, residual)",
                               description="Diagnostics that can fail: what the high-level reward pays for "
                                           "finishing against lingering, and how much exploration noise each "
                                           "action dimension tolerates.")
@@ -42,7 +43,22 @@ def add_parser(subparsers) -> None:
                                            f"{' '.join(map(str, noise_tolerance.DEFAULT_LEVELS))})")
     noise.add_argument("--seed", type=int, default=9200, help="seed of the starts, eval high's stream (default 9200)")
     noise.set_defaults(func=run_noise)
-    for sub in (reward, noise):
+    residual = what.add_parser(
+        "residual", help="why a fine-tuned residual picks less than its base: the reward or the learner",
+        description="Runs the residual policy, its base, and the residual with each action group zeroed (latent "
+                    "goal, hand velocity xy, hand velocity z) from the same --episodes starts; per arm success and "
+                    "the true discounted value of the start state. If the residual picks less and its true value "
+                    "falls too, the learner failed at its own objective (the critics misled the actor); if its "
+                    "value rises, the reward pays for what costs picks. Writes residual_diagnostic.md, summary.csv "
+                    "and episodes.csv into --out.")
+    residual.add_argument("checkpoint", type=Path,
+                          help="a residual policy (RUNDIR/model.zip) or a run's checkpoint RUNDIR/checkpoints/step_N")
+    residual.add_argument("--episodes", type=int, default=30, help="starts per arm (default 30)")
+    residual.add_argument("--seed", type=int, default=100,
+                          help="seed of the starts, eval high's stream (default 100; not the run's own)")
+    residual.add_argument("--gamma", type=float, default=None, help="discount (default: the run's)")
+    residual.set_defaults(func=run_residual)
+    for sub in (reward, noise, residual):
         sub.add_argument("--object", default="sphere", help="object shape (default sphere, the training object)")
         sub.add_argument("--size", type=float, default=0.02, help="object width in m (default 0.02)")
         sub.add_argument("--out", type=Path, required=True, help="report folder, e.g. analysis/high-level/reward")
@@ -68,6 +84,21 @@ def run_reward(args: argparse.Namespace) -> int:
         print(f"{s['mode']}: succeeding {s['success_value_at_decision']:.1f}, hovering "
               f"{s['hover_value_at_decision']:.1f} at the decision point; succeeding worth more on "
               f"{s['finishing_pays_more']} of {s['pairs']} starts")
+    print(f"wrote {path}")
+    return 0
+
+
+def run_residual(args: argparse.Namespace) -> int:
+    require_clean_for(args.out, args.allow_dirty, "hingelab diagnose residual")
+    rows, gamma = residual_diagnostic.diagnose(args.checkpoint, args.object, args.size, args.episodes, args.seed,
+                                               args.gamma, progress=not args.no_progress)
+    summary = residual_diagnostic.summarize(rows)
+    options = [str(args.checkpoint), "--episodes", str(args.episodes), "--seed", str(args.seed), "--object",
+               args.object, "--size", f"{args.size:g}"] + (["--gamma", f"{args.gamma:g}"] if args.gamma else [])
+    path = residual_diagnostic.write_report(rows, summary, args.out, _command(args, "residual", options), gamma)
+    for s in summary:
+        print(f"{s['arm']}: {s['successes']}/{s['episodes']} picked, v0 {s['v0']:.1f}")
+    print(residual_diagnostic.verdict(summary))
     print(f"wrote {path}")
     return 0
 

@@ -116,7 +116,8 @@ def load_residual_training_zip(path) -> ResidualPolicy:
         q_net.eval()
         chooser = ChooseByQ(q_net, members, scale)
     recorded = {k: v for k, v in (plain.get("hingelab_provenance") or {}).items() if k != "evaluation"}
-    provenance = {**recorded, "checkpoint": str(path.parent)}  # env and low-level context, as the run records it
+    # env and low-level context as the run records it; the settings as config.json holds them (the zip keeps a repr)
+    provenance = {**recorded, "config": config, "checkpoint": str(path.parent)}
     return ResidualPolicy(base, _squashed(actor), scale, provenance, base_bytes, chooser)
 
 
