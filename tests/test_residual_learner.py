@@ -151,6 +151,20 @@ def test_the_demos_residuals_execute_the_demonstrated_actions(tmp_path):
         _close(run)
 
 
+def test_the_actor_values_its_action_by_the_members_mean_minimum_or_lower_confidence_bound(tmp_path):
+    q = torch.tensor([[[1.0], [4.0]], [[3.0], [4.0]], [[5.0], [4.0]]])  # 3 members, 2 states
+    by = {}
+    for mode in ("mean", "min", "lcb"):
+        run = _setup(tmp_path / mode, actor_q=mode)
+        try:
+            assert run.model.actor_q == mode and run.config.actor_q == mode
+            by[mode] = run.model.actor_value(q).flatten().tolist()
+        finally:
+            _close(run)
+    assert by["mean"] == [3.0, 4.0] and by["min"] == [1.0, 4.0]
+    assert by["lcb"] == pytest.approx([3.0 - 2.0, 4.0])  # the members' sample std: 2 where they disagree, 0 not
+
+
 def test_the_ensemble_is_each_members_own_network():
     import gymnasium as gym
     from stable_baselines3.common.torch_layers import FlattenExtractor

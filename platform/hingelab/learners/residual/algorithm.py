@@ -11,7 +11,8 @@ from the privileged buffer showed (``analysis/high-level/``):
   comes from a critic that has seen the task, not from an untrained one.
 * **A critic ensemble** (``EnsembleCritic``, LayerNorm): the bootstrap target takes the minimum over a
   random subset of ``target_critics`` members (REDQ, Chen et al. 2021; RLPD, Ball et al. 2023), the
-  actor the members' mean; several updates per env step (``gradient_steps``) are then stable.
+  actor the members' mean (``actor_q``: or their minimum, or mean minus standard deviation); several updates
+  per env step (``gradient_steps``) are then stable.
 * **The base proposes too** (``choose_by_q``, IBRL, Hu et al. 2024): the rollouts act with the residual's
   sample only where the critics' minimum Q of it beats that of the base's own action (residual 0), and the
   bootstrap target takes the better of the two at the next state, so the critic values what the base
@@ -40,7 +41,10 @@ class ResidualSAC(FastSAC):
     """FastSAC with policy-driven warm-up, a critic-only warm-up and an ensemble target (module doc)."""
 
     def __init__(self, *args: Any, actor_start: int = 0, target_critics: int = 2, residual_penalty: float = 0.0,
-                 choose_by_q: bool = False, **kwargs: Any):
+                 choose_by_q: bool = False, actor_q: str = "mean", **kwargs: Any):
+        if actor_q not in ("mean", "min", "lcb"):
+            raise ValueError(f"actor_q is mean, min or lcb, not {actor_q!r}")
+        self.actor_q = actor_q
         self.actor_start = int(actor_start)
         self.target_critics = int(target_critics)
         self.residual_penalty = float(residual_penalty)
@@ -60,6 +64,15 @@ class ResidualSAC(FastSAC):
             action = np.where(wins[:, None], action, 0.0).astype(action.dtype)
             buffer_action = np.where(wins[:, None], buffer_action, 0.0).astype(buffer_action.dtype)
         return action, buffer_action
+
+    def actor_value(self, q: th.Tensor) -> th.Tensor:
+        """What the actor maximizes, from the members' Q of its action (E, B, 1): their mean, minimum, or mean
+        minus their standard deviation (a lower confidence bound: the actor does not follow one member's error)."""
+        if self.actor_q == "min" or (self.actor_q == "lcb" and q.shape[0] < 2):
+            return q.min(dim=0).values
+        if self.actor_q == "lcb":
+            return q.mean(dim=0) - q.std(dim=0)
+        return q.mean(dim=0)
 
     def _q_values(self, critic: Any, obs: Any, features: Any, actions: th.Tensor) -> tuple[th.Tensor, ...]:
         return critic(obs, actions)  # the ensemble rebuilds the executed action from obs: never skip its forward
@@ -132,7 +145,7 @@ class ResidualSAC(FastSAC):
                 for p in critic_params:  # the actor's loss needs the input gradient only
                     p.requires_grad_(False)
                 try:
-                    q_pi = self.critic.q_values(data.observations, actions_pi).mean(dim=0)
+                    q_pi = self.actor_value(self.critic.q_values(data.observations, actions_pi))
                     actor_loss = (ent_coef * log_prob - q_pi).mean()
                     if self.residual_penalty:  # the mean of the same forward as actions_pi
                         pull = (th.tanh(mean) ** 2).mean()

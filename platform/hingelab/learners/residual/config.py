@@ -31,6 +31,7 @@ EXPLORATION_BOUND = (0.005, 0.005, 0.1, 0.1, 0.1)
 # loose when its goal jumps), on the hand's velocity 0.2 (1.6 cm/s: the clone's misses are millimetres of
 # lateral offset)
 RESIDUAL_SCALE = (0.01, 0.01, 0.2, 0.2, 0.2)
+ACTOR_Q = ("mean", "min", "lcb")  # ``ResidualSAC.actor_value``
 
 
 @dataclass(frozen=True)
@@ -61,6 +62,9 @@ class ResidualSACConfig(PickTask, PickReward, PriorDemos, SACTrainConfig):
     choose_by_q: bool = option(False, "the base proposes too (IBRL): act, bootstrap and deploy with the residual "
                                       "only where the critics value it above the base's own action (the policy "
                                       "file then carries the critics)", flag="--choose-by-q")
+    actor_q: str = option("mean", "how the actor values its action across the critics: mean (REDQ's), min (SAC's "
+                                  "twin minimum: pessimistic), or lcb (mean minus one standard deviation: "
+                                  "pessimistic where the critics disagree)", choices=ACTOR_Q)
     demo_share: float = option(0.25, "share of every batch drawn from the privileged prior's demos (0: none; "
                                      "--no-prior: no demos)")
     # the base fitted by the run (--base fit): the phase clone's settings

@@ -132,7 +132,7 @@ class ResidualRun(PickRun):
         kwargs["policy_kwargs"].update(residual_scale=self.policy.scale.tolist(), log_std_max=c.log_std_max(),
                                        critic_layer_norm=c.critic_layer_norm, n_critics=c.critics)
         kwargs.update(actor_start=c.actor_start, target_critics=c.target_critics, residual_penalty=c.residual_penalty,
-                      choose_by_q=c.choose_by_q)
+                      choose_by_q=c.choose_by_q, actor_q=c.actor_q)
         if self.demos is not None:
             kwargs.update(replay_buffer_class=DemoShareReplayBuffer,
                           replay_buffer_kwargs={"demos": self.demos, "demo_share": c.demo_share})
