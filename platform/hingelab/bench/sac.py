@@ -3,14 +3,20 @@
 The update alone, on the low-level task's shapes: ``MultiInputPolicy``, Dict observations
 (``observation`` 26, ``achieved_goal`` 2, ``desired_goal`` 2), a 9-D action, actor and twin
 critics 2 x 256 ReLU, batch 256, ``ent_coef="auto"``, a ``DictReplayBuffer`` full of random
-transitions. Three arms, each in its own process (so that process-wide settings, such as
+transitions. Up to five arms, each in its own process (so that process-wide settings, such as
 glibc's heap, differ between them):
 
 - ``SB3 SAC``: ``stable_baselines3.SAC`` as it comes: the baseline;
 - ``SB3 SAC + configure_torch``: the same with hingelab's process settings, which separates
   them from FastSAC's own changes;
 - ``FastSAC + configure_torch``: ``hingelab.learners.sac.fast_sac``, what ``hingelab train low``
-  uses: ours.
+  uses: ours;
+- ``FastSAC compiled + configure_torch``: the same with ``update="compiled"``, each gradient step
+  one ``torch.compile``d function (``hingelab.learners.sac.compiled_update``; its compilation is
+  part of the untimed warm-up);
+- ``SBX SAC``: the JAX SAC of ``sbx-rl`` (the bench extra), its update jitted by XLA, on one
+  XLA thread (``XLA_FLAGS`` set in its process before JAX loads): the compiled baseline. Only at
+  1 thread, and only when ``sbx`` is installed; without it the bench says so and runs the others.
 
 In each round every arm runs one block of updates, one arm at a time, in an order shuffled per
 round (a slower spell of the shared machine hits all arms alike); an arm's figure is its median
@@ -23,7 +29,9 @@ thread. Why each change is faster, and what each bought alone (an ablation), is 
 from __future__ import annotations
 
 import cProfile
+import importlib.util
 import multiprocessing as mp
+import os
 import pstats
 import statistics
 import time
@@ -45,7 +53,7 @@ from hingelab.bench.table import BenchTable
 from hingelab.learners.sac.fast_sac import FastSAC, configure_torch
 
 # the code this benchmark measures (the bench's own module is added by hingelab.bench.measured_paths)
-MEASURES = ("platform/hingelab/learners/sac/fast_sac.py",)
+MEASURES = ("platform/hingelab/learners/sac/fast_sac.py", "platform/hingelab/learners/sac/compiled_update.py")
 
 SEED = 0
 BATCH_SIZE = 256
@@ -60,6 +68,15 @@ ARMS: dict[str, tuple[str, str, bool]] = {
     "SB3 SAC + configure_torch": ("baseline + our process settings", "SAC", True),
     OURS: ("ours", "FastSAC", True),
 }
+COMPILED = "FastSAC compiled + configure_torch"
+SBX = "SBX SAC"
+#: arms beyond the three above: arm -> (role, algorithm, hingelab's process settings, thread settings (None: all))
+EXTRA_ARMS: dict[str, tuple[str, str, bool, tuple[int, ...] | None]] = {
+    COMPILED: ("ours, compiled update", "FastSAC-compiled", True, None),
+    SBX: ("compiled baseline (JAX, XLA)", "SBX", False, (1,)),
+}
+#: one XLA thread (set before JAX loads): SBX's rate "on one core", as the torch arms' 1 thread
+SBX_XLA_FLAGS = "--xla_cpu_multi_thread_eigen=false intra_op_parallelism_threads=1"
 UNEVEN_BLOCKS = 2.0  # an arm whose fastest block is this many times its slowest: a busy machine, flagged
 COLUMNS = ["threads", "config", "role", "updates/s", "min", "max", "ms/update", "/ SB3 SAC"]
 
@@ -172,13 +189,28 @@ def profile_breakdown(model: Any, n_updates: int, batch_size: int = BATCH_SIZE) 
 # --- one process per arm ---------------------------------------------------------------------
 
 
+def sbx_available() -> bool:
+    return importlib.util.find_spec("sbx") is not None
+
+
+def _build_model(algorithm: str) -> Any:
+    if algorithm == "SBX":
+        os.environ["XLA_FLAGS"] = SBX_XLA_FLAGS  # before JAX loads: it reads them once
+        from sbx import SAC as SBXSAC  # optional (the bench extra), and it loads JAX
+
+        return make_filled_model(SBXSAC)
+    if algorithm == "FastSAC-compiled":
+        return make_filled_model(FastSAC, update="compiled")
+    return make_filled_model(FastSAC if algorithm == "FastSAC" else SAC)
+
+
 def _worker(arm: str, connection: Any) -> None:
     """Builds the arm's model, then answers ("rate" | "profile", threads, n_updates) until None."""
     try:
-        _role, algorithm, process_settings = ARMS[arm]
+        _role, algorithm, process_settings = _arm_spec(arm)[:3]
         if process_settings:
             configure_torch(1)
-        model = make_filled_model(FastSAC if algorithm == "FastSAC" else SAC)
+        model = _build_model(algorithm)
         warm_threads = None
         connection.send(("ready", None))
         while (message := connection.recv()) is not None:
@@ -188,7 +220,8 @@ def _worker(arm: str, connection: Any) -> None:
                 connection.send(("ok", profile_breakdown(model, n_updates)))
                 continue
             if threads != warm_threads:  # first calls and a thread change: allocations, thread pool
-                model.train(gradient_steps=WARMUP_UPDATES, batch_size=BATCH_SIZE)
+                # (SBX jits its whole loop for each number of updates: warm it up on the block's)
+                model.train(gradient_steps=n_updates if algorithm == "SBX" else WARMUP_UPDATES, batch_size=BATCH_SIZE)
                 warm_threads = threads
             connection.send(("ok", update_rate(model, n_updates)))
     except Exception:  # noqa: BLE001 - the parent re-raises it with the arm's name
@@ -242,10 +275,19 @@ class _Arms:
         self.close()
 
 
+def _arm_spec(arm: str) -> tuple:
+    return ARMS[arm] if arm in ARMS else EXTRA_ARMS[arm]
+
+
+def arms_at(threads: int, arms: list[str]) -> list[str]:
+    """The arms measured at a thread setting."""
+    return [a for a in arms if a in ARMS or EXTRA_ARMS[a][3] is None or threads in EXTRA_ARMS[a][3]]
+
+
 def interleaved_rates(arms: _Arms, threads: int, rounds: int, n_updates: int,
                       rng: np.random.Generator, progress: Any = None) -> dict[str, list[float]]:
     """Updates/s of each arm's blocks: one block per arm and round, the order shuffled per round."""
-    names = list(arms.workers)
+    names = arms_at(threads, list(arms.workers))
     rates: dict[str, list[float]] = {name: [] for name in names}
     for _ in range(rounds):
         for i in rng.permutation(len(names)):
@@ -269,16 +311,30 @@ def build_table(block_rates: dict[int, dict[str, list[float]]], profile: dict[st
     for threads, rates in block_rates.items():
         median = {arm: statistics.median(r) for arm, r in rates.items()}
         for arm, r in rates.items():
-            rows.append({"threads": threads, "config": arm, "role": ARMS[arm][0], "updates/s": median[arm],
+            rows.append({"threads": threads, "config": arm, "role": _arm_spec(arm)[0], "updates/s": median[arm],
                          "min": min(r), "max": max(r), "ms/update": 1e3 / median[arm],
                          "/ SB3 SAC": median[arm] / median[BASELINE]})
         ratios[ratio_name(threads)] = median[OURS] / median[BASELINE]
+    for threads, rates in block_rates.items():
+        median = {arm: statistics.median(r) for arm, r in rates.items()}
+        per = f"{threads} thread{'s' if threads > 1 else ''}"
+        if COMPILED in median:
+            ratios[f"updates/s {COMPILED} / {BASELINE}, {per}"] = median[COMPILED] / median[BASELINE]
+            ratios[f"updates/s {COMPILED} / {OURS}, {per} (the compiled update alone)"] = (
+                median[COMPILED] / median[OURS])
+        if SBX in median:
+            if COMPILED in median:
+                ratios[f"updates/s {COMPILED} / {SBX}, {per} (target: >= 1.0)"] = median[COMPILED] / median[SBX]
+            ratios[f"updates/s {OURS} / {SBX}, {per}"] = median[OURS] / median[SBX]
+            ratios[f"updates/s {BASELINE} / {SBX}, {per}"] = median[BASELINE] / median[SBX]
     if 1 in block_rates and "SB3 SAC + configure_torch" in block_rates[1]:
         rates = block_rates[1]
         ratios["updates/s SB3 SAC + configure_torch / SB3 SAC, 1 thread (process settings alone)"] = (
             statistics.median(rates["SB3 SAC + configure_torch"]) / statistics.median(rates[BASELINE]))
+    sbx = (f", sbx-rl {config['sbx']} on jax {config['jax']} ({SBX_XLA_FLAGS})" if config.get("sbx")
+           else "")
     notes = [
-        f"setup: stable-baselines3 {config['stable_baselines3']}, torch {config['torch']}; MultiInputPolicy, Dict "
+        f"setup: stable-baselines3 {config['stable_baselines3']}, torch {config['torch']}{sbx}; MultiInputPolicy, Dict "
         "observations 26 + 2 + 2, action 9, actor and twin critics 2 x 256 ReLU, batch "
         f"{config['batch_size']}, ent_coef auto, a DictReplayBuffer of {config['buffer_size']:,} random "
         "transitions",
@@ -288,7 +344,15 @@ def build_table(block_rates: dict[int, dict[str, list[float]]], profile: dict[st
         "the ratio that counts is ours / baseline at 1 thread (what training uses); at 2 threads a second "
         "process on the other core makes OpenMP's threads wait on each other, so that figure holds for an idle "
         "machine only",
+        f"{COMPILED}: FastSAC(update='compiled'), hingelab.learners.sac.compiled_update; torch.compile's "
+        "compilation (tens of seconds) is in the untimed warm-up, as SBX's jit is",
     ]
+    if config.get("sbx"):
+        notes.append(f"{SBX}: sbx.SAC with the same nets, batch and buffer, 1 thread only (XLA reads its thread "
+                     "setting once); its train() samples all of a block's batches at once and runs the block as one "
+                     "jitted loop")
+    elif "sbx" in config:
+        notes.append(f"{SBX}: not measured: sbx is not installed (pip install -e '.[bench]')")
     for threads, rates in block_rates.items():
         spread = {arm: max(r) / min(r) for arm, r in rates.items()}
         uneven = [f"{arm} {min(rates[arm]):.3g}-{max(rates[arm]):.3g}" for arm, x in spread.items()
@@ -300,12 +364,13 @@ def build_table(block_rates: dict[int, dict[str, list[float]]], profile: dict[st
     if profile:
         arms = list(profile)
         notes.append(f"cProfile, ms per update at 1 thread ({' / '.join(arms)}), {config['profile_updates']} "
-                     "updates; cProfile inflates the Python-heavy parts:")
+                     "updates; cProfile inflates the Python-heavy parts (the compiled arms are not profiled: "
+                     "cProfile does not see into a compiled graph):")
         for part in profile[arms[0]]:
             notes.append(f"  {part}: " + " / ".join(f"{profile[arm][part]:.2f}" for arm in arms))
     notes.append("why each change is faster, and an ablation: analysis/bench/history/sac_updates.md")
-    return BenchTable(name="sac", title="SAC gradient updates per second: hingelab's FastSAC vs bare "
-                      "stable-baselines3 SAC", columns=COLUMNS, rows=rows, ratios=ratios, notes=notes,
+    return BenchTable(name="sac", title="SAC gradient updates per second: hingelab's FastSAC (eager and compiled) "
+                      "vs bare stable-baselines3 SAC and SBX", columns=COLUMNS, rows=rows, ratios=ratios, notes=notes,
                       config={**config, "block_rates": {str(t): r for t, r in block_rates.items()},
                               "profile_ms_per_update": profile})
 
@@ -315,13 +380,24 @@ def run(quick: bool = False) -> BenchTable:
     rounds = 3 if quick else 7
     n_updates = 20 if quick else 200
     profile_updates = 20 if quick else 200
+    arms_run = [*ARMS, COMPILED]
+    sbx_version = jax_version = None
+    if sbx_available():
+        from importlib.metadata import version
+
+        arms_run.append(SBX)
+        sbx_version, jax_version = version("sbx-rl"), version("jax")
+    else:
+        print(f"bench sac: sbx is not installed: the {SBX} arm is skipped (pip install -e '.[bench]')")
     config = {"quick": quick, "threads": list(threads_list), "rounds": rounds, "updates_per_block": n_updates,
               "profile_updates": profile_updates, "batch_size": BATCH_SIZE, "buffer_size": BUFFER_SIZE,
-              "seed": SEED, "torch": torch.__version__, "stable_baselines3": stable_baselines3.__version__}
+              "seed": SEED, "torch": torch.__version__, "stable_baselines3": stable_baselines3.__version__,
+              "sbx": sbx_version, "jax": jax_version, "arms": arms_run}
     rng = np.random.default_rng(SEED)
     block_rates: dict[int, dict[str, list[float]]] = {}
-    with tqdm(total=rounds * len(ARMS) * len(threads_list) + len(ARMS), desc="bench sac: starting the workers",
-              unit="block") as progress, _Arms(list(ARMS)) as arms:
+    blocks = sum(rounds * len(arms_at(threads, arms_run)) for threads in threads_list)
+    with tqdm(total=blocks + len(ARMS), desc="bench sac: starting the workers (and compiling)",
+              unit="block") as progress, _Arms(arms_run) as arms:
         progress.set_description("bench sac")
         for threads in threads_list:
             block_rates[threads] = interleaved_rates(arms, threads, rounds, n_updates, rng, progress)

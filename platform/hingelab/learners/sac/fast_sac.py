@@ -36,6 +36,7 @@ from stable_baselines3.common.buffers import DictReplayBuffer, ReplayBuffer
 from stable_baselines3.common.type_aliases import DictReplayBufferSamples, ReplayBufferSamples
 from stable_baselines3.common.utils import polyak_update
 
+from hingelab.learners.sac.compiled_update import CompiledSACUpdate, train_compiled
 from hingelab.learners.sac.overlap import OverlappedLearning
 from hingelab.training.torch_process import configure_torch  # noqa: F401  (re-exported: the bench applies it)
 
@@ -127,13 +128,19 @@ class FastSAC(OverlappedLearning, SAC):
     """``stable_baselines3.SAC`` with a faster ``train()``; same algorithm and arguments. With
     ``overlap`` set, ``learn`` runs the updates while the envs step (``hingelab.learners.sac.overlap``).
 
-    Extra argument ``speedups``: a subset of ``ALL_SPEEDUPS`` (default: all). Adam is fused
+    Extra argument ``speedups``: a subset of ``ALL_SPEEDUPS`` (default: all); ``update``: ``"eager"``
+    (default) or ``"compiled"``, each gradient step as one ``torch.compile``d function
+    (``hingelab.learners.sac.compiled_update``; the same algorithm). Adam is fused
     unless ``policy_kwargs["optimizer_kwargs"]`` says otherwise. gSDE and replay buffers other
     than plain ``ReplayBuffer``/``DictReplayBuffer`` (HER, n-step, memory-optimized,
     VecNormalize) fall back to SB3's own code for the part they change (sampling, noise).
     """
 
-    def __init__(self, policy: Any, env: Any, *args: Any, speedups: Iterable[str] | None = None, **kwargs: Any):
+    def __init__(self, policy: Any, env: Any, *args: Any, speedups: Iterable[str] | None = None,
+                 update: str = "eager", **kwargs: Any):
+        if update not in ("eager", "compiled"):
+            raise ValueError(f"update must be 'eager' or 'compiled', not {update!r}")
+        self.update = update
         policy_kwargs = dict(kwargs.pop("policy_kwargs", None) or {})
         optimizer_kwargs = dict(policy_kwargs.get("optimizer_kwargs") or {})
         optimizer_kwargs.setdefault("fused", True)
@@ -144,6 +151,10 @@ class FastSAC(OverlappedLearning, SAC):
         if unknown:
             raise ValueError(f"unknown speedups {sorted(unknown)}; known: {sorted(ALL_SPEEDUPS)}")
         super().__init__(policy, env, *args, **kwargs)
+        if update == "compiled":
+            problem = CompiledSACUpdate.check(self)
+            if problem:
+                raise ValueError(f"update='compiled' does not support this model: {problem}")
 
     def _setup_model(self) -> None:
         super()._setup_model()
@@ -154,7 +165,7 @@ class FastSAC(OverlappedLearning, SAC):
             _relu_in_place_after_linear(self.policy)
 
     def _excluded_save_params(self) -> list[str]:
-        return [*super()._excluded_save_params(), "_fast_sampler"]
+        return [*super()._excluded_save_params(), "_fast_sampler", "_compiled_update"]
 
     # --- pieces of one update -------------------------------------------------------------
 
@@ -213,6 +224,9 @@ class FastSAC(OverlappedLearning, SAC):
     # --- the update -------------------------------------------------------------------------
 
     def train(self, gradient_steps: int, batch_size: int = 64) -> None:
+        if getattr(self, "update", "eager") == "compiled":  # (models saved before the option have none)
+            train_compiled(self, gradient_steps, batch_size)
+            return
         self.policy.set_training_mode(True)
         optimizers = [self.actor.optimizer, self.critic.optimizer]
         if self.ent_coef_optimizer is not None:
