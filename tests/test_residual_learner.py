@@ -127,6 +127,28 @@ def test_exploration_noise_stays_within_the_bound(tmp_path):
         _close(run)
 
 
+def test_an_exploration_floor_keeps_noise_on_every_dimension(tmp_path):
+    bound, floor = np.array([0.01, 0.02, 0.05, 0.08, 0.1]), np.array([0.005, 0.01, 0.025, 0.04, 0.05])
+    run = _setup(tmp_path, exploration_bound=tuple(bound), exploration_floor=tuple(floor),
+                 residual_scale=(0.1, 0.1, 0.3, 0.3, 0.3))
+    try:
+        model = run.model
+        with torch.no_grad():  # a temperature that wants no noise at all: the floor still holds
+            model.actor.log_std.bias.fill_(-20.0)
+        x = torch.as_tensor(np.random.default_rng(3).normal(0, 1, (1, run.policy.inputs.dim)), dtype=torch.float32)
+        x = x.repeat(4000, 1)
+        x[:, -5:] = 0.0
+        residual, _ = model.predict(x.numpy(), deterministic=False)
+        spread = compose(np.zeros(5), residual, run.policy.scale).std(axis=0)
+        assert (spread >= floor * 0.9).all() and (spread <= floor * 1.1).all(), spread
+        # the floor is no weight: a run with one saves and loads the same tensors as one without
+        assert "log_std_min" not in model.actor.state_dict()
+    finally:
+        _close(run)
+    with pytest.raises(ConfigError, match="exploration-floor"):
+        replace(TINY, exploration_floor=(0.02, 0.01, 0.01, 0.01, 0.01))  # above the bound's 0.005
+
+
 def test_the_demos_residuals_execute_the_demonstrated_actions(tmp_path):
     run = _setup(tmp_path, steps=0, prior=True)
     try:

@@ -45,6 +45,10 @@ class ResidualSACConfig(PickTask, PickReward, PriorDemos, SACTrainConfig):
     exploration_bound: tuple = option(EXPLORATION_BOUND, "the largest executed exploration noise (std, action "
                                                          "units) per action dimension: latent goal 0 and 1, hand "
                                                          "velocity x, y, z", item=float, metavar="STD")
+    exploration_floor: tuple = option((), "the smallest executed exploration noise (std, action units) per action "
+                                          "dimension, 5 numbers (default none: the temperature may shrink the noise "
+                                          "to nothing, and the critics then see no action vary)", item=float,
+                                      metavar="STD")
     # 2, not RLPD's 10: here an update costs in proportion to the critics (10: about 5x the twin critics' time,
     # measured on this 2-core machine), and a 100,000-step run must fit in about an hour
     critics: int = option(2, "critics in the ensemble (LayerNorm, one batched network)", flag="--critics")
@@ -101,6 +105,10 @@ class ResidualSACConfig(PickTask, PickReward, PriorDemos, SACTrainConfig):
         if len(bound) != 5 or not all(b > 0 for b in bound):
             raise ConfigError(f"--exploration-bound takes 5 positive stds (latent goal 0 and 1, hand velocity x, y, "
                               f"z), not {list(self.exploration_bound)}")
+        floor = tuple(float(f) for f in self.exploration_floor)
+        if floor and (len(floor) != 5 or not all(0 < f <= b for f, b in zip(floor, bound))):
+            raise ConfigError(f"--exploration-floor takes 5 positive stds, each at most --exploration-bound's "
+                              f"({list(bound)}), not {list(self.exploration_floor)}")
         if self.base != "fit" and "observe_extent" not in self.env_kwargs:  # observe as the base was trained to
             extent = base_observes_extent(SHIPPED_HIGH_LEVEL if self.base == "shipped" else Path(self.base))
             if extent is not None:
@@ -122,6 +130,12 @@ class ResidualSACConfig(PickTask, PickReward, PriorDemos, SACTrainConfig):
         """The actor's log-std cap per dimension: the bound's std of the executed action over the scale."""
         scale = check_scale(self.residual_scale)
         return [math.log(b / s) for b, s in zip(self.exploration_bound, scale)]
+
+    def log_std_min(self) -> list[float] | None:
+        """The actor's log-std floor per dimension (None: none), as ``log_std_max`` from ``exploration_floor``."""
+        if not self.exploration_floor:
+            return None
+        return [math.log(f / s) for f, s in zip(self.exploration_floor, check_scale(self.residual_scale))]
 
 
 

@@ -1,7 +1,8 @@
 """The residual learner's networks, as a stable-baselines3 ``SACPolicy``:
 
 * ``BoundedActor``: SB3's squashed-Gaussian actor whose mean layer starts at zero (the residual is 0: the
-  policy at step 0 is its base) and whose log-std is capped per action dimension, so the executed
+  policy at step 0 is its base) and whose log-std is capped (and optionally floored) per action dimension,
+  so the executed
   exploration noise, ``scale * std`` before the tanh compresses it further, stays under the bound each
   dimension tolerates (``hingelab diagnose noise``).
 * ``EnsembleCritic``: ``n_critics`` Q-networks with LayerNorm after every hidden layer (RLPD, Ball et
@@ -28,10 +29,12 @@ from hingelab.policies.residual import EnsembleLinear, ResidualInputs, compose, 
 class BoundedActor(Actor):
     """SB3's SAC actor with a zero-initialized mean layer and a per-dimension cap on its log-std."""
 
-    def __init__(self, *args: Any, log_std_max=None, **kwargs: Any):
+    def __init__(self, *args: Any, log_std_max=None, log_std_min=None, **kwargs: Any):
         super().__init__(*args, **kwargs)
         cap = th.as_tensor(np.asarray(log_std_max, np.float32))
         self.register_buffer("log_std_max", cap)
+        # the floor is a plain attribute, not a buffer: checkpoints of runs without one keep loading exactly
+        self.log_std_min = None if log_std_min is None else th.as_tensor(np.asarray(log_std_min, np.float32))
         with th.no_grad():
             self.mu.weight.zero_()
             self.mu.bias.zero_()
@@ -40,7 +43,10 @@ class BoundedActor(Actor):
 
     def get_action_dist_params(self, obs):
         mean, log_std, kwargs = super().get_action_dist_params(obs)
-        return mean, th.minimum(log_std, self.log_std_max), kwargs
+        log_std = th.minimum(log_std, self.log_std_max)
+        if self.log_std_min is not None:
+            log_std = th.maximum(log_std, self.log_std_min)
+        return mean, log_std, kwargs
 
 
 class EnsembleCritic(ContinuousCritic):
@@ -84,20 +90,22 @@ class EnsembleCritic(ContinuousCritic):
 class ResidualSACPolicy(SACPolicy):
     """SB3's SAC policy with ``BoundedActor`` and ``EnsembleCritic`` (module doc)."""
 
-    def __init__(self, *args: Any, residual_scale=None, log_std_max=None, critic_layer_norm: bool = True,
-                 **kwargs: Any):
+    def __init__(self, *args: Any, residual_scale=None, log_std_max=None, log_std_min=None,
+                 critic_layer_norm: bool = True, **kwargs: Any):
         self.residual_scale = [float(s) for s in residual_scale]
         self.log_std_max = [float(v) for v in log_std_max]
+        self.log_std_min = None if log_std_min is None else [float(v) for v in log_std_min]
         self.critic_layer_norm = bool(critic_layer_norm)
         super().__init__(*args, **kwargs)
 
     def _get_constructor_parameters(self) -> dict[str, Any]:
         return {**super()._get_constructor_parameters(), "residual_scale": self.residual_scale,
-                "log_std_max": self.log_std_max, "critic_layer_norm": self.critic_layer_norm}
+                "log_std_max": self.log_std_max, "critic_layer_norm": self.critic_layer_norm,
+                **({"log_std_min": self.log_std_min} if self.log_std_min is not None else {})}
 
     def make_actor(self, features_extractor=None) -> BoundedActor:
         actor_kwargs = self._update_features_extractor(self.actor_kwargs, features_extractor)
-        return BoundedActor(**actor_kwargs, log_std_max=self.log_std_max).to(self.device)
+        return BoundedActor(**actor_kwargs, log_std_max=self.log_std_max, log_std_min=self.log_std_min).to(self.device)
 
     def make_critic(self, features_extractor=None) -> EnsembleCritic:
         critic_kwargs = self._update_features_extractor(self.critic_kwargs, features_extractor)

@@ -131,6 +131,8 @@ class ResidualRun(PickRun):
         kwargs = sac_arguments(c)
         kwargs["policy_kwargs"].update(residual_scale=self.policy.scale.tolist(), log_std_max=c.log_std_max(),
                                        critic_layer_norm=c.critic_layer_norm, n_critics=c.critics)
+        if c.exploration_floor:  # only then: the zips of runs without a floor stay as they were
+            kwargs["policy_kwargs"]["log_std_min"] = c.log_std_min()
         kwargs.update(actor_start=c.actor_start, target_critics=c.target_critics, residual_penalty=c.residual_penalty,
                       choose_by_q=c.choose_by_q, actor_q=c.actor_q)
         if self.demos is not None:
