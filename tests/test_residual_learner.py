@@ -187,6 +187,29 @@ def test_the_actor_values_its_action_by_the_members_mean_minimum_or_lower_confid
     assert by["lcb"] == pytest.approx([3.0 - 2.0, 4.0])  # the members' sample std: 2 where they disagree, 0 not
 
 
+def test_the_advantage_weighted_actor_fits_the_actions_the_critics_prefer(tmp_path, monkeypatch):
+    run = _setup(tmp_path, actor_update="awr", awr_temperature=0.5)
+    try:
+        model = run.model
+        adv = torch.tensor([[0.0], [1.0]]).squeeze(1)  # T * mean|A| = 0.25: softmax([0, 4]) * 2
+        np.testing.assert_allclose(model.awr_weights(adv).numpy(), (torch.softmax(torch.tensor([0.0, 4.0]), 0) * 2)
+                                   .numpy(), rtol=1e-6)
+        # critics that value a residual of +0.5 on the hand's z velocity and nothing else
+        monkeypatch.setattr(model.critic, "q_values",
+                            lambda obs, residual, members=None: -((residual[:, 4:5] - 0.5) ** 2).expand(2, -1, -1))
+        rng = np.random.default_rng(0)
+        obs = torch.as_tensor(rng.normal(0, 1, (256, run.policy.inputs.dim)), dtype=torch.float32)
+        batch = type("Batch", (), {"observations": obs,
+                                   "actions": torch.as_tensor(rng.uniform(-0.9, 0.9, (256, 5)), dtype=torch.float32)})
+        for _ in range(300):
+            model._awr_step(batch)
+        with torch.no_grad():
+            mean = torch.tanh(model.actor.get_action_dist_params(obs)[0]).mean(0)
+        assert 0.2 < float(mean[4]) < 0.8 and float(mean[:4].abs().max()) < 0.15, mean
+    finally:
+        _close(run)
+
+
 def test_the_ensemble_is_each_members_own_network():
     import gymnasium as gym
     from stable_baselines3.common.torch_layers import FlattenExtractor

@@ -17,6 +17,9 @@ from the privileged buffer showed (``analysis/high-level/``):
   sample only where the critics' minimum Q of it beats that of the base's own action (residual 0), and the
   bootstrap target takes the better of the two at the next state, so the critic values what the base
   already achieves from the first update and a bad residual is not what the policy executes.
+* **Or an advantage-weighted actor** (``actor_update="awr"``, AWAC, Nair et al. 2020): the actor fits the
+  batch's own residuals weighted by their advantage under the critics, instead of following the critics'
+  action gradient, which extrapolates where the data shows no action vary.
 * **A pull back to the base** (``residual_penalty``): the actor's loss adds
   ``residual_penalty * mean|Q| * mean(tanh(mu)^2)``, the squared deterministic residual scaled by the
   batch's mean |Q| as TD3+BC scales its BC term (Fujimoto and Gu 2021). Adam takes steps of the learning
@@ -41,10 +44,13 @@ class ResidualSAC(FastSAC):
     """FastSAC with policy-driven warm-up, a critic-only warm-up and an ensemble target (module doc)."""
 
     def __init__(self, *args: Any, actor_start: int = 0, target_critics: int = 2, residual_penalty: float = 0.0,
-                 choose_by_q: bool = False, actor_q: str = "mean", **kwargs: Any):
+                 choose_by_q: bool = False, actor_q: str = "mean", actor_update: str = "gradient",
+                 awr_temperature: float = 1.0, **kwargs: Any):
         if actor_q not in ("mean", "min", "lcb"):
             raise ValueError(f"actor_q is mean, min or lcb, not {actor_q!r}")
-        self.actor_q = actor_q
+        if actor_update not in ("gradient", "awr"):
+            raise ValueError(f"actor_update is gradient or awr, not {actor_update!r}")
+        self.actor_q, self.actor_update, self.awr_temperature = actor_q, actor_update, float(awr_temperature)
         self.actor_start = int(actor_start)
         self.target_critics = int(target_critics)
         self.residual_penalty = float(residual_penalty)
@@ -73,6 +79,36 @@ class ResidualSAC(FastSAC):
         if self.actor_q == "lcb":
             return q.mean(dim=0) - q.std(dim=0)
         return q.mean(dim=0)
+
+    def awr_weights(self, advantage: th.Tensor) -> th.Tensor:
+        """Per-sample weights of the advantage-weighted update: ``B * softmax(A / (T * mean|A|))`` over the batch
+        (AWAC's normalization; the advantage in units of its batch mean so the temperature ``T`` does not
+        depend on the reward's scale)."""
+        scale = self.awr_temperature * advantage.abs().mean().clamp_min(1e-6)
+        return th.softmax(advantage / scale, dim=0) * advantage.shape[0]
+
+    def _awr_step(self, data) -> th.Tensor:
+        """One advantage-weighted actor update (AWAC, Nair et al. 2020): maximize the log-likelihood of the
+        batch's own residuals (rollouts and demos), each weighted by how much the critics value it above the
+        policy's deterministic residual. Only actions that were taken are valued: the actor never follows the
+        critics' gradient into actions no data shows."""
+        obs = data.observations
+        mean, log_std, _ = self.actor.get_action_dist_params(obs)
+        taken = data.actions.clamp(-1 + 1e-3, 1 - 1e-3)  # the demos' residuals may sit on the bound
+        pre_tanh = th.atanh(taken)
+        # the Gaussian's log-likelihood of the pre-tanh residual (tanh's correction does not depend on the actor)
+        log_lik = (-((pre_tanh - mean) ** 2) / (2 * th.exp(2 * log_std)) - log_std).sum(dim=1)
+        with th.no_grad():
+            q_taken = self.actor_value(self.critic.q_values(obs, data.actions)).squeeze(1)
+            q_policy = self.actor_value(self.critic.q_values(obs, th.tanh(mean))).squeeze(1)
+            weights = self.awr_weights(q_taken - q_policy)
+        actor_loss = -(weights * log_lik).mean()
+        if self.residual_penalty:
+            actor_loss = actor_loss + self.residual_penalty * (th.tanh(mean) ** 2).mean()
+        self.actor.optimizer.zero_grad()
+        actor_loss.backward()
+        self.actor.optimizer.step()
+        return actor_loss.detach()
 
     def _q_values(self, critic: Any, obs: Any, features: Any, actions: th.Tensor) -> tuple[th.Tensor, ...]:
         return critic(obs, actions)  # the ensemble rebuilds the executed action from obs: never skip its forward
@@ -133,7 +169,9 @@ class ResidualSAC(FastSAC):
             critic_loss.backward()
             self.critic.optimizer.step()
 
-            if actor_moves:
+            if actor_moves and self.actor_update == "awr":
+                actor_losses.append(self._awr_step(data))
+            elif actor_moves:
                 actions_pi, log_prob, mean = self._action_log_prob_mean(data.observations)
                 log_prob = log_prob.reshape(-1, 1)
                 if self.ent_coef_optimizer is not None and self.log_ent_coef is not None:

@@ -69,6 +69,12 @@ class ResidualSACConfig(PickTask, PickReward, PriorDemos, SACTrainConfig):
     actor_q: str = option("mean", "how the actor values its action across the critics: mean (REDQ's), min (SAC's "
                                   "twin minimum: pessimistic), or lcb (mean minus one standard deviation: "
                                   "pessimistic where the critics disagree)", choices=ACTOR_Q)
+    actor_update: str = option("gradient", "how the actor learns: gradient (SAC's: follow the critics' action "
+                                           "gradient) or awr (AWAC's: fit the batch's own residuals weighted by "
+                                           "their advantage; no extrapolation to actions the data lacks)",
+                               choices=("gradient", "awr"))
+    awr_temperature: float = option(1.0, "temperature of --actor-update awr, in units of the batch's mean |advantage| "
+                                         "(smaller: only the best actions count)")
     demo_share: float = option(0.25, "share of every batch drawn from the privileged prior's demos (0: none; "
                                      "--no-prior: no demos)")
     # the base fitted by the run (--base fit): the phase clone's settings
@@ -95,7 +101,7 @@ class ResidualSACConfig(PickTask, PickReward, PriorDemos, SACTrainConfig):
                     "critics": self.critics >= 1, "target_critics": 1 <= self.target_critics <= self.critics,
                     "actor_start": self.actor_start >= 0, "residual_penalty": self.residual_penalty >= 0,
                     "critic_pretrain_updates": self.critic_pretrain_updates >= 0,
-                    "demo_share": 0 <= self.demo_share <= 1,
+                    "demo_share": 0 <= self.demo_share <= 1, "awr_temperature": self.awr_temperature > 0,
                     "clone_net_arch": len(self.clone_net_arch) >= 1 and all(int(n) >= 1 for n in self.clone_net_arch),
                     "clone_updates": self.clone_updates >= 1, "clone_batch_size": self.clone_batch_size >= 1,
                     "clone_learning_rate": self.clone_learning_rate > 0})

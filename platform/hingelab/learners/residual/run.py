@@ -134,7 +134,8 @@ class ResidualRun(PickRun):
         if c.exploration_floor:  # only then: the zips of runs without a floor stay as they were
             kwargs["policy_kwargs"]["log_std_min"] = c.log_std_min()
         kwargs.update(actor_start=c.actor_start, target_critics=c.target_critics, residual_penalty=c.residual_penalty,
-                      choose_by_q=c.choose_by_q, actor_q=c.actor_q)
+                      choose_by_q=c.choose_by_q, actor_q=c.actor_q, actor_update=c.actor_update,
+                      awr_temperature=c.awr_temperature)
         if self.demos is not None:
             kwargs.update(replay_buffer_class=DemoShareReplayBuffer,
                           replay_buffer_kwargs={"demos": self.demos, "demo_share": c.demo_share})
