@@ -249,7 +249,7 @@ def test_bench_sac_quick_writes_a_table_whose_figures_agree(tmp_path):
     assert ratio_name(1) in (tmp_path / "sac.md").read_text() and ratio_name(1) in result.stdout
 
     rows = {(r["threads"], r["config"]): r for r in table["rows"]}
-    assert set(rows) == {(1, arm) for arm in ARMS}
+    assert {(1, arm) for arm in ARMS} <= set(rows)  # and the compiled and SBX arms (tests/test_compiled_update.py)
     rounds = table["config"]["rounds"]
     for arm in ARMS:
         blocks = table["config"]["block_rates"]["1"][arm]
