@@ -267,27 +267,39 @@ class ResidualPolicy:
         if hashlib.sha256(base_bytes).hexdigest() != meta.get("base_sha256"):
             raise ConfigError(f"{path}: its base policy does not match the sha256 it records; the file is damaged")
         base = load_base(io.BytesIO(base_bytes), where=f"{path}'s base")
-        with preserved_global_rngs():  # the initial weights are overwritten: loading draws nothing
-            actor = actor_mlp(int(meta["input_dim"]), tuple(meta["hidden"]))
-        try:
-            actor.load_state_dict(state)
-        except RuntimeError as exc:
-            raise ConfigError(f"{path}: its actor weights do not fit its own layout ({exc})") from exc
-        actor.eval()
+        actor = loaded_actor(state, int(meta["input_dim"]), tuple(meta["hidden"]), where=str(path))
         chooser = None
         if critic_state is not None:
             layout = meta["critic"]
-            with preserved_global_rngs():
-                q_net = ensemble_q_net(layout["members"], int(meta["input_dim"]) + ACTION_DIM,
-                                       tuple(layout["hidden"]), layout["layer_norm"])
-            try:
-                q_net.load_state_dict(critic_state)
-            except RuntimeError as exc:
-                raise ConfigError(f"{path}: its critic weights do not fit its own layout ({exc})") from exc
-            q_net.eval()
-            chooser = ChooseByQ(q_net, layout["members"], meta["scale"])
-        return cls(base, _squashed(actor), meta["scale"], meta.get("hingelab_provenance") or {}, base_bytes,
-                   chooser)
+            chooser = loaded_chooser(critic_state, layout["members"], int(meta["input_dim"]) + ACTION_DIM,
+                                     tuple(layout["hidden"]), layout["layer_norm"], meta["scale"], where=str(path))
+        return cls(base, actor, meta["scale"], meta.get("hingelab_provenance") or {}, base_bytes, chooser)
+
+
+def loaded_actor(state: dict[str, torch.Tensor], input_dim: int, hidden: tuple[int, ...], where: str):
+    """The squashed deterministic actor of ``actor_mlp``'s layout with ``state``'s weights; a one-line error
+    naming ``where`` when they do not fit."""
+    with preserved_global_rngs():  # the initial weights are overwritten: loading draws nothing
+        actor = actor_mlp(input_dim, hidden)
+    try:
+        actor.load_state_dict(state)
+    except RuntimeError as exc:
+        raise ConfigError(f"{where}: its actor weights do not fit a residual actor of layers {hidden} ({exc})") from exc
+    actor.eval()
+    return _squashed(actor)
+
+
+def loaded_chooser(state: dict[str, torch.Tensor], members: int, input_dim: int, hidden: tuple[int, ...],
+                   layer_norm: bool, scale, where: str) -> "ChooseByQ":
+    """``ChooseByQ`` over an ``ensemble_q_net`` with ``state``'s weights; a one-line error naming ``where``."""
+    with preserved_global_rngs():
+        q_net = ensemble_q_net(members, input_dim, hidden, layer_norm)
+    try:
+        q_net.load_state_dict(state)
+    except RuntimeError as exc:
+        raise ConfigError(f"{where}: its critic weights do not fit critics of layers {hidden} ({exc})") from exc
+    q_net.eval()
+    return ChooseByQ(q_net, members, scale)
 
 
 def _squashed(mlp: nn.Module):
@@ -326,5 +338,6 @@ def is_residual_policy(path) -> bool:
 
 
 __all__ = ["ResidualPolicy", "ResidualInputs", "ChooseByQ", "EnsembleLinear", "compose", "actor_mlp", "check_scale",
+           "loaded_actor", "loaded_chooser",
            "ensemble_q_net", "ensemble_q_values", "load_base", "euler_xyz_to_6d", "is_residual_policy", "FORMAT",
            "FORMAT_CHOOSING"]

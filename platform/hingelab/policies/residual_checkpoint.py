@@ -19,9 +19,8 @@ from pathlib import Path
 import torch
 
 from hingelab.errors import ConfigError
-from hingelab.policies.residual import ChooseByQ, ResidualPolicy, _squashed, actor_mlp, ensemble_q_net, load_base
+from hingelab.policies.residual import ResidualPolicy, load_base, loaded_actor, loaded_chooser
 from hingelab.policies.sb3_zip import read_plain_data
-from hingelab.seeds import preserved_global_rngs
 
 POLICY_CLASS = "ResidualSACPolicy"
 
@@ -96,29 +95,19 @@ def load_residual_training_zip(path) -> ResidualPolicy:
         state[f"{2 * len(linears)}.{part}"] = tensors[f"actor.mu.{part}"]
     base_bytes = _base_bytes(run_dir, doc)
     base = load_base(io.BytesIO(base_bytes), where=f"{run_dir}'s base")
-    with preserved_global_rngs():  # the initial weights are overwritten: loading draws nothing
-        actor = actor_mlp(int(state["0.weight"].shape[1]), hidden)
-    try:
-        actor.load_state_dict(state)
-    except RuntimeError as exc:
-        raise ConfigError(f"{path}: its actor weights do not fit a residual actor of layers {hidden} ({exc})") from exc
-    actor.eval()
+    actor = loaded_actor(state, int(state["0.weight"].shape[1]), hidden, where=str(path))
     chooser = None
     if config.get("choose_by_q"):
         q_state = {k[len("critic.q_net."):]: v for k, v in tensors.items() if k.startswith("critic.q_net.")}
         weights = [q_state[k] for k in sorted((k for k in q_state if k.endswith(".weight") and q_state[k].dim() == 3),
                                               key=lambda k: int(k.split(".")[0]))]
-        members, q_hidden = int(weights[0].shape[0]), tuple(int(w.shape[2]) for w in weights[:-1])
-        with preserved_global_rngs():
-            q_net = ensemble_q_net(members, int(weights[0].shape[1]), q_hidden,
-                                   bool(config.get("critic_layer_norm", True)))
-        q_net.load_state_dict(q_state)
-        q_net.eval()
-        chooser = ChooseByQ(q_net, members, scale)
+        chooser = loaded_chooser(q_state, int(weights[0].shape[0]), int(weights[0].shape[1]),
+                                 tuple(int(w.shape[2]) for w in weights[:-1]),
+                                 bool(config.get("critic_layer_norm", True)), scale, where=str(path))
     recorded = {k: v for k, v in (plain.get("hingelab_provenance") or {}).items() if k != "evaluation"}
     # env and low-level context as the run records it; the settings as config.json holds them (the zip keeps a repr)
     provenance = {**recorded, "config": config, "checkpoint": str(path.parent)}
-    return ResidualPolicy(base, _squashed(actor), scale, provenance, base_bytes, chooser)
+    return ResidualPolicy(base, actor, scale, provenance, base_bytes, chooser)
 
 
 __all__ = ["is_residual_training_zip", "load_residual_training_zip", "run_folder_of"]

@@ -18,7 +18,6 @@ reset seed, and names the action dimensions the harm comes from:
 from __future__ import annotations
 
 import copy
-import csv
 import math
 from dataclasses import asdict
 from pathlib import Path
@@ -35,6 +34,7 @@ from hingelab.policies.loading import load_policy
 from hingelab.policies.policy import ModelPolicy
 from hingelab.policies.residual import ResidualPolicy
 from hingelab.rollouts.high_level import FailureReasonWrapper
+from hingelab.rollouts.reward_diagnostic import write_tables
 from hingelab.seeds import eval_high_seed
 
 #: action dimensions by group (the high level's action: latent goal 0-1, hand velocity x, y, z)
@@ -155,13 +155,7 @@ def verdict(summary: list[dict]) -> str:
 
 
 def write_report(rows: list[dict], summary: list[dict], out: Path, command: str, gamma: float) -> Path:
-    out = Path(out)
-    out.mkdir(parents=True, exist_ok=True)
-    for name, table in (("episodes.csv", rows), ("summary.csv", summary)):
-        with open(out / name, "w", newline="") as f:
-            writer = csv.DictWriter(f, fieldnames=list(table[0]))
-            writer.writeheader()
-            writer.writerows(table)
+    out = write_tables(out, {"episodes.csv": rows, "summary.csv": summary})
     columns = list(summary[0])
     lines = ["# Why the fine-tuned residual picks less than its base", "",
              f"Made by `{command}` (`hingelab.rollouts.residual_diagnostic`). Each arm runs the same reset seeds. "

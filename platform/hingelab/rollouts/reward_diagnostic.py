@@ -148,15 +148,21 @@ def summarize(rows: list[dict]) -> list[dict]:
     return out
 
 
-def write_report(rows: list[dict], summary: list[dict], out: Path, command: str, gamma: float) -> Path:
-    """``episodes.csv``, ``summary.csv`` and ``reward_diagnostic.md`` under ``out``; the markdown's path."""
+def write_tables(out, tables: dict[str, list[dict]]) -> Path:
+    """Each list of rows as the CSV file of its name under ``out`` (created); ``out``."""
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
-    for name, table in (("episodes.csv", rows), ("summary.csv", summary)):
+    for name, table in tables.items():
         with open(out / name, "w", newline="") as f:
             writer = csv.DictWriter(f, fieldnames=list(table[0]))
             writer.writeheader()
             writer.writerows(table)
+    return out
+
+
+def write_report(rows: list[dict], summary: list[dict], out: Path, command: str, gamma: float) -> Path:
+    """``episodes.csv``, ``summary.csv`` and ``reward_diagnostic.md`` under ``out``; the markdown's path."""
+    out = write_tables(out, {"episodes.csv": rows, "summary.csv": summary})
     lines = [
         "# The high-level reward: is finishing worth more than lingering?", "",
         f"Made by `{command}`. The scripted demonstrator from the same starts, once succeeding and once "
