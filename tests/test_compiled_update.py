@@ -10,7 +10,7 @@ import pytest
 import torch as th
 from stable_baselines3 import SAC
 
-from hingelab.bench.sac import BASELINE, COMPILED, OURS, SBX, build_table, dummy_goal_env, ratio_name
+from hingelab.bench.sac import BASELINE, COMPILED, OURS, SBX, build_table, dummy_goal_env, make_filled_model, ratio_name
 from hingelab.learners.sac.compiled_update import CompiledSACUpdate
 from hingelab.learners.sac.fast_sac import FastSAC
 
@@ -21,21 +21,8 @@ CALLS, UPDATES_PER_CALL = 6, 50  # 300 updates
 
 def _filled(cls, seed=0, **kwargs):
     """A model on the bench's goal-env shapes, a 500-row buffer of fixed noise (the same for every seed)."""
-    model = cls("MultiInputPolicy", dummy_goal_env(), batch_size=BATCH, buffer_size=500, learning_starts=0, seed=seed,
-                device="cpu", policy_kwargs=dict(NET), **kwargs)
-    rb = model.replay_buffer
-    rng = np.random.default_rng(0)
-    for key in rb.observations:
-        rb.observations[key][:] = rng.standard_normal(rb.observations[key].shape)
-        rb.next_observations[key][:] = rng.standard_normal(rb.next_observations[key].shape)
-    rb.actions[:] = rng.uniform(-1.0, 1.0, rb.actions.shape)
-    rb.rewards[:] = rng.standard_normal(rb.rewards.shape)
-    rb.dones[:] = rng.random(rb.dones.shape) < 0.05
-    rb.full, rb.pos = True, 0
-    from stable_baselines3.common.logger import configure
-
-    model.set_logger(configure(None, []))
-    return model
+    return make_filled_model(cls, seed, buffer_size=500, batch_size=BATCH, noise_seed=0, done_rate=0.05,
+                             policy_kwargs=dict(NET), **kwargs)
 
 
 def _losses(model):

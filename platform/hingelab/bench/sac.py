@@ -106,20 +106,22 @@ def dummy_goal_env() -> Any:
     return DummyGoalEnv()
 
 
-def make_filled_model(cls: type, seed: int = SEED, buffer_size: int = BUFFER_SIZE, **kwargs: Any) -> Any:
-    """SAC or FastSAC, MultiInputPolicy, 2 x 256, batch 256, on the dummy goal env, buffer full of noise."""
+def make_filled_model(cls: type, seed: int = SEED, buffer_size: int = BUFFER_SIZE, batch_size: int = BATCH_SIZE,
+                      noise_seed: int | None = None, done_rate: float = 0.02, **kwargs: Any) -> Any:
+    """SAC or FastSAC, MultiInputPolicy, 2 x 256, batch 256, on the dummy goal env, buffer full of noise
+    (drawn from ``noise_seed``, default ``seed``; a ``done_rate`` share of terminal transitions)."""
     policy_kwargs = dict(kwargs.pop("policy_kwargs", None) or {})
     policy_kwargs.setdefault("net_arch", [256, 256])
-    model = cls("MultiInputPolicy", dummy_goal_env(), batch_size=BATCH_SIZE, buffer_size=buffer_size,
+    model = cls("MultiInputPolicy", dummy_goal_env(), batch_size=batch_size, buffer_size=buffer_size,
                 learning_starts=0, seed=seed, device="cpu", policy_kwargs=policy_kwargs, **kwargs)
     rb = model.replay_buffer
-    rng = np.random.default_rng(seed)
+    rng = np.random.default_rng(seed if noise_seed is None else noise_seed)
     for key in rb.observations:
         rb.observations[key][:] = rng.standard_normal(rb.observations[key].shape)
         rb.next_observations[key][:] = rng.standard_normal(rb.next_observations[key].shape)
     rb.actions[:] = rng.uniform(-1.0, 1.0, rb.actions.shape)
     rb.rewards[:] = rng.standard_normal(rb.rewards.shape)
-    rb.dones[:] = rng.random(rb.dones.shape) < 0.02
+    rb.dones[:] = rng.random(rb.dones.shape) < done_rate
     rb.full, rb.pos = True, 0
     model.set_logger(configure(None, []))
     return model
