@@ -4,6 +4,7 @@ two causes, and the command on a tiny residual run's checkpoint."""
 from __future__ import annotations
 
 import numpy as np
+import pandas as pd
 import pytest
 
 from hingelab.cli.main import main
@@ -72,8 +73,6 @@ def test_diagnose_residual_writes_its_table_and_verdict(tiny_checkpoint, tmp_pat
     assert "base:" in printed and "residual without velocity_z:" in printed
     report = (out / "residual_diagnostic.md").read_text()
     assert "| residual |" in report and "The residual picks" in report
-    import pandas as pd
-
     rows = pd.read_csv(out / "episodes.csv")
     assert sorted(rows["arm"].unique()) == sorted(["base", "residual", *(f"residual without {g}" for g in rd.GROUPS)])
     assert (rows.groupby("arm")["seed"].apply(list).apply(tuple).nunique()) == 1  # the same starts in every arm
@@ -84,3 +83,19 @@ def test_a_policy_that_is_not_a_residual_is_refused(tmp_path, capsys):
 
     assert main(["diagnose", "residual", str(SHIPPED_HIGH_LEVEL), "--out", str(tmp_path / "d"), "--allow-dirty"]) != 0
     assert "is not a residual policy" in capsys.readouterr().err
+
+
+def test_bias_tolerance_offsets_one_dimension_both_ways_and_reads_the_tolerated_level(tmp_path, capsys):
+    from hingelab.rollouts import bias_tolerance as bt
+
+    rows = [{"dimension": "none", "offset": 0.0, "episodes": 10, "successes": 9, "tool_drops": 0}]
+    for offset, picks in ((-0.05, 3), (-0.01, 9), (0.01, 8), (0.05, 9)):
+        rows.append({"dimension": "velocity_z", "offset": offset, "episodes": 10, "successes": picks, "tool_drops": 0})
+    assert bt.tolerances(rows) == {"velocity_z": 0.01}  # -0.05 picks 3 of 10: below 0.9 - 0.1
+    out = tmp_path / "bias"
+    assert main(["diagnose", "bias", "--episodes", "1", "--levels", "0.05", "--dimensions", "velocity_z",
+                 "--seed", "3", "--out", str(out), "--allow-dirty", "--no-progress"]) == 0
+    measured = pd.read_csv(out / "bias_tolerance.csv")
+    assert measured["offset"].tolist() == [0.0, -0.05, 0.05] and (measured["episodes"] == 1).all()
+    assert "| velocity_z |" in (out / "bias_tolerance.md").read_text()
+    assert "velocity_z: tolerates an offset of" in capsys.readouterr().out

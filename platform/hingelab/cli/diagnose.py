@@ -11,12 +11,12 @@ import shlex
 from pathlib import Path
 
 from hingelab.provenance import code_version, require_clean_for
-from hingelab.rollouts import noise_tolerance, residual_diagnostic, reward_diagnostic
+from hingelab.rollouts import bias_tolerance, noise_tolerance, residual_diagnostic, reward_diagnostic
 
 
 def add_parser(subparsers) -> None:
     p = subparsers.add_parser("diagnose",
-                              help="diagnostics of the high level's learning problem (reward, noise, residual)",
+                              help="diagnostics of the high level's learning problem (reward, noise, residual, bias)",
                               description="Diagnostics that can fail: what the high-level reward pays for "
                                           "finishing against lingering, and how much exploration noise each "
                                           "action dimension tolerates.")
@@ -58,7 +58,25 @@ def add_parser(subparsers) -> None:
                           help="seed of the starts, eval high's stream (default 100; not the run's own)")
     residual.add_argument("--gamma", type=float, default=None, help="discount (default: the run's)")
     residual.set_defaults(func=run_residual)
-    for sub in (reward, noise, residual):
+    bias = what.add_parser(
+        "bias", help="the consistent offset each action dimension of a policy tolerates (a residual's reach)",
+        description="A policy (default the shipped clone, the residual learner's base) with a constant offset, "
+                    "+level and -level, on one executed action dimension at a time, --episodes from the same "
+                    "starts per offset; successes, tool drops and the level each dimension tolerates. A residual "
+                    "is an offset the base executes step after step: its reach should stay near this. Writes "
+                    "bias_tolerance.md and bias_tolerance.csv into --out.")
+    bias.add_argument("checkpoint", type=Path, nargs="?", default=None,
+                      help="a high-level policy (default: the shipped assets/checkpoints/high_level.zip)")
+    bias.add_argument("--episodes", type=int, default=30, help="episodes per offset (default 30)")
+    bias.add_argument("--levels", type=float, nargs="+", default=list(bias_tolerance.DEFAULT_LEVELS), metavar="L",
+                      help="offset sizes in action units, each tried with both signs (default "
+                           f"{' '.join(map(str, bias_tolerance.DEFAULT_LEVELS))})")
+    bias.add_argument("--dimensions", nargs="+", default=list(noise_tolerance.DIMENSIONS),
+                      choices=noise_tolerance.DIMENSIONS, metavar="DIM",
+                      help=f"action dimensions to offset (default all: {' '.join(noise_tolerance.DIMENSIONS)})")
+    bias.add_argument("--seed", type=int, default=100, help="seed of the starts, eval high's stream (default 100)")
+    bias.set_defaults(func=run_bias)
+    for sub in (reward, noise, residual, bias):
         sub.add_argument("--object", default="sphere", help="object shape (default sphere, the training object)")
         sub.add_argument("--size", type=float, default=0.02, help="object width in m (default 0.02)")
         sub.add_argument("--out", type=Path, required=True, help="report folder, e.g. analysis/high-level/reward")
@@ -99,6 +117,21 @@ def run_residual(args: argparse.Namespace) -> int:
     for s in summary:
         print(f"{s['arm']}: {s['successes']}/{s['episodes']} picked, v0 {s['v0']:.1f}")
     print(residual_diagnostic.verdict(summary))
+    print(f"wrote {path}")
+    return 0
+
+
+def run_bias(args: argparse.Namespace) -> int:
+    require_clean_for(args.out, args.allow_dirty, "hingelab diagnose bias")
+    rows = bias_tolerance.measure(args.checkpoint, args.episodes, args.levels, args.dimensions, args.seed,
+                                  args.object, args.size, progress=not args.no_progress)
+    options = ([str(args.checkpoint)] if args.checkpoint else []) + [
+        "--episodes", str(args.episodes), "--levels", *(f"{v:g}" for v in args.levels), "--dimensions",
+        *args.dimensions, "--seed", str(args.seed), "--object", args.object, "--size", f"{args.size:g}"]
+    policy = f"`{args.checkpoint}`" if args.checkpoint else "The shipped high level (assets/checkpoints/high_level.zip)"
+    path = bias_tolerance.write_report(rows, args.out, _command(args, "bias", options), policy)
+    for name, level in bias_tolerance.tolerances(rows).items():
+        print(f"{name}: tolerates an offset of {level:g}")
     print(f"wrote {path}")
     return 0
 
