@@ -35,8 +35,8 @@ def is_residual_training_zip(path) -> bool:
     except (OSError, KeyError, ValueError, zipfile.BadZipFile):
         return False
     policy_class = data.get("policy_class") if isinstance(data, dict) else None
-    return isinstance(policy_class, dict) and POLICY_CLASS in str(policy_class.get(":serialized:", "")) + str(
-        policy_class.get("__init__", ""))
+    # SB3 writes a class's readable attributes beside its pickle: the __init__'s repr names the class
+    return isinstance(policy_class, dict) and f"{POLICY_CLASS}.__init__" in str(policy_class.get("__init__", ""))
 
 
 def run_folder_of(path: Path) -> Path:
