@@ -25,7 +25,7 @@ from hingelab.policies.high_level import SHIPPED_HIGH_LEVEL, observes_extent
 from hingelab.policies.loading import load_policy
 from hingelab.policies.policy import ModelPolicy
 from hingelab.rollouts.high_level import FailureReasonWrapper
-from hingelab.rollouts.noise_tolerance import DIMENSIONS, MARGIN, MAX_DROPS
+from hingelab.rollouts.noise_tolerance import DIMENSIONS, MARGIN, MAX_DROPS, tolerance_table
 from hingelab.rollouts.reward_diagnostic import write_tables
 from hingelab.seeds import eval_high_seed
 
@@ -99,21 +99,13 @@ def tolerances(rows: list[dict]) -> dict[str, float]:
 def write_report(rows: list[dict], out: Path, command: str, policy: str) -> Path:
     out = write_tables(out, {"bias_tolerance.csv": rows})
     tolerated = tolerances(rows)
-    offsets = sorted({r["offset"] for r in rows if r["dimension"] != "none"})
     clean = next(r for r in rows if r["dimension"] == "none")
     lines = ["# A consistent offset each high-level action dimension tolerates", "",
              f"Made by `{command}` (`hingelab.rollouts.bias_tolerance`). {policy} with a constant offset (action "
              "units) on one executed action dimension at a time, the same "
              f"{clean['episodes']} reset seeds at every offset. Offset-free: {clean['successes']} of "
              f"{clean['episodes']} picked, {clean['tool_drops']} tool drops. Cells: successes / tool drops.", "",
-             "| dimension | " + " | ".join(f"{v:+g}" for v in offsets) + " | tolerated |",
-             "|---|" + "---|" * (len(offsets) + 1)]
-    for name, level in tolerated.items():
-        cells = []
-        for offset in offsets:
-            r = next(r for r in rows if r["dimension"] == name and r["offset"] == offset)
-            cells.append(f"{r['successes']} / {r['tool_drops']}")
-        lines.append(f"| {name} | " + " | ".join(cells) + f" | {level:g} |")
+             *tolerance_table(rows, "offset", tolerated, lambda v: f"{v:+g}")]
     lines += ["", f"Tolerated: the largest level at and below which both signs keep success within {MARGIN:g} of the "
                   f"offset-free rate and at most {MAX_DROPS} episode(s) end in a tool drop."]
     path = out / "bias_tolerance.md"

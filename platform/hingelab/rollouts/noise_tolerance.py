@@ -105,6 +105,19 @@ def tolerances(rows: list[dict]) -> dict[str, float]:
     return out
 
 
+def tolerance_table(rows: list[dict], key: str, tolerated: dict[str, float], label) -> list[str]:
+    """Markdown rows: a dimension per row, a ``key`` value per column (headed ``label(value)``), cells
+    "successes / tool drops", and the tolerated level last."""
+    values = sorted({r[key] for r in rows if r["dimension"] != "none"})
+    lines = ["| dimension | " + " | ".join(label(v) for v in values) + " | tolerated |",
+             "|---|" + "---|" * (len(values) + 1)]
+    for name, level in tolerated.items():
+        cells = [next(f"{r['successes']} / {r['tool_drops']}" for r in rows if r["dimension"] == name and r[key] == v)
+                 for v in values]
+        lines.append(f"| {name} | " + " | ".join(cells) + f" | {level:g} |")
+    return lines
+
+
 def write_report(rows: list[dict], out: Path, command: str) -> Path:
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
@@ -113,21 +126,13 @@ def write_report(rows: list[dict], out: Path, command: str) -> Path:
         writer.writeheader()
         writer.writerows(rows)
     tolerated = tolerances(rows)
-    levels = sorted({r["level"] for r in rows if r["dimension"] != "none"})
     clean = next(r for r in rows if r["dimension"] == "none")
     lines = ["# Exploration noise each high-level action dimension tolerates", "",
              f"Made by `{command}` (`hingelab.rollouts.noise_tolerance`). The scripted demonstrator over the shipped "
              "low level with Gaussian noise (std in action units) on one executed action dimension at a time, the "
              f"same {clean['episodes']} reset seeds at every level. Noise-free: {clean['successes']} of "
              f"{clean['episodes']} picked, {clean['tool_drops']} tool drops. Cells: successes / tool drops.", "",
-             "| dimension | " + " | ".join(f"std {v:g}" for v in levels) + " | tolerated |",
-             "|---|" + "---|" * (len(levels) + 1)]
-    for name in DIMENSIONS:
-        cells = []
-        for level in levels:
-            r = next(r for r in rows if r["dimension"] == name and r["level"] == level)
-            cells.append(f"{r['successes']} / {r['tool_drops']}")
-        lines.append(f"| {name} | " + " | ".join(cells) + f" | {tolerated[name]:g} |")
+             *tolerance_table(rows, "level", tolerated, lambda v: f"std {v:g}")]
     lines += ["", f"Tolerated: the largest level at and below which success stays within {MARGIN:g} of the "
                   f"noise-free rate and at most {MAX_DROPS} episode(s) end in a tool drop."]
     path = out / "noise_tolerance.md"
@@ -135,4 +140,5 @@ def write_report(rows: list[dict], out: Path, command: str) -> Path:
     return path
 
 
-__all__ = ["measure", "tolerances", "write_report", "NoisyScriptedPolicy", "DIMENSIONS", "DEFAULT_LEVELS"]
+__all__ = ["measure", "tolerances", "tolerance_table", "write_report", "NoisyScriptedPolicy", "DIMENSIONS",
+           "DEFAULT_LEVELS"]
