@@ -34,22 +34,11 @@ from hingelab.policies.loading import load_policy
 from hingelab.policies.policy import ModelPolicy
 from hingelab.policies.residual import ResidualPolicy
 from hingelab.rollouts.high_level import FailureReasonWrapper
-from hingelab.rollouts.reward_diagnostic import write_tables
+from hingelab.rollouts.reward_diagnostic import discounted_values, write_tables
 from hingelab.seeds import eval_high_seed
 
 #: action dimensions by group (the high level's action: latent goal 0-1, hand velocity x, y, z)
 GROUPS = {"z_goal": (0, 1), "velocity_xy": (2, 3), "velocity_z": (4,)}
-
-
-def discounted_values(rewards, truncated: bool, gamma: float) -> np.ndarray:
-    """Each step's true discounted value: its rewards on, plus at a time-limit cut the last reward held forever."""
-    rewards = np.asarray(rewards, float)
-    values = np.empty(len(rewards))
-    following = rewards[-1] / (1.0 - gamma) if truncated else 0.0
-    for t in range(len(rewards) - 1, -1, -1):
-        following = rewards[t] + gamma * following
-        values[t] = following
-    return values
 
 
 def without(policy: ResidualPolicy, dims) -> ResidualPolicy:

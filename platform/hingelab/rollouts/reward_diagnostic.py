@@ -54,14 +54,21 @@ def step_rewards(terms: list[dict], mode: str, gamma: float) -> np.ndarray:
     return np.asarray(rewards, float)
 
 
+def discounted_values(rewards, truncated: bool, gamma: float) -> np.ndarray:
+    """Each step's discounted rewards from there on, plus at a time-limit cut the last step's reward held
+    forever (what a critic's fixed point gives a state that goes on as it ended)."""
+    rewards = np.asarray(rewards, float)
+    values = np.empty(len(rewards))
+    following = rewards[-1] / (1.0 - gamma) if truncated else 0.0
+    for t in range(len(rewards) - 1, -1, -1):
+        following = rewards[t] + gamma * following
+        values[t] = following
+    return values
+
+
 def critic_value(rewards: np.ndarray, start: int, truncated: bool, gamma: float) -> float:
-    """The discounted rewards from step ``start`` on, plus at a time-limit cut the bootstrap of the last
-    step's reward held forever (what a critic's fixed point gives a state that goes on as it ended)."""
-    rest = np.asarray(rewards[start:], float)
-    value = float(np.sum(rest * gamma ** np.arange(len(rest))))
-    if truncated:
-        value += gamma ** len(rest) * float(rest[-1]) / (1.0 - gamma)
-    return value
+    """``discounted_values`` of step ``start``."""
+    return float(discounted_values(np.asarray(rewards, float)[start:], truncated, gamma)[0])
 
 
 @dataclass
@@ -187,4 +194,5 @@ def write_report(rows: list[dict], summary: list[dict], out: Path, command: str,
     return path
 
 
-__all__ = ["diagnose", "summarize", "write_report", "step_rewards", "critic_value", "HoveringScriptedPolicy"]
+__all__ = ["diagnose", "summarize", "write_report", "write_tables", "step_rewards", "critic_value", "discounted_values",
+           "HoveringScriptedPolicy"]
