@@ -8,7 +8,7 @@ import pandas as pd
 import pytest
 from mcap.writer import Writer
 
-from hingelab.analysis.learning_curves import load_learning_curves
+from hingelab.analysis.learning_curves import load_learning_curves, seed_summary
 from hingelab.cli.main import main
 from hingelab.episodes import create_dataset
 from hingelab.episodes.synthetic import write_synthetic_episode
@@ -76,6 +76,20 @@ def test_report_files_and_learning_curves(dataset, tmp_path, capsys):
     seeds = pd.read_csv(out / "seeds.csv").set_index(["run", "seed"])
     assert seeds.loc[("sac_a", 0), "env_steps_to_0.5"] == 2000 and seeds.loc[("sac_a", 2), "env_steps_to_0.5"] == 2000
     assert seeds.loc[("sac_b", 1), "env_steps_to_0.5"] == 2000 and seeds.loc[("sac_a", 0), "last_success_rate"] == 0.75
+    # whether a run keeps its start (Fig. 5a's privileged arm): these curves only rise, so no drop
+    assert seeds.loc[("sac_a", 0), "start_success_rate"] == seeds.loc[("sac_a", 0), "lowest_success_rate"]
+    assert (seeds["largest_drop_below_start"] == 0).all()
+    assert seeds.loc[("sac_a", 0), "last_minus_start"] == pytest.approx(0.75 - seeds.loc[("sac_a", 0),
+                                                                                       "start_success_rate"])
+
+
+def test_seed_table_reports_the_drop_below_the_start():
+    seeds = pd.DataFrame({"run": "priv", "seed": 0, "env_steps": [0, 10, 20, 30],
+                          "success_rate": [0.9, 1.0, 0.8, 0.95]}).sample(frac=1.0, random_state=0)  # any row order
+    row = seed_summary(seeds).iloc[0]
+    assert row["start_success_rate"] == 0.9 and row["lowest_success_rate"] == 0.8
+    assert row["largest_drop_below_start"] == pytest.approx(0.1)
+    assert row["last_minus_start"] == pytest.approx(0.05) and row["last_success_rate"] == 0.95
 
 
 def test_learning_curves_need_the_documented_columns(tmp_path):

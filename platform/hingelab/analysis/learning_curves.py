@@ -179,15 +179,21 @@ REACH_LEVEL = 0.5  # the success rate whose first crossing the seed table report
 
 
 def seed_summary(seeds: pd.DataFrame, level: float = REACH_LEVEL) -> pd.DataFrame:
-    """Per run and seed: the first env_steps at which success_rate reached ``level`` (NaN: never), the
-    last evaluation's env_steps and success (and first-attempt success where recorded)."""
+    """Per run and seed: the first env_steps at which success_rate reached ``level`` (NaN: never); the
+    first evaluation's success (the start: for a fine-tune, its prior), the lowest, how far the lowest fell
+    below the start (0 when never) and the last minus the start (whether a run keeps and then beats its
+    prior); the last evaluation's env_steps and success (and first-attempt success where recorded)."""
     rows = []
     for (run, seed), part in seeds.groupby(["run", "seed"], sort=True):
         part = part.sort_values("env_steps")
         reached = part.loc[part["success_rate"] >= level, "env_steps"]
-        last = part.iloc[-1]
+        first, last = part.iloc[0], part.iloc[-1]
+        start, lowest = float(first["success_rate"]), float(part["success_rate"].min())
         row = {"run": run, "seed": seed, f"env_steps_to_{level:g}": float(reached.iloc[0]) if len(reached) else
-               float("nan"), "last_env_steps": int(last["env_steps"]), "last_success_rate": float(last["success_rate"])}
+               float("nan"), "start_success_rate": start, "lowest_success_rate": lowest,
+               "largest_drop_below_start": max(0.0, start - lowest),
+               "last_minus_start": float(last["success_rate"]) - start,
+               "last_env_steps": int(last["env_steps"]), "last_success_rate": float(last["success_rate"])}
         if "first_attempt_success_rate" in part.columns:
             row["last_first_attempt_success_rate"] = float(last["first_attempt_success_rate"])
         rows.append(row)

@@ -145,7 +145,9 @@ def _sections(tables: dict[str, pd.DataFrame], plot_files: dict[str, str]) -> li
         sections.append(Section(
             "Success of every seed", "Each seed's evaluations (thin) and their mean (thick), per run label: "
             "the runs of one label (run.json) are its seeds. The table: per run and seed, the first evaluation "
-            f"whose success rate reached {REACH_LEVEL:g} (empty: none did) and the last evaluation.",
+            f"whose success rate reached {REACH_LEVEL:g} (empty: none did); the first evaluation (the start: a "
+            "fine-tune's prior), the lowest, how far it fell below the start, the last minus the start; and the "
+            "last evaluation.",
             tables["seeds"], "seeds.csv", [plot_files["learning_curves_by_seed"]]))
         sections.append(Section(*FINAL_SUCCESS_SECTION, tables["final_success"], "final_success.csv"))
     return sections
