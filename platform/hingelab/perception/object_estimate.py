@@ -1,0 +1,286 @@
+"""The object as the depth camera sees it: its points through a segmentation mask, and its position from them.
+
+The paper's rig segments the object in the RGB image, takes the masked depth pixels' points and
+"calculated its centroid to determine the target object's position". A single view sees only the
+object's near side, so that centroid lies toward the camera (up to half the object's depth along the
+viewing ray). This module gives the chain and the estimators, one function each, named so an episode
+can say which one it used:
+
+1. the mask: the rig's segmentation, or the simulator's (``hingelab.sim.object_render``) made as
+   imperfect as a real segmenter by ``MaskErrors`` (boundary eroded or dilated by a pixel or two,
+   missed pixels, now and then a wrong blob near the object; seeded);
+2. ``object_cloud``: the masked pixels -> points (``camera_cloud.depth_to_points``), into the frame's
+   parent frame (``camera_cloud.transform``), cropped to the platform's box (``camera_cloud.crop``),
+   statistical outliers removed (``camera_cloud.remove_statistical_outliers``);
+3. the estimators on the visible points (``points``: (N, 3), m, in the frame's parent frame, e.g. the
+   world; ``camera_position``: (3,), the optical centre in the same frame):
+
+   * ``centroid``: the mean of the visible points (the paper's);
+   * ``ray_corrected``: the centroid moved away from the camera along the viewing ray by half the
+     visible points' depth extent along that ray;
+   * ``primitive_fit``: the centre of a sphere fitted to the visible points (geometric least squares,
+     its radius bounded by the visible width across the ray): exact for a sphere, an approximation for
+     the other shapes;
+   * ``TemporalFilter``: the per-axis median of the last few frames' estimates of any of them;
+
+   and ``visible_extent``, the visible points' axis-aligned bounding box (what a detection's box gives).
+
+A frame that gives no estimate (no depth, no object pixels, the object hidden by the tool, off the
+platform, too few points) gives an ``ObjectEstimate`` whose ``estimate`` is None and whose ``flag``
+says why, never an exception: the caller decides (as with ``camera_cloud.ToolCloud``).
+"""
+
+from __future__ import annotations
+
+from dataclasses import asdict, dataclass, field
+
+import numpy as np
+from scipy import ndimage
+from scipy.optimize import least_squares
+
+from hingelab.camera import CameraFrame
+from hingelab.errors import ConfigError
+from hingelab.perception.camera_cloud import crop, depth_to_points, remove_statistical_outliers, transform
+
+EXTENT_PERCENTILES = (2.0, 98.0)  # the depth extent along the ray, robust to a stray noisy point
+
+
+@dataclass(frozen=True)
+class MaskErrors:
+    """How a real segmentation mask departs from the true one, drawn anew per frame.
+
+    The boundary moves by k pixels, k uniform in [-boundary_px, boundary_px] (negative: eroded,
+    positive: dilated); ``missed`` of the object's pixels are dropped at random; with probability
+    ``wrong_blob`` a disc of ``blob_radius_px`` pixels, ``blob_offset_px`` from the mask's centre,
+    is added (a wrongly segmented patch nearby). The values are chosen, not fitted to a segmenter."""
+
+    boundary_px: int = 2
+    missed: float = 0.05
+    wrong_blob: float = 0.1
+    blob_radius_px: tuple[int, int] = (2, 5)
+    blob_offset_px: tuple[int, int] = (10, 40)
+
+    def __post_init__(self):
+        if self.boundary_px < 0 or not 0 <= self.missed < 1 or not 0 <= self.wrong_blob <= 1:
+            raise ConfigError(f"mask errors need boundary_px >= 0, missed in [0, 1), wrong_blob in [0, 1]: "
+                              f"{asdict(self)}")
+        if not (1 <= self.blob_radius_px[0] <= self.blob_radius_px[1]
+                and 0 <= self.blob_offset_px[0] <= self.blob_offset_px[1]):
+            raise ConfigError(f"blob radius and offset ranges need 1 <= low <= high: {asdict(self)}")
+
+    def to_json(self) -> dict:
+        return asdict(self)
+
+    def apply(self, mask: np.ndarray, rng: np.random.Generator) -> np.ndarray:
+        """A corrupted copy of ``mask`` (H, W) bool. The same draws whatever the mask holds, so a seed gives
+        the same errors on every frame of the same size."""
+        mask = np.asarray(mask, bool)
+        k = int(rng.integers(-self.boundary_px, self.boundary_px + 1))
+        missed = rng.random(mask.shape) < self.missed
+        blob = rng.random() < self.wrong_blob
+        angle, distance = rng.uniform(0, 2 * np.pi), rng.uniform(*self.blob_offset_px)
+        radius = rng.uniform(self.blob_radius_px[0], self.blob_radius_px[1])
+        out = mask.copy()
+        if k > 0:
+            out = ndimage.binary_dilation(out, iterations=k)
+        elif k < 0:
+            out = ndimage.binary_erosion(out, iterations=-k)
+        out &= ~missed
+        if blob and mask.any():
+            v, u = np.nonzero(mask)
+            cv, cu = v.mean() + distance * np.sin(angle), u.mean() + distance * np.cos(angle)
+            rows, cols = np.ogrid[:mask.shape[0], :mask.shape[1]]
+            out |= (rows - cv) ** 2 + (cols - cu) ** 2 <= radius ** 2
+        return out
+
+
+NO_MASK_ERRORS = MaskErrors(0, 0.0, 0.0)
+
+
+@dataclass(frozen=True)
+class ObjectCloudConfig:
+    """The chain's settings. The crop box is in the frame's parent frame (m); None: no crop."""
+
+    crop_low: tuple[float, float, float] | None = None
+    crop_high: tuple[float, float, float] | None = None
+    outlier_neighbours: int = 8
+    outlier_std_ratio: float = 2.0
+    min_pixels: int = 8  # object pixels with a return below which the frame is flagged
+    min_points: int = 8  # points after the crop and the outlier removal below which it is flagged
+
+    def __post_init__(self):
+        if (self.crop_low is None) != (self.crop_high is None):
+            raise ConfigError("give both crop_low and crop_high, or neither")
+        if self.crop_low is not None and not all(lo < hi for lo, hi in zip(self.crop_low, self.crop_high)):
+            raise ConfigError(f"crop box needs low < high on every axis: {self.crop_low}, {self.crop_high}")
+        if self.outlier_neighbours < 1 or self.min_pixels < 1 or self.min_points < 1:
+            raise ConfigError(f"neighbours, min_pixels and min_points must be positive: {asdict(self)}")
+
+    def to_json(self) -> dict:
+        return asdict(self)
+
+
+@dataclass
+class ObjectCloud:
+    """The visible points (N, 3) in the frame's parent frame, or None with ``flag`` saying why."""
+
+    points: np.ndarray | None
+    flag: str | None = None  # "no_depth", "no_object_pixels", "hidden_by_tool", "too_few_pixels",
+    #                          "off_platform", "too_few_points"
+    counts: dict = field(default_factory=dict)  # pixels or points left after each step
+
+
+@dataclass
+class ObjectEstimate:
+    """One frame's (or the filter's) estimate: centre (3,) and visible extent (3,), m, or None and a flag."""
+
+    estimate: np.ndarray | None
+    extent: np.ndarray | None
+    estimator: str
+    flag: str | None = None
+    n_points: int = 0
+    counts: dict = field(default_factory=dict)
+
+
+def object_cloud(frame: CameraFrame, mask: np.ndarray, config: ObjectCloudConfig = ObjectCloudConfig(),
+                 prior: np.ndarray | None = None) -> ObjectCloud:
+    """Steps 2 of the module doc on one frame. ``mask`` (H, W) bool: the object's pixels. ``prior`` (3,): where
+    the object was last seen (parent frame), to tell an object the tool hides from one that is not there."""
+    counts = {"valid_pixels": int(np.count_nonzero(frame.depth > 0))}
+    if counts["valid_pixels"] == 0:
+        return ObjectCloud(None, "no_depth", counts)
+    mask = np.asarray(mask, bool)
+    counts["object_pixels"] = int(np.count_nonzero(mask & (frame.depth > 0)))
+    if counts["object_pixels"] < config.min_pixels:
+        if _tool_hides(frame, mask, prior):
+            flag = "hidden_by_tool"
+        else:
+            flag = "no_object_pixels" if counts["object_pixels"] == 0 else "too_few_pixels"
+        return ObjectCloud(None, flag, counts)
+    points = transform(depth_to_points(frame.depth, frame.intrinsics, mask), frame.camera_rotation,
+                       frame.camera_position)
+    if config.crop_low is not None:
+        points = crop(points, config.crop_low, config.crop_high)
+    counts["cropped"] = len(points)
+    if len(points) < config.min_points:
+        return ObjectCloud(None, "off_platform", counts)
+    points = remove_statistical_outliers(points, config.outlier_neighbours, config.outlier_std_ratio)
+    counts["inliers"] = len(points)
+    if len(points) < config.min_points:
+        return ObjectCloud(None, "too_few_points", counts)
+    return ObjectCloud(points, None, counts)
+
+
+def _tool_hides(frame: CameraFrame, mask: np.ndarray, prior: np.ndarray | None, window_px: int = 3) -> bool:
+    """The tool's pixels cover the prior's projection (within ``window_px``), or, without a prior, border the
+    few object pixels there are."""
+    if frame.tool_mask is None:
+        return False
+    tool = np.asarray(frame.tool_mask, bool)
+    if prior is not None:
+        p = np.asarray(frame.camera_rotation).T @ (np.asarray(prior, float) - np.asarray(frame.camera_position))
+        if p[2] <= 0:
+            return False
+        k = frame.intrinsics
+        u, v = int(round(k.fx * p[0] / p[2] + k.cx)), int(round(k.fy * p[1] / p[2] + k.cy))
+        window = tool[max(v - window_px, 0):v + window_px + 1, max(u - window_px, 0):u + window_px + 1]
+        return bool(window.any())
+    return bool(mask.any() and (ndimage.binary_dilation(mask, iterations=2) & tool).any())
+
+
+# ---------------------------------------------------------------------- estimators
+def centroid(points: np.ndarray, camera_position: np.ndarray | None = None) -> np.ndarray:
+    """The mean of the visible points (the paper's estimate); ``camera_position`` is unused."""
+    return np.asarray(points, float).mean(axis=0)
+
+
+def viewing_ray(points: np.ndarray, camera_position: np.ndarray) -> np.ndarray:
+    """(3,) unit vector from the camera through the points' centroid."""
+    ray = centroid(points) - np.asarray(camera_position, float)
+    return ray / np.linalg.norm(ray)
+
+
+def depth_extent(points: np.ndarray, camera_position: np.ndarray) -> float:
+    """The visible points' extent along the viewing ray, m (between the ``EXTENT_PERCENTILES``)."""
+    depths = (np.asarray(points, float) - np.asarray(camera_position, float)) @ viewing_ray(points, camera_position)
+    low, high = np.percentile(depths, EXTENT_PERCENTILES)
+    return float(high - low)
+
+
+def ray_corrected(points: np.ndarray, camera_position: np.ndarray) -> np.ndarray:
+    """The centroid moved away from the camera along the viewing ray by half the visible depth extent."""
+    return centroid(points) + viewing_ray(points, camera_position) * depth_extent(points, camera_position) / 2
+
+
+def visible_width(points: np.ndarray, camera_position: np.ndarray) -> float:
+    """The visible points' largest extent across the viewing ray, m (the silhouette's width)."""
+    ray = viewing_ray(points, camera_position)
+    rel = np.asarray(points, float) - centroid(points)
+    across = rel - np.outer(rel @ ray, ray)
+    return float(np.max(np.linalg.norm(across[:, None] - across[None], axis=-1))) if len(rel) < 2000 else \
+        float(2 * np.max(np.linalg.norm(across, axis=1)))
+
+
+def fit_sphere(points: np.ndarray, camera_position: np.ndarray) -> tuple[np.ndarray, float]:
+    """(centre (3,), radius) of the sphere nearest the visible points (geometric least squares, soft-L1 loss),
+    its radius bounded to 0.4-0.6 of the visible width (a sphere's silhouette is its diameter)."""
+    points = np.asarray(points, float)
+    width = max(visible_width(points, camera_position), 1e-4)
+    low, high = 0.4 * width, 0.6 * width
+    start = np.concatenate([ray_corrected(points, camera_position), [width / 2]])
+
+    def residuals(x):
+        return np.linalg.norm(points - x[:3], axis=1) - x[3]
+
+    result = least_squares(residuals, start, bounds=([-np.inf] * 3 + [low], [np.inf] * 3 + [high]),
+                           loss="soft_l1", f_scale=0.002)
+    return result.x[:3], float(result.x[3])
+
+
+def primitive_fit(points: np.ndarray, camera_position: np.ndarray) -> np.ndarray:
+    """The centre of ``fit_sphere``."""
+    return fit_sphere(points, camera_position)[0]
+
+
+def visible_extent(points: np.ndarray) -> np.ndarray:
+    """(3,) the visible points' bounding box along the parent frame's axes, m."""
+    points = np.asarray(points, float)
+    return points.max(axis=0) - points.min(axis=0)
+
+
+ESTIMATORS = {"centroid": centroid, "ray_corrected": ray_corrected, "primitive_fit": primitive_fit}
+
+
+def estimate_object(frame: CameraFrame, mask: np.ndarray, estimator: str = "centroid",
+                    config: ObjectCloudConfig = ObjectCloudConfig(), prior: np.ndarray | None = None,
+                    cloud: ObjectCloud | None = None) -> ObjectEstimate:
+    """The chain and one named estimator on one frame (``cloud``: reuse one ``object_cloud`` made already)."""
+    if estimator not in ESTIMATORS:
+        raise ConfigError(f"unknown object estimator {estimator!r}; choose one of {', '.join(ESTIMATORS)}")
+    cloud = cloud if cloud is not None else object_cloud(frame, mask, config, prior)
+    if cloud.points is None:
+        return ObjectEstimate(None, None, estimator, cloud.flag, 0, cloud.counts)
+    estimate = ESTIMATORS[estimator](cloud.points, np.asarray(frame.camera_position, float))
+    return ObjectEstimate(np.asarray(estimate, float), visible_extent(cloud.points), estimator, None,
+                          len(cloud.points), cloud.counts)
+
+
+class TemporalFilter:
+    """The per-axis median of the last ``window`` good estimates (a flagged frame adds none): for an object at
+    rest, it averages out frame-to-frame noise and outvotes an occasional wrong blob; it cannot remove a bias
+    that every frame shares, and it lags an object that moves."""
+
+    def __init__(self, window: int = 5):
+        if window < 1:
+            raise ConfigError(f"the temporal filter's window must be positive, not {window}")
+        self.window = window
+        self._estimates: list[np.ndarray] = []
+
+    def reset(self) -> None:
+        self._estimates.clear()
+
+    def update(self, estimate: np.ndarray | None) -> np.ndarray | None:
+        """Add this frame's estimate (None: a flagged frame) and return the filtered one (None before any)."""
+        if estimate is not None:
+            self._estimates = (self._estimates + [np.asarray(estimate, float)])[-self.window:]
+        return np.median(self._estimates, axis=0) if self._estimates else None
