@@ -126,3 +126,24 @@ def test_bench_table_says_when_sbx_was_not_installed():
     table = build_table(rates, {}, _config(sbx=None, jax=None))
     assert not any(SBX in name for name in table.ratios)
     assert any(note.startswith(f"{SBX}: not measured: sbx is not installed") for note in table.notes)
+
+
+def test_train_commands_take_the_compiled_update_and_refuse_what_it_cannot_run():
+    """`train low|high|flat --update compiled` reaches FastSAC (the update's arithmetic is tested above);
+    configs it cannot run are refused in one line at the door, before a run folder exists."""
+    from hingelab.errors import ConfigError
+    from hingelab.learners.residual.config import ResidualSACConfig
+    from hingelab.learners.sac.high_level_config import FlatTrainConfig, HighLevelTrainConfig
+    from hingelab.learners.sac.low_level_config import LowLevelTrainConfig
+    from hingelab.learners.sac.run import sac_arguments
+
+    assert "update" not in sac_arguments(LowLevelTrainConfig())  # eager: FastSAC's default, saved zips unchanged
+    for config in (LowLevelTrainConfig(update="compiled"), HighLevelTrainConfig(update="compiled", prior=False),
+                   FlatTrainConfig(update="compiled")):
+        assert sac_arguments(config)["update"] == "compiled"
+    for kwargs, reason in (({"algorithm": "sac"}, "fast_sac's"), ({"ent_coef": "0.1"}, "--ent-coef auto"),
+                           ({"demo_bc_weight": 1.0}, "no BC term")):
+        with pytest.raises(ConfigError, match=reason):
+            LowLevelTrainConfig(update="compiled", **kwargs)
+    with pytest.raises(ConfigError, match="its own update"):
+        ResidualSACConfig(update="compiled")

@@ -127,6 +127,8 @@ class ResidualSACConfig(PickTask, PickReward, PriorDemos, SACTrainConfig):
                               "holds the demonstrator)")
         if self.algorithm != "fast_sac":
             raise ConfigError("the residual learner runs on fast_sac's update: drop --algorithm")
+        if self.update != "eager":
+            raise ConfigError("the residual learner has its own update (an ensemble of critics): drop --update")
 
     @property
     def uses_demos(self) -> bool:

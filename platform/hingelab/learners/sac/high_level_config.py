@@ -59,13 +59,14 @@ class HighLevelTrainConfig(PickTask, PickReward, PriorDemos, SACTrainConfig):
     legacy_keys = _CLONE_KEYS
 
     def __post_init__(self):
+        if not self.prior:
+            # no demos: nothing to clone or warm up on (the saved config says so; before the checks, which ask
+            # whether the run learns from demonstrations)
+            for name in ("demo_bc_weight", "bc_pretrain_updates", "demo_offline_updates"):
+                object.__setattr__(self, name, type(getattr(self, name))(0))
         self.check({**self.sac_checks(), **self.task_checks(), **self.prior_checks(),
                     "demo_share": 0 <= self.demo_share <= 1, "demo_offline_updates": self.demo_offline_updates >= 0})
         self.check_prior()
-        if not self.prior:
-            # no demos: nothing to clone or warm up on (the saved config says so)
-            for name in ("demo_bc_weight", "bc_pretrain_updates", "demo_offline_updates"):
-                object.__setattr__(self, name, type(getattr(self, name))(0))
         if self.learns_from_demonstrations and self.algorithm != "fast_sac":
             raise ConfigError("--bc-weight and --bc-pretrain work with --algorithm fast_sac")
 
