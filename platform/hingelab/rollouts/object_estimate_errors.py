@@ -169,8 +169,8 @@ def write_picture(picture: dict, path: Path) -> Path:
     left.imshow(overlay)
     left.contour(picture["true_mask"][window], levels=[0.5], colors="white", linewidths=1.0)
     obj = picture["object"]
-    left.set_title(f"depth around the {100 * obj.size:g} cm {obj.shape} (black: no return): mask used (red), "
-                   "true mask (white)",
+    left.set_title(f"the {100 * obj.size:g} cm {obj.shape}'s depth (black: no return);\nmask used red, "
+                   "true mask white",
                    fontsize=9)
     left.set_xticks([])
     left.set_yticks([])
