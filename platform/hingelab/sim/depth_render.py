@@ -59,7 +59,8 @@ class DepthRenderer:
         self._tool_geoms = np.flatnonzero(np.isin(model.geom_bodyid, tool_bodies))
         self._hand_base = model.body(names.HAND_BASE_BODY).id
 
-    def render(self, data: mujoco.MjData, stamp_s: float = 0.0) -> CameraFrame:
+    def depth_and_geoms(self, data: mujoco.MjData) -> tuple[np.ndarray, np.ndarray]:
+        """The depth image (0 out of range) and each pixel's geom id (-1: no geom), one render of each."""
         r = self._renderer
         mujoco.mj_camlight(self.model, data)  # the sim steps with mj_kinematics, which leaves cameras as they were
         r.enable_depth_rendering()
@@ -72,7 +73,13 @@ class DepthRenderer:
         r.disable_segmentation_rendering()
         k = self.intrinsics
         depth[(depth < k.min_range_m) | (depth > k.max_range_m)] = 0.0
-        mask = (seg[..., 1] == int(mujoco.mjtObj.mjOBJ_GEOM)) & np.isin(seg[..., 0], self._tool_geoms)
+        geoms = np.where(seg[..., 1] == int(mujoco.mjtObj.mjOBJ_GEOM), seg[..., 0], -1)
+        return depth, geoms
+
+    def render(self, data: mujoco.MjData, stamp_s: float = 0.0) -> CameraFrame:
+        depth, geoms = self.depth_and_geoms(data)
+        k = self.intrinsics
+        mask = np.isin(geoms, self._tool_geoms)
         rot_w, pos_w = camera_pose_world(self.model, data)
         hand_rot = data.xmat[self._hand_base].reshape(3, 3)
         hand_pos = data.xpos[self._hand_base]

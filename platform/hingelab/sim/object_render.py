@@ -19,7 +19,7 @@ from hingelab.camera import CameraFrame
 from hingelab.sim import names
 from hingelab.sim.depth_render import DepthRenderer
 from hingelab.sim.objects import ObjectSpec
-from hingelab.sim.rig_camera import CAMERA_NAME, camera_pose_world
+from hingelab.sim.rig_camera import camera_pose_world
 
 
 @dataclass
@@ -38,23 +38,11 @@ class ObjectDepthRenderer(DepthRenderer):
         self._object_geoms = np.flatnonzero(model.geom_bodyid == model.body(names.OBJECT_BODY).id)
 
     def render(self, data: mujoco.MjData, stamp_s: float = 0.0) -> ObjectFrame:
-        r = self._renderer
-        mujoco.mj_camlight(self.model, data)  # the sim steps with mj_kinematics, which leaves cameras as they were
-        r.enable_depth_rendering()
-        r.update_scene(data, camera=CAMERA_NAME)
-        depth = r.render().astype(np.float32, copy=True)
-        r.disable_depth_rendering()
-        r.enable_segmentation_rendering()
-        r.update_scene(data, camera=CAMERA_NAME)
-        seg = r.render()
-        r.disable_segmentation_rendering()
-        k = self.intrinsics
-        depth[(depth < k.min_range_m) | (depth > k.max_range_m)] = 0.0
-        is_geom = seg[..., 1] == int(mujoco.mjtObj.mjOBJ_GEOM)
+        depth, geoms = self.depth_and_geoms(data)
         rot_w, pos_w = camera_pose_world(self.model, data)
-        frame = CameraFrame(depth=depth, intrinsics=k, camera_rotation=rot_w, camera_position=pos_w,
-                            tool_mask=is_geom & np.isin(seg[..., 0], self._tool_geoms), stamp_s=stamp_s)
-        return ObjectFrame(frame, is_geom & np.isin(seg[..., 0], self._object_geoms))
+        frame = CameraFrame(depth=depth, intrinsics=self.intrinsics, camera_rotation=rot_w, camera_position=pos_w,
+                            tool_mask=np.isin(geoms, self._tool_geoms), stamp_s=stamp_s)
+        return ObjectFrame(frame, np.isin(geoms, self._object_geoms))
 
 
 def platform_crop(model: mujoco.MjModel, min_height: float = 0.002,
