@@ -23,7 +23,8 @@ from hingelab.errors import ConfigError
 from hingelab.provenance import code_version
 
 # the failure reasons of ToolPick-v0 episodes (hingelab.rollouts.high_level.FailureReasonWrapper)
-FAILURE_REASONS = ("divergence", "no_camera_cloud", "tool_drop", "slip", "table_collision", "missed_grasp", "timeout")
+FAILURE_REASONS = ("divergence", "no_camera_cloud", "no_object_estimate", "tool_drop", "slip", "table_collision",
+                   "missed_grasp", "timeout")
 
 
 def pick_rates(episodes: pd.DataFrame) -> dict:

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from hingelab.perception.object_perception import OBJECT_PERCEPTIONS
+
 
 def add_on_corrupt(p) -> None:
     """``--on-corrupt stop|skip``: what a command does with episode files it cannot read (``main`` applies it
@@ -18,3 +20,12 @@ def add_ray_argument(p) -> None:
                         "on a local one-node Ray (no ADDR; --workers CPUs if given, else every core) or on the "
                         "running cluster at ADDR (`ray start --head` prints it); same seed, same episodes as "
                         "local workers")
+
+
+def add_object_perception(p, needs: str) -> None:
+    """``--object-perception NAME``: the object's true centre with 2 mm noise, or a camera object estimator
+    (checked by the library, so a bad name is one line); ``needs`` says what the estimators need."""
+    p.add_argument("--object-perception", default="truth", metavar="NAME",
+                   help=f"where the object's position and extent come from: {', '.join(OBJECT_PERCEPTIONS)}; truth "
+                        "(default) is the true centre with 2 mm noise, the others estimate it from the depth camera's "
+                        f"frame each step (centroid: the paper's; hingelab.perception.object_estimate){needs}")

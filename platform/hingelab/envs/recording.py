@@ -1,8 +1,9 @@
 """``RecordingWrapper``: every episode of either env becomes one MCAP episode in a dataset.
 
 Per step it writes what ``env.unwrapped.last_record`` holds (the tool cloud, registered
-tool pose, hand joints, latents, goal, action, reward terms, object and target, and the
-privileged simulator state alongside) plus the learners' transition (observation before
+tool pose, hand joints, latents, goal, action, reward terms, object and target, the
+privileged simulator state alongside, and with a camera object estimator its estimate, the
+truth and the object's visible points) plus the learners' transition (observation before
 the action, the action executed, reward, terminated, truncated, info scalars). The
 episode file is finished when the episode ends; an episode cut short by ``reset`` or
 ``close`` is discarded (a half episode is not data), and one whose step raised keeps its
@@ -78,6 +79,13 @@ def object_metadata(record: dict | None) -> dict:
             "object_size": record["size_m"]}
 
 
+def object_perception_metadata(env) -> dict:
+    """The object estimator an env (or robot) ran, as an episode fact; {} for the truth (the default, as episodes
+    recorded before there was a choice)."""
+    name = getattr(env, "object_perception", "truth")
+    return {} if name == "truth" else {S.KEY_OBJECT_PERCEPTION: name}
+
+
 def success_verdict(env: gym.Env) -> str | None:
     """The name of the verdict ``info["is_success"]`` gives (a key of ``schemas.SUCCESS_VERDICTS``).
 
@@ -116,6 +124,7 @@ class RecordingWrapper(gym.Wrapper):
                                     extra_metadata={S.KEY_SUCCESS_VERDICT: self.success_verdict,
                                                     **reward_metadata(self.env), **self.extra_metadata})
         self.writer.facts.update(object_metadata(getattr(self.env.unwrapped, "object_record", None)))
+        self.writer.facts.update(object_perception_metadata(self.env.unwrapped))
         self.writer.open()
         self._write(obs_before=None, action=None, reward=0.0, terminated=False, truncated=False, info=info)
         self.last_obs = obs
@@ -156,6 +165,8 @@ class RecordingWrapper(gym.Wrapper):
             object_position_hand=record["object_position_hand"], target_position_hand=record["target_position_hand"],
             privileged=privileged_fields(record["privileged"]), transition=transition,
         )
+        if record.get("object_estimate") is not None:  # the camera's object estimate beside the truth
+            self.writer.write_object_estimate(record["privileged"].time, **record["object_estimate"])
 
     def _finish(self, final_obs, info: dict) -> None:
         success = bool(info.get("is_success", 0.0))  # the env's one verdict

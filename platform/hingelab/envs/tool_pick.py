@@ -16,11 +16,12 @@ the arm through the Jacobian pseudoinverse.
 ## Observation Space
 ``Box(14,)``: tool t_bar (3, m) and Euler theta_bar (3, rad, xyz) from registration,
 smoothed; z_bar (2); object position (3, m: the object's centre, as a camera reports it, not its
-body origin, which for a tetrahedron is on its base; with 2 mm Gaussian noise) and target position
-(3, m); all in the hand frame, through the episode's observation delay. With ``observe_extent``,
-``Box(17,)``: then the object's extent (3, m: its bounding box along the world axes, as a camera's
-detection gives it, with 2 mm Gaussian noise), which the scripted high level's opening, grip height
-and hinge angle depend on.
+body origin, which for a tetrahedron is on its base; with 2 mm Gaussian noise, or the depth
+camera's estimate with ``object_perception``) and target position (3, m); all in the hand frame,
+through the episode's observation delay. With ``observe_extent``, ``Box(17,)``: then the object's
+extent (3, m: its bounding box along the world axes, as a camera's detection gives it, with 2 mm
+Gaussian noise, or the camera estimate's visible extent), which the scripted high level's opening,
+grip height and hinge angle depend on.
 
 ## Rewards
 ``c_h1 [success] + exp(-c_h2 ||tool - object||) + c_h3 exp(-c_h4 ||object - target||) - c_h5
@@ -32,9 +33,10 @@ Terminated on success (object within 1 cm of the target) or when the tool leaves
 (more than 3 cm from its in-hand start, ``info["tool_dropped"]``, failure reason
 "tool_drop": the paper's tool is fixed in the hand, and the steps of a tool lying on the
 table teach nothing and track nothing; ``terminate_on_drop=False`` reports it and runs on);
-truncated after ``max_episode_steps`` (200 = 10 s, the paper's limit) or when the simulation
-diverges (failure reason "divergence"). A failed grasp does not end the
-episode: the object stays where it fell and the next grasp is attempt 2
+truncated after ``max_episode_steps`` (200 = 10 s, the paper's limit), when the simulation
+diverges (failure reason "divergence"), when a camera frame gives no tool cloud ("no_camera_cloud")
+or when the camera has not estimated the object yet ("no_object_estimate", ``object_perception``).
+A failed grasp does not end the episode: the object stays where it fell and the next grasp is attempt 2
 (``info["attempt"]``; ``info["first_attempt_success"]``).
 
 ## Arguments
@@ -46,11 +48,17 @@ a new object drawn at every reset from a procedural family, ``size`` its cap and
 "policy": the shipped low-level policy ``assets/checkpoints/low_level_experts.json``; or a checkpoint
 path), ``randomize`` (True: object friction 1-5, finger friction, gains
 60-150% of hand and arm servos, observation delays up to 150 ms), ``placement_half_width``
-(0.05 m), ``max_episode_steps`` (200), ``encoder_path``, ``terminate_on_drop`` (True), ``observe_extent`` (False).
+(0.05 m), ``max_episode_steps`` (200), ``encoder_path``, ``terminate_on_drop`` (True), ``observe_extent`` (False),
+``perception`` ("synthesized" tool clouds, or "camera": ``hingelab.perception.tool_perception``),
+``object_perception`` ("truth": the true centre and extent with 2 mm noise; or an object estimator,
+"centroid" (the paper's), "ray_corrected", "primitive_fit", on the camera's frame, which needs
+``perception="camera"``: ``hingelab.perception.object_perception``; the estimate and the truth are in
+``last_record["object_estimate"]``).
 
 ## Version History
 v0: first version. Changed within v0: the observed object position is the centre, not the body
 origin (the same observation for the sphere, cube, cylinder and meshes); ``object`` may be a family.
+``object_perception`` (default "truth": the observation as before).
 """
 
 from __future__ import annotations
@@ -65,6 +73,7 @@ from hingelab.envs.rewards import HighLevelRewardConfig, high_level_terms
 from hingelab.envs.tool_shape import DROP_DISTANCE_M
 from hingelab.errors import ConfigError
 from hingelab.perception.encoder import load_encoder
+from hingelab.perception.object_perception import TRUTH, CameraObjectEstimate, check_object_perception_with
 from hingelab.perception.tool_perception import ToolPerception, camera_for
 from hingelab.policies.low_level import SHIPPED_LOW_LEVEL
 from hingelab.sim import scripted
@@ -88,16 +97,19 @@ class ToolPickEnv(SimRenderMixin, gym.Env):
                  low_level: str = "privileged", randomize: bool = True, placement_half_width: float = 0.05,
                  max_episode_steps: int = 200, encoder_path: str | None = None,
                  reward: HighLevelRewardConfig | None = None, render_mode: str | None = None,
-                 terminate_on_drop: bool = True, observe_extent: bool = False, perception: str = "synthesized"):
+                 terminate_on_drop: bool = True, observe_extent: bool = False, perception: str = "synthesized",
+                 object_perception: str = TRUTH):
         # a family draws a new object at each reset (the model is rebuilt for it); until then its seed-0 draw
         self.object_family = ObjectFamily.parse(object, size) if is_family(object) else None
         self.object = self.object_family.draw(0) if self.object_family else ObjectSpec(object, size, mass)
         self.object_record: dict | None = self.object.record if self.object_family else None
         if max_episode_steps < 1:
             raise ConfigError(f"max_episode_steps must be positive, not {max_episode_steps}")
+        self.object_perception = check_object_perception_with(object_perception, perception)
         self.sim = SimCore("tool_pick", obj=self.object, randomization=RandomizationConfig(enabled=randomize),
                            camera=camera_for(perception))
         self.perception = ToolPerception(load_encoder(encoder_path), dt=self.sim.control_dt, perception=perception)
+        self.object_camera = None if object_perception == TRUTH else CameraObjectEstimate(object_perception)
         calibration = self.perception.calibration
         if calibration is None:
             raise ConfigError("the encoder checkpoint has no latent-opening calibration; retrain it")
@@ -136,6 +148,8 @@ class ToolPickEnv(SimRenderMixin, gym.Env):
             xy = np.asarray(options["object_xy"], float)
         self.state = self.sim.reset(seed=episode_seed, object_xy=xy)
         self.perception.reset(episode_seed)
+        if self.object_camera is not None:
+            self.object_camera.new_episode(episode_seed, self.sim.model)
         self.low_level.reset()
         self.object_start = self.state.object_pos_world.copy()
         self.tool_start = self.state.tool_pos_hand.copy()
@@ -143,6 +157,7 @@ class ToolPickEnv(SimRenderMixin, gym.Env):
         self.steps, self.attempt, self.held, self.first_attempt_success = 0, 1, False, False
         self._privileged_command = None
         self.sample = self.perception.observe(self.sim)
+        self._observe_object()
         self._tool_pose = np.concatenate([self.sample.position[0], self.sample.euler_xyz[0]])
         self.z_goal = self.sample.z_smoothed[0].copy()
         self.delay.reset(self._fresh_observation())
@@ -182,6 +197,7 @@ class ToolPickEnv(SimRenderMixin, gym.Env):
         self.steps += 1
         self.state = result.state
         self.sample = self.perception.observe(self.sim)
+        self._observe_object()
         pose = np.concatenate([self.sample.position[0], self.sample.euler_xyz[0]])
         self._tool_pose = ALPHA * pose + (1 - ALPHA) * self._tool_pose
         if executed is None:  # paper: the current latent stands for the previous step's z_goal
@@ -197,11 +213,18 @@ class ToolPickEnv(SimRenderMixin, gym.Env):
         terminated = success or (dropped and self.terminate_on_drop)
         blind = self.perception.flag is not None  # the camera gave no cloud: end the episode, keep what it did
         info["perception_flag"] = self.perception.flag
-        truncated = (not terminated) and (result.diverged or blind or self.steps >= self.max_episode_steps)
+        unseen = False  # the camera has never estimated the object: nothing to reach for
+        if self.object_camera is not None:
+            unseen = self.object_camera.estimate is None
+            info["object_perception_flag"] = self.object_camera.flag
+        truncated = (not terminated) and (result.diverged or blind or unseen
+                                          or self.steps >= self.max_episode_steps)
         if result.diverged:
             info["failure_reason"] = "divergence"
         elif blind and not terminated:
             info["failure_reason"] = "no_camera_cloud"
+        elif unseen and not terminated:
+            info["failure_reason"] = "no_object_estimate"
         elif dropped:
             info["failure_reason"] = "tool_drop"
         elif truncated:
@@ -260,11 +283,36 @@ class ToolPickEnv(SimRenderMixin, gym.Env):
         return d.xmat[self._hand_body].reshape(3, 3).T @ (p_world - d.xpos[self._hand_body])
 
     def _fresh_observation(self) -> np.ndarray:
-        noisy_object = self.observed_object_centre() + self.np_random.normal(0.0, OBJECT_NOISE_M, 3)
-        parts = [self._tool_pose, self.sample.z_smoothed[0], self._to_hand(noisy_object), self._to_hand(self.target)]
+        # the truth's noise is drawn with a camera estimate too, so both start each step from the same stream
+        centre_noise = self.np_random.normal(0.0, OBJECT_NOISE_M, 3)
+        camera = self.object_camera
+        centre = self.observed_object_centre() + centre_noise if camera is None else camera.centre
+        parts = [self._tool_pose, self.sample.z_smoothed[0], self._to_hand(centre), self._to_hand(self.target)]
         if self.observe_extent:
-            parts.append(self.observed_object_extent() + self.np_random.normal(0.0, OBJECT_NOISE_M, 3))
+            extent_noise = self.np_random.normal(0.0, OBJECT_NOISE_M, 3)
+            parts.append(self.observed_object_extent() + extent_noise if camera is None else camera.box)
         return np.concatenate(parts)
+
+    def _observe_object(self) -> None:
+        """The camera's object estimate on this step's frame (``object_perception`` an estimator)."""
+        if self.object_camera is not None:
+            d = self.sim.data
+            self.object_camera.observe(self.perception.camera, d.xmat[self._hand_body].reshape(3, 3),
+                                       d.xpos[self._hand_body])
+
+    def object_estimate_record(self) -> dict | None:
+        """This step's camera estimate of the object beside the truth, in hand_base (m), for the episode; None
+        with ``object_perception="truth"``."""
+        camera = self.object_camera
+        if camera is None:
+            return None
+        d = self.sim.data
+        rotation, origin = d.xmat[self._hand_body].reshape(3, 3), d.xpos[self._hand_body]
+        points = None if camera.points is None else ((camera.points - origin) @ rotation).astype(np.float32)
+        return {"estimator": camera.estimator, "position": self._to_hand(camera.centre),
+                "extent": camera.box.copy(), "n_points": camera.n_points, "fresh": camera.fresh,
+                "flag": camera.flag or "", "true_position": self._to_hand(self.observed_object_centre()),
+                "points": points}
 
     def observed_object_extent(self) -> np.ndarray:
         """The object's bounding box along the world axes (x, y, z; m), as a camera's detection gives it."""
@@ -330,5 +378,5 @@ class ToolPickEnv(SimRenderMixin, gym.Env):
             "latent_z": s.z[0], "latent_z_smoothed": s.z_smoothed[0], "goal_z": self.z_goal.copy(),
             "action": None if action is None else np.asarray(action, float), "reward_terms": info["reward_terms"],
             "privileged": self.state, "object_position_hand": self._to_hand(self.state.object_pos_world),
-            "target_position_hand": self._to_hand(self.target),
+            "target_position_hand": self._to_hand(self.target), "object_estimate": self.object_estimate_record(),
         }

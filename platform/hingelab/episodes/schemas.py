@@ -32,7 +32,9 @@ from google.protobuf.message_factory import GetMessageClass
 #   3: optional topics of a camera and an arm (robot trials, ``hingelab trial``): /camera/depth,
 #      /camera/calibration, /camera/pose, /arm/joints; metadata key ``outcome_by`` (who judged a trial:
 #      ``operator`` or ``simulation``). Files of versions 1 and 2 have none of them and read as before.
-SCHEMA_VERSION = 3
+#   4: optional topics of the camera's object estimate (``object_perception`` an estimator): /object/estimate
+#      (hingelab.ObjectEstimate) and /object/points; metadata key ``object_perception``. Older files have none.
+SCHEMA_VERSION = 4
 
 # --- frames -------------------------------------------------------------------
 FRAME_HAND = "hand_base"  # the SVH hand's base frame; every position below is in it
@@ -60,6 +62,9 @@ TOPIC_CAMERA_CALIBRATION = "/camera/calibration"  # foxglove.CameraCalibration o
 TOPIC_CAMERA_POSE = "/camera/pose"  # foxglove.FrameTransform hand_base -> camera_depth_optical
 TOPIC_ARM_JOINTS = "/arm/joints"  # foxglove.JointStates, the arm's 6 joints: rad, rad/s
 CAMERA_TOPICS = (TOPIC_DEPTH, TOPIC_CAMERA_CALIBRATION, TOPIC_CAMERA_POSE)
+# The camera's object estimate (schema 4; only where ``object_perception`` names an estimator)
+TOPIC_OBJECT_ESTIMATE = "/object/estimate"  # hingelab.ObjectEstimate, metres, hand_base
+TOPIC_OBJECT_POINTS = "/object/points"  # foxglove.PointCloud, the object's visible points (N varies), hand_base
 # Columns of /episode/columns under this name hold the CRC32 of each metadata record (MCAP metadata
 # records carry no CRC; the columns' chunk does): "<this>:<record name>", uint32 (metadata_digest).
 DIGEST_COLUMNS = "/episode/metadata_crc32"
@@ -103,6 +108,7 @@ KEY_LAST_STEP_SUCCESS = "last_step_success"  # (v2) ToolShape-v0's secondary, on
 KEY_OUTCOME_BY = "outcome_by"  # (v3) who judged a trial's outcome: "operator" or "simulation"
 KEY_FIRST_ATTEMPT_SUCCESS = "first_attempt_success"  # ToolPick-v0 episodes and trials: success at attempt 1
 KEY_REWARD_CONFIG = "reward_config"  # the env's reward config (JSON) the episode's rewards were computed with
+KEY_OBJECT_PERCEPTION = "object_perception"  # (v4) the object estimator (absent: the truth with 2 mm noise)
 
 # The verdicts ``success`` may be (the ``success_verdict`` values): one per task, the one the
 # env's info["is_success"], the demo, eval, report and the benches count.
@@ -208,6 +214,16 @@ _MESSAGES = {
         ("info_values", 11, _F.TYPE_DOUBLE, None, _REPEATED),
         ("final", 12, _F.TYPE_BOOL, None, _OPTIONAL),
     ],
+    "ObjectEstimate": [
+        ("timestamp", 1, *_TS, _OPTIONAL),
+        ("estimator", 2, _F.TYPE_STRING, None, _OPTIONAL),
+        ("position", 3, _F.TYPE_DOUBLE, None, _REPEATED),
+        ("extent", 4, _F.TYPE_DOUBLE, None, _REPEATED),
+        ("n_points", 5, _F.TYPE_UINT32, None, _OPTIONAL),
+        ("fresh", 6, _F.TYPE_BOOL, None, _OPTIONAL),
+        ("flag", 7, _F.TYPE_STRING, None, _OPTIONAL),
+        ("true_position", 8, _F.TYPE_DOUBLE, None, _REPEATED),
+    ],
     "Column": [
         ("name", 1, _F.TYPE_STRING, None, _OPTIONAL),
         ("dtype", 2, _F.TYPE_STRING, None, _OPTIONAL),
@@ -251,6 +267,7 @@ LatentGoal = _CLASSES["LatentGoal"]
 RewardTerms = _CLASSES["RewardTerms"]
 PrivilegedState = _CLASSES["PrivilegedState"]
 Step = _CLASSES["Step"]
+ObjectEstimate = _CLASSES["ObjectEstimate"]
 Column = _CLASSES["Column"]
 EpisodeColumns = _CLASSES["EpisodeColumns"]
 
@@ -273,13 +290,15 @@ TOPIC_TYPES = {
     TOPIC_CAMERA_CALIBRATION: CameraCalibration,
     TOPIC_CAMERA_POSE: FrameTransform,
     TOPIC_ARM_JOINTS: JointStates,
+    TOPIC_OBJECT_ESTIMATE: ObjectEstimate,
+    TOPIC_OBJECT_POINTS: PointCloud,
 }
 
 # Schema names a hingelab episode may carry; anything else is a foreign schema.
 KNOWN_SCHEMA_NAMES = frozenset(cls.DESCRIPTOR.full_name for cls in TOPIC_TYPES.values())
 
 __all__ = [name for name in dir() if name.isupper()] + [
-    "ToolLatent", "Action", "LatentGoal", "RewardTerms", "PrivilegedState", "Step", "Column",
+    "ToolLatent", "Action", "LatentGoal", "RewardTerms", "PrivilegedState", "Step", "ObjectEstimate", "Column",
     "EpisodeColumns", "PointCloud", "PoseInFrame", "FrameTransform", "JointStates",
     "Point3InFrame", "PackedElementField", "verdict_description",
 ]

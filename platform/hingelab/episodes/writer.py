@@ -296,6 +296,21 @@ class EpisodeWriter:
         if max(self._pending_bytes) >= self.chunk_bytes:
             self._flush_block()
 
+    def write_object_estimate(self, time_s: float, *, estimator: str, position, extent, n_points: int, fresh: bool,
+                              flag: str = "", true_position=None, points=None) -> None:
+        """The camera's object estimate (schema 4) on /object/estimate: ``position`` and ``extent`` (3,) m in
+        hand_base (the last good ones), ``n_points`` this frame's visible points, ``fresh`` (this frame gave
+        the estimate), ``flag`` (why not), ``true_position`` (3,) the simulator's truth (None on a rig); the
+        visible points (N, 3) hand_base on /object/points when given (messages only: N varies by frame)."""
+        t = self.time_offset_ns + round(time_s * 1e9)
+        fields = _present(position=np.asarray(position, float), extent=np.asarray(extent, float),
+                          n_points=np.uint32(n_points), fresh=np.bool_(fresh),
+                          true_position=None if true_position is None else np.asarray(true_position, float))
+        payload = codec.encode_fields(S.ObjectEstimate, t, estimator=estimator, flag=flag, **fields)
+        self._emit(S.TOPIC_OBJECT_ESTIMATE, t, payload, **fields)
+        if points is not None:
+            self._emit(S.TOPIC_OBJECT_POINTS, t, codec.encode_point_cloud(t, points))
+
     def write_arm_joints(self, time_s: float, names, position, velocity) -> None:
         """The arm's joints (6, rad and rad/s) on /arm/joints."""
         t = self.time_offset_ns + round(time_s * 1e9)

@@ -63,7 +63,9 @@ EXTRINSIC_ERROR_RAD = float(np.radians(1.0))  # per axis, uniform
 
 
 class CameraClouds:
-    """Clouds from the rendered depth camera through the camera cloud pipeline; ``frame`` is the last frame.
+    """Clouds from the rendered depth camera through the camera cloud pipeline; ``frame`` is the last frame
+    (noisy, posed where the calibration believes the camera is) and ``geoms`` its pixels' geom ids, which the
+    object's estimate (``hingelab.perception.object_perception``) reads instead of rendering again.
 
     The pipeline places the points with the camera pose it believes: the true one moved by a
     per-episode calibration error (up to ``EXTRINSIC_ERROR_M`` and ``EXTRINSIC_ERROR_RAD`` per axis),
@@ -78,6 +80,7 @@ class CameraClouds:
         self.rng = np.random.default_rng()
         self._error_rot, self._error_pos = np.eye(3), np.zeros(3)
         self.frame: CameraFrame | None = None
+        self.geoms: np.ndarray | None = None  # (H, W) the last frame's geom id per pixel (-1: none), for the object
         self.result: ToolCloud | None = None
 
     def new_episode(self, seed: int | None) -> None:
@@ -90,7 +93,8 @@ class CameraClouds:
     def cloud(self, sim: SimCore) -> ToolCloud:
         if self.renderer is None:
             self.renderer = DepthRenderer(sim.model, self.intrinsics)
-        frame = self.renderer.render(sim.data, stamp_s=float(sim.data.time))
+        depth, self.geoms = self.renderer.depth_and_geoms(sim.data)
+        frame = self.renderer.frame_from(sim.data, depth, self.geoms, stamp_s=float(sim.data.time))
         frame.depth = self.noise.apply(frame.depth, self.intrinsics, self.rng)
         frame.camera_rotation = self._error_rot @ frame.camera_rotation  # the believed pose (calibration error)
         frame.camera_position = frame.camera_position + self._error_pos

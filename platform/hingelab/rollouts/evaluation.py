@@ -34,6 +34,7 @@ from hingelab.envs.low_level import PolicyLowLevel
 from hingelab.envs.tool_shape import SETTLE_STEPS
 from hingelab.episodes import create_dataset
 from hingelab.errors import ConfigError
+from hingelab.perception.object_perception import check_object_perception_with
 from hingelab.policies import ModelPolicy, load_policy
 from hingelab.policies.high_level import SHIPPED_HIGH_LEVEL, check_context, observes_extent, resolve_checkpoint
 from hingelab.policies.loading import baseline_names
@@ -149,12 +150,13 @@ def evaluate_low(policy=None, *, out, baseline: str | None = None, episodes: int
 # ------------------------------------------------------------------ the high level
 def evaluate_high(policy=None, *, out, baseline: str | None = None, object: str = "sphere", size: float = 0.02,
                   episodes: int = 10, seed: int = 0, low_level: str | None = None, perception: str = "synthesized",
-                  resume: bool = False, ray: str | None = None, progress: bool = True,
+                  object_perception: str = "truth", resume: bool = False, ray: str | None = None, progress: bool = True,
                   command: list[str] | None = None, name: str | None = None,
                   description: str | None = None) -> Evaluation:
     """``episodes`` episodes of ToolPick-v0 with one object for a high-level checkpoint (default: the shipped
     one) or a baseline (``heuristic``, ``scripted``, ...), over ``low_level`` (default: the one the checkpoint
-    learned over; the privileged one for the heuristic), recorded into ``out``."""
+    learned over; the privileged one for the heuristic), recorded into ``out``; ``object_perception``: the
+    object's true centre with 2 mm noise (``truth``) or a camera object estimator (needs ``perception="camera"``)."""
     out = Path(out)
     _check_choice(policy, baseline, "high", episodes)
     if policy is None and not baseline:
@@ -173,18 +175,24 @@ def evaluate_high(policy=None, *, out, baseline: str | None = None, object: str 
         check_context(model, policy, low_level)
         acting, label, extent = ModelPolicy(model), str(policy), observes_extent(model)
     # a bad object or low level: an error before files
-    H.make_eval_env(object, size, low_level, observe_extent=extent, perception=perception).close()
+    check_object_perception_with(object_perception, perception)  # before building an env
+    H.make_eval_env(object, size, low_level, observe_extent=extent, perception=perception,
+                    object_perception=object_perception).close()
     config = {"policy": label, "object": object, "size": size, "episodes": episodes, "low_level": low_level,
               "observe_extent": extent, "seeds": f"{H.SEED_BASE} + seed * {H.SEED_STRIDE} + episode"}
     if perception != "synthesized":  # recorded only when it differs: older evaluations resume unchanged
         config["perception"] = perception
+    if object_perception != "truth":  # the same: recorded only when it differs
+        config["object_perception"] = object_perception
     if name is None:
         name = f"eval-high-{baseline or Path(policy).stem}" + (f"-{perception}" if perception != "synthesized" else "")
+        name += f"-object-{object_perception}" if object_perception != "truth" else ""
     journal = _start(out, config, seed, resume, name, "high_level_evaluation",
                      description or f"hingelab eval high: {label} on ToolPick-v0, {object} {size * 100:g} cm")
     env_options = {"object": object, "size": size, "low_level": low_level, "observe_extent": extent,
                    "extra_metadata": {"policy": label, "low_level": low_level, "perception": perception},
-                   "perception": perception}
+                   "perception": perception,
+                   **({"object_perception": object_perception} if object_perception != "truth" else {})}
     with stop_cleanly_on_a_full_disk(out, journal, episodes, command):
         if ray:
             rows = evaluate_high_on_ray(episodes, seed, env_options, out, None if baseline else policy, baseline,

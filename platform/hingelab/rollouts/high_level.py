@@ -11,9 +11,11 @@ noise (``hingelab generate heuristic``'s demos are another stream of the plan).
 The random baseline draws its actions from ``numpy.random.default_rng(episode seed)``.
 
 Failure reasons (``FailureReasonWrapper``, recorded as the episode's ``failure_reason``): the env
-gives ``divergence``, ``no_camera_cloud`` (camera perception: a frame gave no tool cloud), ``tool_drop``, and at the
+gives ``divergence``, ``no_camera_cloud`` (camera perception: a frame gave no tool cloud), ``no_object_estimate`` (a
+camera object estimator: no frame has estimated the object yet), ``tool_drop``, and at the
 time limit ``drop`` (a grasp held and was lost, attempt > 1) or ``timeout``. From what the episode did (privileged
-state, every step) they become, first match wins: ``divergence``; ``no_camera_cloud``; ``tool_drop``; ``slip`` (the
+state, every step) they become, first match wins: ``divergence``; ``no_camera_cloud``; ``no_object_estimate``;
+``tool_drop``; ``slip`` (the
 env's ``drop``: the object was held off the platform and lost); ``table_collision`` (the hand or tool touched the table
 during the episode); ``missed_grasp`` (the object was never held, though the tweezer's grip point came within
 2 cm of it); ``timeout`` (anything else: never got near, or held but not brought to the target).
@@ -74,7 +76,7 @@ class FailureReasonWrapper(gym.Wrapper):
         return obs, reward, terminated, truncated, info
 
     def classify(self, env_reason: str) -> str:
-        if env_reason in ("divergence", "no_camera_cloud", "tool_drop"):
+        if env_reason in ("divergence", "no_camera_cloud", "no_object_estimate", "tool_drop"):
             return env_reason
         if env_reason == "drop":
             return "slip"
@@ -87,14 +89,15 @@ class FailureReasonWrapper(gym.Wrapper):
 
 def make_eval_env(object: str, size: float, low_level: str, record_dir: Path | None = None,
                   extra_metadata: dict | None = None, max_episode_steps: int = 200, observe_extent: bool = False,
-                  perception: str = "synthesized"):
+                  perception: str = "synthesized", object_perception: str = "truth"):
     """ToolPick-v0 (randomized as in training), failure reasons refined, recorded into ``record_dir``;
     ``observe_extent`` as the policy was trained (its checkpoint's ``env_kwargs``); ``perception``:
-    synthesized clouds or the depth camera."""
+    synthesized clouds or the depth camera; ``object_perception``: the object's true centre with 2 mm noise, or a
+    camera object estimator (``hingelab.perception.object_perception``)."""
 
     env = FailureReasonWrapper(gym.make(TOOL_PICK_ID, object=object, size=size, low_level=low_level,
                                         max_episode_steps=max_episode_steps, observe_extent=observe_extent,
-                                        perception=perception))
+                                        perception=perception, object_perception=object_perception))
     if record_dir is not None:
         env = RecordingWrapper(env, record_dir, source="high_level_evaluation", object_name=object_label(object),
                                action_level="high", extra_metadata={"object_size": size, **(extra_metadata or {})})

@@ -77,7 +77,12 @@ class DepthRenderer:
         return depth, geoms
 
     def render(self, data: mujoco.MjData, stamp_s: float = 0.0) -> CameraFrame:
-        depth, geoms = self.depth_and_geoms(data)
+        return self.frame_from(data, *self.depth_and_geoms(data), stamp_s=stamp_s)
+
+    def frame_from(self, data: mujoco.MjData, depth: np.ndarray, geoms: np.ndarray,
+                   stamp_s: float = 0.0) -> CameraFrame:
+        """The frame of one ``depth_and_geoms`` render, posed in hand_base, with the tool's mask (a caller that
+        also needs the geom ids, for the object's pixels, renders once and calls this)."""
         k = self.intrinsics
         mask = np.isin(geoms, self._tool_geoms)
         rot_w, pos_w = camera_pose_world(self.model, data)
