@@ -7,6 +7,7 @@ import argparse
 import sys
 from pathlib import Path
 
+from hingelab.cli.options import add_object_perception
 from hingelab.robot.interface import ROBOTS
 from hingelab.robot.trial import TrialConfig, run_trial_session
 from hingelab.seeds import STRIDE, TRIALS_BASE
@@ -48,13 +49,15 @@ def add_parser(subparsers) -> None:
                    help="record the depth image every N control steps (default 4: 5 Hz; 1 = every step, "
                         "~0.2 MB each)")
     p.add_argument("--max-steps", type=int, default=200, help="steps per trial (default 200, 10 s at 20 Hz)")
+    add_object_perception(p, " (the stand-in, --robot sim: a real rig's estimate is its own)")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
     p.set_defaults(func=run)
 
 
 def run(args: argparse.Namespace) -> int:
     config = TrialConfig(object=args.object, size=args.size, trials=args.trials, seed=args.seed,
-                         max_steps=args.max_steps, depth_every=args.depth_every, operator=args.operator)
+                         max_steps=args.max_steps, depth_every=args.depth_every, operator=args.operator,
+                         object_perception=args.object_perception)
     session = run_trial_session(args.robot, config, args.out, policy=args.policy, low_level=args.low_level,
                                 progress=not args.no_progress, warn=lambda text: print(text, file=sys.stderr))
     print(session.summary)

@@ -12,8 +12,11 @@ so the same object runs the stand-in and a real rig. Per control period:
 4. the low-level policy's observation (hand q and q-dot, v_bar, omega_bar, z_bar) and its finger
    changes (the hand adds them to its current positions).
 
-A frame that gives no cloud returns ``flag`` instead of a command: the trial decides (it ends
-the trial as ``no_camera_cloud``).
+A frame that gives no cloud returns ``flag`` instead of a command, and so does a step before the robot
+has ever reported an object estimate (``flag`` ``no_object_estimate``: the target is 5 cm above the first
+estimate, and there is nothing to reach for): the trial decides (it ends the trial as ``no_camera_cloud``
+or ``no_object_estimate``). An estimate that later goes missing (the tool hides the object) is the robot's
+to hold: the controller keeps the target and, without a centre, the target's point below it.
 """
 
 from __future__ import annotations
@@ -33,6 +36,8 @@ from hingelab.policies.baselines import ScriptedPolicy
 from hingelab.policies.high_level import check_context, load_high_level_checkpoint, observes_extent
 from hingelab.robot.interface import RobotReadings
 from hingelab.tasks import MAX_SPEED, Z_SCALE
+
+NO_OBJECT_ESTIMATE = "no_object_estimate"  # the flag (and the failure reason) of a trial without an object estimate
 
 
 @dataclass
@@ -113,17 +118,21 @@ class HierarchicalController:
         self._fresh = True
 
     def reset(self, readings: RobotReadings, seed: int) -> None:
-        """A new trial: forget the tool's history; the target is 5 cm above the object's first estimate."""
-        if readings.object_centre is None:
-            raise ConfigError("the robot reports no object estimate at the start of the trial; a trial needs one "
-                              "(the object in view of the camera)")
+        """A new trial: forget the tool's history; the target is 5 cm above the object's first estimate (None
+        until the robot reports one)."""
         self.tool_state.reset()
         self.high_level.reset(seed)
         self.rng = np.random.default_rng([seed, 37])
-        self.target_world = np.asarray(readings.object_centre, float) + [0.0, 0.0, TARGET_HEIGHT]
+        self.target_world = None
+        if readings.object_centre is not None:
+            self.target_world = np.asarray(readings.object_centre, float) + [0.0, 0.0, TARGET_HEIGHT]
         self._fresh = True
 
     def act(self, readings: RobotReadings) -> Step:
+        if self.target_world is None:
+            if readings.object_centre is None:
+                return Step(None, None, None, None, None, None, None, None, None, flag=NO_OBJECT_ESTIMATE)
+            self.target_world = np.asarray(readings.object_centre, float) + [0.0, 0.0, TARGET_HEIGHT]
         cloud = tool_cloud_from_frame(readings.frame, self.cloud_config, self.rng)
         if cloud.points is None:
             return Step(None, None, None, None, None, None, None, None, None, flag=cloud.flag)

@@ -17,7 +17,8 @@ A real driver plugs in here: a class with these methods (``start_trial``, ``comm
 ``close`` and the attributes below), built from the rig's ROS 2 topics or vendor SDKs (Jaka's
 SDK for the arm, SCHUNK's SVH driver for the hand, the Azure Kinect SDK for the camera), with
 ``source = "real"``, registered under a name with ``register_robot(name, make)`` (``make(object,
-size, max_steps)`` builds it; the stand-in registers ``sim`` this way): ``hingelab trial --robot NAME``
+size, max_steps)`` builds it, and ``make(..., object_perception=NAME)`` where the robot offers a choice of
+object estimate, as the stand-in does; the stand-in registers ``sim`` this way): ``hingelab trial --robot NAME``
 then drives it. ``verdict`` returns None on a real rig: the operator
 judges each attempt (``hingelab trial --operator``).
 """
@@ -44,6 +45,10 @@ class RobotReadings:
     frame: CameraFrame
     object_centre: np.ndarray | None  # (3,) m, the arm's base frame; None if not seen
     object_extent: np.ndarray | None  # (3,) m, its bounding box along the base frame's axes
+    # where a camera estimates the object (an object estimator): this frame's visible points (N, 3), m, base
+    # frame, None when the frame gave none, and why (``hingelab.perception.object_estimate`` flags)
+    object_points: np.ndarray | None = None
+    object_flag: str | None = None
 
     def to_hand(self, point: np.ndarray) -> np.ndarray:
         """A point of the arm's base frame in hand_base."""

@@ -7,8 +7,12 @@ real arm and hand (``ToolPickEnv.command_privileged`` without a hinge command: t
 move the tweezer). The env keeps its one verdict (object within 1 cm of the target), the attempts
 and the failure reasons (``FailureReasonWrapper``); ``verdict()`` reports them.
 
-What the stand-in reports as the object estimate is what a camera's object segmentation gives: the
-object's centre (the middle of its resting height) and its bounding box, each with 2 mm noise.
+What the stand-in reports as the object estimate (``object_perception``): by default (``"truth"``) the
+object's centre (the middle of its resting height) and its bounding box, each with 2 mm noise; with an
+estimator of ``hingelab.perception.object_estimate`` (``"centroid"``, the paper's, ``"ray_corrected"``,
+``"primitive_fit"``) the env's estimate from the same depth frame as the tool's cloud
+(``hingelab.perception.object_perception``): the last good one while the tool hides the object, None before
+the first (the trial then ends, ``no_object_estimate``), with the frame's visible points and flag.
 
 Latency: a rig's readings are old when the controller gets them (exposure, transfer, the cloud
 pipeline). The stand-in delivers each reading ``latency_steps`` control periods late, drawn per
@@ -38,10 +42,12 @@ class StandInRobot:
     hand_joint_names = names.HAND_ACTUATORS
 
     def __init__(self, object: str = "sphere", size: float = 0.02, mass: float = 0.01, max_steps: int = 200,
-                 randomize: bool = True):
+                 randomize: bool = True, object_perception: str = "truth"):
         self.env = FailureReasonWrapper(gym.make(TOOL_PICK_ID, object=object, size=size, mass=mass,
                                                  low_level="privileged", perception="camera", randomize=randomize,
-                                                 max_episode_steps=max_steps))
+                                                 max_episode_steps=max_steps,
+                                                 object_perception=object_perception))
+        self.object_perception = object_perception
         self.pick = self.env.unwrapped
         self.sim = self.pick.sim
         self._arm_qpos = [self.sim.model.joint(j).qposadr[0] for j in names.ARM_JOINTS]
@@ -87,15 +93,28 @@ class StandInRobot:
     def _read(self) -> RobotReadings:
         data = self.sim.data
         q, qdot = self.sim.hand.q(data), self.sim.hand.qdot(data)  # as measured now; _deliver makes them late
-        centre = self.pick.observed_object_centre() + self.rng.normal(0.0, OBJECT_NOISE_M, 3)
-        extent = self.pick.observed_object_extent() + self.rng.normal(0.0, OBJECT_NOISE_M, 3)
+        camera = self.pick.object_camera
+        if camera is None:
+            centre = self.pick.observed_object_centre() + self.rng.normal(0.0, OBJECT_NOISE_M, 3)
+            extent = self.pick.observed_object_extent() + self.rng.normal(0.0, OBJECT_NOISE_M, 3)
+            points, flag = None, None
+        else:  # the env's estimate on this step's frame (world: the stand-in's base frame)
+            centre = None if camera.estimate is None else camera.estimate.copy()
+            extent = None if camera.extent is None else camera.extent.copy()
+            points = None if camera.points is None else camera.points.copy()
+            flag = camera.flag
         return RobotReadings(
             stamp_s=float(data.time), arm_position=data.qpos[self._arm_qpos].copy(),
             arm_velocity=data.qvel[self._arm_dof].copy(), hand_position=np.asarray(q, float).copy(),
             hand_velocity=np.asarray(qdot, float).copy(),
             hand_rotation=data.xmat[self.pick._hand_body].reshape(3, 3).copy(),
             hand_translation=data.xpos[self.pick._hand_body].copy(), frame=self.pick.perception.camera.frame,
-            object_centre=centre, object_extent=extent)
+            object_centre=centre, object_extent=extent, object_points=points, object_flag=flag)
+
+    def true_object_centre(self) -> np.ndarray:
+        """The object's true centre now (world, m): what the episode records beside the estimate."""
+        return self.pick.observed_object_centre()
 
 
-register_robot("sim", lambda object, size, max_steps: StandInRobot(object, size, max_steps=max_steps))
+register_robot("sim", lambda object, size, max_steps, object_perception="truth": StandInRobot(
+    object, size, max_steps=max_steps, object_perception=object_perception))

@@ -16,28 +16,42 @@ Each trial's episode (source ``stand_in`` or ``real``) holds per step the camera
 tracked tool pose (``/tool/pose`` and ``/tf``), the hand's and the arm's joints, the latents, the
 high-level action and latent goal, the object estimate and the target, and every ``depth_every``-th
 control period the depth image (``/camera/depth``, 16-bit mm), the camera's pose in hand_base and,
-once, its calibration. The stand-in adds the simulator's truth (``/sim/privileged``). The file is
+once, its calibration. The stand-in adds the simulator's truth (``/sim/privileged``). With a camera
+object estimator (``object_perception``, the stand-in's choice) each step also records the estimate the
+controller was given, this frame's visible points and flag (``/object/estimate``, ``/object/points``) and the
+object's true centre beside it (the truth of the step's time; the estimate is the reading's, which the
+stand-in's latency delays). A trial whose robot has never reported an object estimate ends at once
+(``no_object_estimate``), recorded like one whose camera gave no tool cloud (``no_camera_cloud``). The file is
 flushed every ``FLUSH_EVERY`` steps and kept as ``.partial`` if the trial is cut off (Ctrl-C, a
 crash): ``hingelab datasets recover`` salvages it.
 """
 
 from __future__ import annotations
 
+import inspect
 from dataclasses import asdict, dataclass
 from pathlib import Path
 
+import numpy as np
 import pandas as pd
 from scipy.spatial.transform import Rotation
 from tqdm import tqdm
 
 from hingelab.analysis.pick_table import FAILURE_REASONS, pick_rates
-from hingelab.envs.recording import object_metadata, privileged_fields
+from hingelab.envs.recording import object_metadata, object_perception_metadata, privileged_fields
 from hingelab.episodes import EpisodeWriter, create_dataset
 from hingelab.episodes import schemas as S
 from hingelab.errors import ConfigError
+from hingelab.perception.object_perception import TRUTH, check_object_perception
 from hingelab.policies.high_level import SHIPPED_HIGH_LEVEL
 from hingelab.robot import stand_in  # noqa: F401  (registers the "sim" robot)
-from hingelab.robot.controller import CheckpointHighLevel, HierarchicalController, ScriptedStandInHighLevel, Step
+from hingelab.robot.controller import (
+    NO_OBJECT_ESTIMATE,
+    CheckpointHighLevel,
+    HierarchicalController,
+    ScriptedStandInHighLevel,
+    Step,
+)
 from hingelab.robot.interface import ROBOTS, Robot, RobotReadings
 from hingelab.seeds import STRIDE, TRIALS_BASE, trial_seed
 from hingelab.sim import names
@@ -57,8 +71,10 @@ class TrialConfig:
     max_steps: int = 200
     depth_every: int = 4  # record the depth image every this many steps (5 Hz at 20 Hz control)
     operator: bool = False
+    object_perception: str = TRUTH  # where the robot's object estimate comes from (the stand-in's choice)
 
     def __post_init__(self):
+        check_object_perception(self.object_perception)
         if self.trials < 1 or self.max_steps < 1 or self.depth_every < 1:
             raise ConfigError(f"--trials, the step limit and --depth-every must be at least 1: {asdict(self)}")
 
@@ -92,10 +108,29 @@ def _record_step(writer, robot: Robot, readings: RobotReadings, step: Step, t: f
                       action=step.action, goal_z=step.z_goal, object_position_hand=step.object_hand,
                       target_position_hand=step.target_hand, privileged=privileged)
     writer.write_arm_joints(t, robot.arm_joint_names, readings.arm_position, readings.arm_velocity)
+    if getattr(robot, "object_perception", TRUTH) != TRUTH:
+        _record_object_estimate(writer, robot, readings, t)
     if index % config.depth_every == 0:
         frame = readings.frame
         writer.write_camera(t, frame.depth, frame.intrinsics, frame.camera_rotation, frame.camera_position,
                             calibration=index == 0)
+
+
+def _record_object_estimate(writer, robot: Robot, readings: RobotReadings, t: float) -> None:
+    """The object estimate the controller got (hand_base, through the reading's hand pose; NaN before the first),
+    its frame's points and flag, and the stand-in's truth now."""
+    centre = readings.object_centre
+    points = readings.object_points
+    truth = None
+    if hasattr(robot, "true_object_centre"):  # a simulated robot knows the truth; a real rig does not
+        truth = robot.pick._to_hand(robot.true_object_centre())
+    writer.write_object_estimate(
+        t, estimator=robot.object_perception,
+        position=np.full(3, np.nan) if centre is None else readings.to_hand(centre),
+        extent=np.zeros(3) if readings.object_extent is None else readings.object_extent,
+        n_points=0 if points is None else len(points), fresh=points is not None, flag=readings.object_flag or "",
+        true_position=truth,
+        points=None if points is None else (readings.hand_rotation.T @ (points - readings.hand_translation).T).T)
 
 
 def run_trial(robot: Robot, controller: HierarchicalController, writer, seed: int, config: TrialConfig,
@@ -110,6 +145,10 @@ def run_trial(robot: Robot, controller: HierarchicalController, writer, seed: in
     while steps < config.max_steps:
         step = controller.act(readings)
         _record_step(writer, robot, readings, step, readings.stamp_s - start, steps, config)
+        if step.flag == NO_OBJECT_ESTIMATE:
+            outcome, reason = "failure", NO_OBJECT_ESTIMATE
+            write(f"{label}: the robot has not estimated the object ({readings.object_flag}); the trial ends")
+            break
         if step.flag is not None:
             outcome, reason = "failure", "no_camera_cloud"
             write(f"{label}: the camera gave no tool cloud ({step.flag}); the trial ends")
@@ -167,6 +206,7 @@ def run_trials(robot: Robot, controller: HierarchicalController, dataset_dir, co
                                keep_partial_on_error=True,
                                extra_metadata={"object_size": config.size, "trial": index, S.KEY_SUCCESS_VERDICT:
                                                "operator" if config.operator else "object_within_1cm",
+                                               **object_perception_metadata(robot),
                                                **(extra_metadata or {}),
                                                # a family's draw for this seed: what the stand-in's env draws
                                                **object_metadata(episode_record(config.object, config.size, seed))})
@@ -208,13 +248,20 @@ def run_trial_session(robot_name: str, config: TrialConfig, out, policy=None, lo
         raise ConfigError(f"no robot {robot_name!r}; the robots: {', '.join(ROBOTS)}")
     if out.exists() and any(out.iterdir()):
         raise ConfigError(f"{out} exists and is not empty; give a new folder to --out")
-    robot = ROBOTS[robot_name](config.object, config.size, config.max_steps)  # a bad object: an error before files
+    make, options = ROBOTS[robot_name], {}
+    if config.object_perception != TRUTH:
+        if "object_perception" not in inspect.signature(make).parameters:
+            raise ConfigError(f"the robot {robot_name!r} has its own object estimate; --object-perception is for the "
+                              "stand-in (--robot sim)")
+        options["object_perception"] = config.object_perception
+    robot = make(config.object, config.size, config.max_steps, **options)  # a bad object: an error before files
     try:
         high = high_level_for(robot, policy, low_level, warn=warn)
         card = {"robot": robot_name, "policy": high.label, "low_level": high.low_level, "object": config.object,
                 "size": config.size, "trials": config.trials, "max_steps": config.max_steps,
                 "operator": config.operator, "depth_every": config.depth_every,
-                "seeds": f"{TRIALS_BASE} + seed * {STRIDE} + trial"}
+                "seeds": f"{TRIALS_BASE} + seed * {STRIDE} + trial",
+                **({"object_perception": config.object_perception} if options else {})}
         create_dataset(out, name=f"trial-{config.object}-{config.size * 100:g}cm", source=robot.source,
                        config=card, seed=config.seed,
                        description=f"hingelab trial on the {robot_name} robot: {high.label} over {high.low_level}, "
