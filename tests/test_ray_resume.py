@@ -73,7 +73,8 @@ def test_generate_heuristic_on_ray_killed_and_resumed_equals_an_uninterrupted_ru
     """Slow (a minute: three commands, two local Rays). The default run covers it in parts:
     ``test_eval_on_ray_killed_and_resumed_equals_an_uninterrupted_run[high]`` (a --ray driver SIGKILLed
     mid-write, resumed at once over Ray, equal to an uninterrupted run), ``test_ray_rollouts.py::
-    test_generate_heuristic_on_ray_equals_local_workers`` (generate heuristic over Ray = local workers),
+    test_generate_heuristic_and_eval_low_and_high_on_ray_equal_local_runs`` (generate heuristic over Ray =
+    local workers),
     ``test_disk_full.py::test_disk_full_stops_cleanly_and_resume_completes_the_same_dataset`` (its --resume
     = an uninterrupted run) and ``test_an_episode_still_being_written_when_resume_starts_cannot_land``
     (its resume against a worker of the killed run)."""
@@ -97,7 +98,7 @@ def test_generate_heuristic_on_ray_killed_and_resumed_equals_an_uninterrupted_ru
 def test_eval_on_ray_killed_and_resumed_equals_an_uninterrupted_run(tmp_path, capsys, command):
     """[low] is slow (a minute); eval low and eval high over Ray share the fan-out and the journal
     (``rollouts.on_ray._run``), so [high] covers it by default, with ``test_ray_rollouts.py::
-    test_eval_low_and_high_on_ray_equal_the_local_evaluation`` for eval low over Ray itself."""
+    test_generate_heuristic_and_eval_low_and_high_on_ray_equal_local_runs`` for eval low over Ray itself."""
     common = [*command, "--no-progress"]
     out = tmp_path / "killed"
     done, partial = _kill_after([*common, "--out", str(out), "--ray"], out, finished=2)
