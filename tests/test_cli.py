@@ -1,30 +1,45 @@
-"""The ``hingelab`` command as a user runs it: a real subprocess, checked output."""
+"""The ``hingelab`` command as a user runs it, checked output. One test starts it as a real subprocess
+(``python -m hingelab.cli.main``: exit status, a closed pipe); the others call ``main`` in this process, the
+same parser and commands without a process start (a few seconds each: the parser imports every command)."""
 
 from __future__ import annotations
 
 import json
 import subprocess
 import sys
+import types
 from pathlib import Path
 
 import numpy as np
 import pytest
 
 
-def hingelab(*args, check=True):
-    return subprocess.run([sys.executable, "-m", "hingelab.cli.main", *args], capture_output=True, text=True,
-                          check=check, timeout=300)
+def in_process(capsys, *args) -> tuple[int, str, str]:
+    """``hingelab *args`` run by ``main`` here: exit code, stdout, stderr."""
+    from hingelab.cli.main import main
+
+    capsys.readouterr()
+    try:
+        code = main(list(args))
+    except SystemExit as exc:  # argparse's --help
+        code = exc.code
+    out, err = capsys.readouterr()
+    return code, out, err
 
 
-def test_help_lists_the_commands():
-    out = hingelab("--help").stdout
+def test_help_lists_the_commands(capsys):
+    code, out, _ = in_process(capsys, "--help")
+    assert code == 0
     for verb in ("demo", "bench", "datasets"):
         assert verb in out
 
 
-def test_demo_runs_and_measures_the_platform(tmp_path):
+def test_demo_runs_and_measures_the_platform(tmp_path, capsys):
+    """In process: the session's shared registration maps (conftest) serve the demo's envs too."""
     out_file = tmp_path / "demo.json"
-    result = hingelab("demo", "--out", str(out_file))
+    code, stdout, _ = in_process(capsys, "demo", "--out", str(out_file))
+    assert code == 0
+    result = types.SimpleNamespace(stdout=stdout)
     assert "lifted it" in result.stdout and "demo finished" in result.stdout
     measured = json.loads(out_file.read_text())["step_platform"]
     assert measured["hold_drift_mm"] < 5
@@ -99,8 +114,10 @@ def test_demo_runs_and_measures_the_platform(tmp_path):
         assert reported[Dataset(learned["dataset"]).card.name]["successes"] == learned["successes"]
 
 
-def test_bench_sim_writes_its_table(tmp_path):
-    result = hingelab("bench", "sim", "--quick", "--out", str(tmp_path))
+def test_bench_sim_writes_its_table(tmp_path, capsys):
+    code, stdout, _ = in_process(capsys, "bench", "sim", "--quick", "--out", str(tmp_path))
+    assert code == 0
+    result = types.SimpleNamespace(stdout=stdout)
     assert "SimCore / raw mj_step" in result.stdout
     table = json.loads((tmp_path / "sim.json").read_text())
     assert {row["scene"] for row in table["rows"]} == {"tool_shape", "tool_pick"}
@@ -116,10 +133,10 @@ def test_bench_sim_writes_its_table(tmp_path):
     assert table["code"]["git_commit"]
 
 
-def test_unknown_benchmark_is_a_one_line_error():
-    result = hingelab("bench", "nope", check=False)
-    assert result.returncode == 1
-    assert result.stderr.strip().count("\n") == 0 and "unknown benchmark 'nope'" in result.stderr
+def test_unknown_benchmark_is_a_one_line_error(capsys):
+    code, _, stderr = in_process(capsys, "bench", "nope")
+    assert code == 1
+    assert stderr.strip().count("\n") == 0 and "unknown benchmark 'nope'" in stderr
 
 
 def test_output_into_a_closed_pipe_stops_quietly(tmp_path):

@@ -2,9 +2,6 @@
 
 from __future__ import annotations
 
-import subprocess
-import sys
-
 import numpy as np
 import pytest
 
@@ -64,21 +61,25 @@ def test_same_seed_same_dataset_whatever_the_workers(sphere_dataset, tmp_path):
         np.testing.assert_array_equal(a.points, b.points)
 
 
-def test_cli_generates_and_summarizes(tmp_path):
+def test_cli_generates_and_summarizes(tmp_path, capsys):
+    from hingelab.cli.main import main
+
     out = tmp_path / "cube"
-    result = subprocess.run([sys.executable, "-m", "hingelab.cli.main", "generate", "heuristic", "--episodes", "2",
-                             "--object", "cube", "--size", "0.015", "--out", str(out), "--no-progress"],
-                            capture_output=True, text=True, timeout=600)
-    assert result.returncode == 0, result.stderr
-    assert "success" in result.stdout and "2 episodes" in result.stdout
+    capsys.readouterr()
+    assert main(["generate", "heuristic", "--episodes", "2", "--object", "cube", "--size", "0.015", "--out",
+                 str(out), "--no-progress"]) == 0
+    stdout = capsys.readouterr().out
+    assert "success" in stdout and "2 episodes" in stdout
     assert len(Dataset(out).index) == 2
 
 
-def test_cli_bad_object_is_one_line(tmp_path):
-    result = subprocess.run([sys.executable, "-m", "hingelab.cli.main", "generate", "heuristic", "--object",
-                             "banana", "--out", str(tmp_path / "x")], capture_output=True, text=True, timeout=120)
-    assert result.returncode == 1
-    assert result.stderr.strip().count("\n") == 0 and "unknown object 'banana'" in result.stderr
+def test_cli_bad_object_is_one_line(tmp_path, capsys):
+    from hingelab.cli.main import main
+
+    capsys.readouterr()
+    assert main(["generate", "heuristic", "--object", "banana", "--out", str(tmp_path / "x")]) == 1
+    stderr = capsys.readouterr().err
+    assert stderr.strip().count("\n") == 0 and "unknown object 'banana'" in stderr
     assert not (tmp_path / "x").exists()
 
 

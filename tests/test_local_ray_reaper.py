@@ -40,7 +40,13 @@ def _alive(processes: list[psutil.Process]) -> list[str]:
     return left
 
 
+@pytest.mark.slow
 def test_a_sigkilled_ray_driver_leaves_no_process_of_its_session(tmp_path):
+    """Slow (half a minute: a driver process, its Ray, a kill). By default
+    ``test_ray_resume.py::test_eval_on_ray_killed_and_resumed_equals_an_uninterrupted_run[high]`` checks the
+    same after its SIGKILL of an ``eval high --ray`` driver mid-write: the session's raylet and workers found
+    by the session folder, none of them alive ``CLEANUP_DEADLINE_S`` after the kill, the reaper's message on
+    the driver's stderr."""
     out = tmp_path / "demos"
     driver = subprocess.Popen(
         [sys.executable, "-m", "hingelab.cli.main", "generate", "heuristic", "--episodes", "20", "--workers", "2",

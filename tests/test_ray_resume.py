@@ -6,19 +6,24 @@ clean."""
 from __future__ import annotations
 
 import hashlib
+import os
 import signal
 import subprocess
 import sys
+import threading
 import time
 from pathlib import Path
 
 import numpy as np
 import pandas as pd
+import psutil
 import pytest
 
 from hingelab.cli.main import main
 from hingelab.episodes.dataset import Dataset
 from hingelab.episodes.reader import read_episode
+from hingelab.workers.ray_reaper import session_processes
+from test_local_ray_reaper import CLEANUP_DEADLINE_S, _alive, _session_dir
 
 VOLATILE_FIELDS = ("log_time_ns",)  # when a message was logged (wall clock); everything else is the episode's
 
@@ -42,9 +47,48 @@ def _seeds_and_digests(root: Path) -> list[tuple[int, str]]:
     return sorted((int(seed), _digest(root / "episodes" / name)) for seed, name in zip(index["seed"], index["file"]))
 
 
-def _kill_after(argv: list[str], out: Path, finished: int) -> tuple[int, int]:
+class KilledDriver:
+    """A ``--ray`` driver SIGKILLed mid-write, and its local Ray's processes at the kill. ``watch_cleanup``
+    follows them from the kill on, in a thread (the test goes on: resumes at once); ``assert_cleaned_up``
+    then checks what ``test_local_ray_reaper.py``'s SIGKILL test checks: no process of the killed driver's Ray
+    session outlived it by more than ``CLEANUP_DEADLINE_S``, and the reaper said what it stopped."""
+
+    def __init__(self, driver: subprocess.Popen):
+        self.driver = driver
+        self.tree = psutil.Process(driver.pid).children(recursive=True)
+        self.session_dir = _session_dir(self.tree)
+        assert self.session_dir and os.path.isdir(self.session_dir), [p.cmdline()[:1] for p in self.tree]
+        ray_tree = [p for p in self.tree if p in session_processes(self.session_dir)]
+        assert any("raylet" in " ".join(p.cmdline()) for p in ray_tree) and len(ray_tree) >= 4
+        self.cleaned_after_s = None
+
+    def kill_and_watch_cleanup(self) -> None:
+        self.driver.send_signal(signal.SIGKILL)
+        killed_at = time.time()
+
+        def watch():
+            while time.time() < killed_at + CLEANUP_DEADLINE_S:
+                if not (_alive(self.tree) or session_processes(self.session_dir)):
+                    self.cleaned_after_s = time.time() - killed_at
+                    return
+                time.sleep(0.5)
+
+        self.watcher = threading.Thread(target=watch, daemon=True)
+        self.watcher.start()
+        self.driver.wait(timeout=30)
+
+    def assert_cleaned_up(self) -> None:
+        self.watcher.join(timeout=CLEANUP_DEADLINE_S + 5)
+        assert self.cleaned_after_s is not None, (_alive(self.tree), session_processes(self.session_dir))
+        assert _alive(self.tree) == [] and session_processes(self.session_dir) == []
+        _, err = self.driver.communicate(timeout=30)  # the reaper held the stderr pipe until it finished
+        assert f"the driver (pid {self.driver.pid}) of the local Ray in" in err and "leftover process(es)" in err, err
+
+
+def _kill_after(argv: list[str], out: Path, finished: int) -> tuple[int, int, KilledDriver]:
     """Run ``hingelab *argv`` and SIGKILL it once ``finished`` episodes are on disk and another is being
-    written; returns the finished and half-written files at the kill."""
+    written; returns the finished and half-written files at the kill, and the killed driver (its Ray's
+    processes followed from the kill on)."""
     driver = subprocess.Popen([sys.executable, "-m", "hingelab.cli.main", *argv], stdout=subprocess.DEVNULL,
                               stderr=subprocess.PIPE, text=True)
     episodes = out / "episodes"
@@ -57,9 +101,9 @@ def _kill_after(argv: list[str], out: Path, finished: int) -> tuple[int, int]:
             break
         time.sleep(0.05)
     assert driver.poll() is None, f"it ended before the kill: raise the episodes ({driver.communicate()[1]})"
-    driver.send_signal(signal.SIGKILL)
-    driver.wait(timeout=30)
-    return done, partial
+    killed = KilledDriver(driver)
+    killed.kill_and_watch_cleanup()
+    return done, partial, killed
 
 
 def _verify_clean(root: Path, capsys) -> None:
@@ -73,13 +117,14 @@ def test_generate_heuristic_on_ray_killed_and_resumed_equals_an_uninterrupted_ru
     """Slow (a minute: three commands, two local Rays). The default run covers it in parts:
     ``test_eval_on_ray_killed_and_resumed_equals_an_uninterrupted_run[high]`` (a --ray driver SIGKILLed
     mid-write, resumed at once over Ray, equal to an uninterrupted run), ``test_ray_rollouts.py::
-    test_generate_heuristic_on_ray_equals_local_workers`` (generate heuristic over Ray = local workers),
+    test_generate_heuristic_and_eval_low_and_high_on_ray_equal_local_runs`` (generate heuristic over Ray =
+    local workers),
     ``test_disk_full.py::test_disk_full_stops_cleanly_and_resume_completes_the_same_dataset`` (its --resume
     = an uninterrupted run) and ``test_an_episode_still_being_written_when_resume_starts_cannot_land``
     (its resume against a worker of the killed run)."""
     common = ["generate", "heuristic", "--episodes", "6", "--seed", "9", "--workers", "2", "--no-progress"]
     out = tmp_path / "killed"
-    done, partial = _kill_after([*common, "--out", str(out), "--ray"], out, finished=2)
+    done, partial, killed = _kill_after([*common, "--out", str(out), "--ray"], out, finished=2)
     assert done >= 2 and partial >= 1
     # resumed at once: a Ray worker of the killed run may still be finishing the episode it had
     assert main([*common, "--out", str(out), "--ray", "--resume"]) == 0
@@ -88,6 +133,7 @@ def test_generate_heuristic_on_ray_killed_and_resumed_equals_an_uninterrupted_ru
     assert len(whole) == 6 and len({s for s, _ in resumed}) == len(resumed)  # every seed once
     assert resumed == whole
     _verify_clean(out, capsys)
+    killed.assert_cleaned_up()
 
 
 @pytest.mark.parametrize("command", [
@@ -97,10 +143,10 @@ def test_generate_heuristic_on_ray_killed_and_resumed_equals_an_uninterrupted_ru
 def test_eval_on_ray_killed_and_resumed_equals_an_uninterrupted_run(tmp_path, capsys, command):
     """[low] is slow (a minute); eval low and eval high over Ray share the fan-out and the journal
     (``rollouts.on_ray._run``), so [high] covers it by default, with ``test_ray_rollouts.py::
-    test_eval_low_and_high_on_ray_equal_the_local_evaluation`` for eval low over Ray itself."""
+    test_generate_heuristic_and_eval_low_and_high_on_ray_equal_local_runs`` for eval low over Ray itself."""
     common = [*command, "--no-progress"]
     out = tmp_path / "killed"
-    done, partial = _kill_after([*common, "--out", str(out), "--ray"], out, finished=2)
+    done, partial, killed = _kill_after([*common, "--out", str(out), "--ray"], out, finished=2)
     assert done >= 2 and partial >= 1
     assert (out / "episodes.partial.jsonl").exists()  # the journal of the killed run
     assert main([*common, "--out", str(out), "--ray", "--resume"]) == 0
@@ -112,6 +158,7 @@ def test_eval_on_ray_killed_and_resumed_equals_an_uninterrupted_run(tmp_path, ca
     pd.testing.assert_frame_equal(pd.read_csv(out / "episodes.csv"), pd.read_csv(tmp_path / "whole" / "episodes.csv"))
     assert not (out / "episodes.partial.jsonl").exists()
     _verify_clean(out, capsys)
+    killed.assert_cleaned_up()  # the local Ray died with its SIGKILLed driver (test_local_ray_reaper.py's check)
 
 
 def test_an_episode_still_being_written_when_resume_starts_cannot_land(tmp_path):

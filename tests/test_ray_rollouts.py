@@ -29,29 +29,30 @@ def _same_episodes(a_root, b_root, n: int, volatile=("episode_id", "wall_time", 
         np.testing.assert_array_equal(x.points, y.points)
 
 
-def test_generate_heuristic_on_ray_equals_local_workers(tmp_path, capsys):
-    common = ["generate", "heuristic", "--episodes", "3", "--seed", "5", "--workers", "2", "--no-progress"]
-    assert main([*common, "--out", str(tmp_path / "local")]) == 0
-    assert main([*common, "--out", str(tmp_path / "ray"), "--ray"]) == 0
-    assert "3 episodes" in capsys.readouterr().out
-    _same_episodes(tmp_path / "local", tmp_path / "ray", 3)
-    assert not list((tmp_path / "ray" / "episodes").glob("*.partial"))
-
-
-def test_eval_low_and_high_on_ray_equal_the_local_evaluation(tmp_path):
-    """Both --ray evaluations run on one local Ray that the test starts (``ray_session`` uses a Ray already
-    initialized as it is; the fan-out's workers serve one run after another): a Ray start and its workers'
-    start-up, not two. A command starting its own local Ray and shutting it down: the test above,
-    ``test_ray_resume.py`` and ``test_local_ray_reaper.py``."""
+def test_generate_heuristic_and_eval_low_and_high_on_ray_equal_local_runs(tmp_path, capsys):
+    """The three --ray commands run on one local Ray that the test starts (``ray_session`` uses a Ray already
+    initialized as it is; the fan-out's workers serve one run after another): one Ray start and one set of
+    worker start-ups, not three. A command starting its own local Ray and shutting it down:
+    ``test_ray_resume.py`` (its ``--ray --resume`` runs in this process) and ``test_local_ray_reaper.py``.
+    generate heuristic runs with one worker: in this process locally, on every core of the Ray over Ray
+    (2 local worker processes write the same episodes:
+    ``test_heuristic.py::test_same_seed_same_dataset_whatever_the_workers``)."""
     from hingelab.workers.ray_runtime import ray_session
 
+    heuristic = ["generate", "heuristic", "--episodes", "3", "--seed", "5", "--no-progress"]
     low = ["eval", "low", "--baseline", "hold-still", "--episodes", "3", "--seed", "2", "--no-progress"]
     high = ["eval", "high", "--baseline", "heuristic", "--episodes", "2", "--no-progress"]
+    assert main([*heuristic, "--out", str(tmp_path / "heuristic_local")]) == 0
     assert main([*low, "--out", str(tmp_path / "low_local")]) == 0
     assert main([*high, "--out", str(tmp_path / "high_local")]) == 0
     with ray_session():
+        capsys.readouterr()
+        assert main([*heuristic, "--out", str(tmp_path / "heuristic_ray"), "--ray"]) == 0
+        assert "3 episodes" in capsys.readouterr().out
         assert main([*low, "--out", str(tmp_path / "low_ray"), "--ray"]) == 0
         assert main([*high, "--out", str(tmp_path / "high_ray"), "--ray"]) == 0
+    _same_episodes(tmp_path / "heuristic_local", tmp_path / "heuristic_ray", 3)
+    assert not list((tmp_path / "heuristic_ray" / "episodes").glob("*.partial"))
     pd.testing.assert_frame_equal(pd.read_csv(tmp_path / "low_local" / "episodes.csv"),
                                   pd.read_csv(tmp_path / "low_ray" / "episodes.csv"))
     _same_episodes(tmp_path / "low_local", tmp_path / "low_ray", 3)

@@ -36,7 +36,18 @@ def sweep_file(path, steps: int, eval_every: int, checkpoint_every: int, seeds=(
 
 
 @pytest.fixture(scope="module")
-def sweep(tmp_path_factory):
+def local_ray():
+    """One local Ray of 2 CPUs for the sweeps this module runs in process (``ray_session`` uses a Ray already
+    initialized as it is): one Ray start instead of one per sweep command. A sweep that starts its own local
+    Ray and stops it: the stopped sweep's driver process below, and ``hingelab demo``'s sweep in test_cli."""
+    from hingelab.workers.ray_runtime import ray_session
+
+    with ray_session(num_cpus=2):
+        yield
+
+
+@pytest.fixture(scope="module")
+def sweep(tmp_path_factory, local_ray):
     root = tmp_path_factory.mktemp("sweep")
     spec = sweep_file(root / "grid.toml", steps=120, eval_every=60, checkpoint_every=60)
     out = root / "out"
@@ -109,7 +120,7 @@ def _training_processes(out) -> list[str]:
     return found
 
 
-def test_a_sweep_stopped_mid_way_resumes_each_trial_from_its_checkpoint(tmp_path):
+def test_a_sweep_stopped_mid_way_resumes_each_trial_from_its_checkpoint(tmp_path, local_ray):
     steps = 400
     spec = sweep_file(tmp_path / "grid.toml", steps=steps, eval_every=100, checkpoint_every=30, seeds=(0,))
     out = tmp_path / "out"

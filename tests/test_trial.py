@@ -3,7 +3,6 @@ trial."""
 
 from __future__ import annotations
 
-import subprocess
 import sys
 
 import numpy as np
@@ -103,16 +102,22 @@ def test_operator_mode_asks_each_attempt_and_records_the_answers(tmp_path, stand
     assert metas[0]["first_attempt_success"] is True and metas[1]["failure_reason"] == "aborted"
 
 
-def test_operator_mode_through_standard_input(tmp_path):
+def test_operator_mode_through_standard_input(tmp_path, capsys, monkeypatch):
+    """The command reads the operator's answer from standard input (``input``), here a StringIO: in this process
+    rather than a started ``hingelab trial`` (the same parser and command; a process start costs seconds)."""
+    import io
+
+    from hingelab.cli.main import main
+
     out = tmp_path / "trial"
-    result = subprocess.run([sys.executable, "-m", "hingelab.cli.main", "trial", "--trials", "1", "--max-steps", "5",
-                             "--operator", "--out", str(out)], input="f\n", capture_output=True, text=True,
-                            timeout=300)
-    assert result.returncode == 0, result.stderr
-    assert "attempt 1: [s]uccess, [f]ailure or [a]bort?" in result.stdout
+    monkeypatch.setattr(sys, "stdin", io.StringIO("f\n"))
+    capsys.readouterr()
+    assert main(["trial", "--trials", "1", "--max-steps", "5", "--operator", "--out", str(out)]) == 0
+    stdout = capsys.readouterr().out
+    assert "attempt 1: [s]uccess, [f]ailure or [a]bort?" in stdout
     trials = pd.read_csv(out / "trials.csv")
     assert not trials.success[0] and trials.attempts[0] == 1
-    assert "judged by the operator" in result.stdout and (out / "table.csv").is_file()
+    assert "judged by the operator" in stdout and (out / "table.csv").is_file()
 
 
 def test_a_trial_cut_off_leaves_a_recoverable_file(tmp_path, stand_in):
