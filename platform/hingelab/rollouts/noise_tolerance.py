@@ -13,7 +13,6 @@ their exploration below it (``hingelab.learners.residual``).
 
 from __future__ import annotations
 
-import csv
 from pathlib import Path
 
 import gymnasium as gym
@@ -23,6 +22,7 @@ from tqdm import tqdm
 from hingelab.envs import TOOL_PICK_ID
 from hingelab.errors import ConfigError
 from hingelab.policies.baselines import ScriptedPolicy
+from hingelab.rollouts.reward_diagnostic import write_tables
 from hingelab.seeds import eval_high_seed
 
 DIMENSIONS = ("z_goal_0", "z_goal_1", "velocity_x", "velocity_y", "velocity_z")  # ToolPick-v0's action
@@ -119,12 +119,7 @@ def tolerance_table(rows: list[dict], key: str, tolerated: dict[str, float], lab
 
 
 def write_report(rows: list[dict], out: Path, command: str) -> Path:
-    out = Path(out)
-    out.mkdir(parents=True, exist_ok=True)
-    with open(out / "noise_tolerance.csv", "w", newline="") as f:
-        writer = csv.DictWriter(f, fieldnames=list(rows[0]))
-        writer.writeheader()
-        writer.writerows(rows)
+    out = write_tables(out, {"noise_tolerance.csv": rows})
     tolerated = tolerances(rows)
     clean = next(r for r in rows if r["dimension"] == "none")
     lines = ["# Exploration noise each high-level action dimension tolerates", "",
