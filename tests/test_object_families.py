@@ -260,3 +260,31 @@ def test_train_plus_picksets_draws_the_pick_sets_or_a_train_kind_as_those_famili
         own, train_draw = drawn[seed].record, train.draw(seed).record
         assert own["mesh_sha256"] == train_draw["mesh_sha256"] and own["family"] == "family:train+picksets"
     assert [mix.draw(seed).record for seed in range(20)] == [o.record for o in drawn[:20]]  # repeatable
+
+
+def test_pick_set_weights_shift_the_draws_repeatably_and_bad_weights_give_one_line_errors():
+    from dataclasses import replace
+
+    import gymnasium as gym
+
+    from hingelab.sim.objects import PICK_SETS
+
+    family = F.ObjectFamily.parse("family:picksets", 0.02)
+    weighted = replace(family, set_weights=F.pick_set_weights({"tetrahedron:0.015": 11}, family))
+    assert weighted.set_weights[PICK_SETS.index(("tetrahedron", 0.015))] == pytest.approx(0.5)
+    drawn = [weighted.draw(seed) for seed in range(400)]
+    share = np.mean([(o.shape, o.size) == ("tetrahedron", 0.015) for o in drawn])
+    assert 0.42 < share < 0.58  # half the episodes, where uniform draws give one in twelve
+    assert {(o.shape, o.size) for o in drawn} == set(PICK_SETS)  # the others still come up
+    assert [weighted.draw(s).record for s in range(10)] == [o.record for o in drawn[:10]]  # seed-determined
+    env = gym.make("hingelab/ToolPick-v0", object="family:picksets", low_level="privileged", randomize=False,
+                   pick_set_weights={"tetrahedron:0.015": 11})
+    env.reset(seed=3)
+    assert env.unwrapped.object_record == drawn[3].record
+    env.close()
+    for bad, message in [({"tetra:0.015": 2}, "is not a pick set"), ({"cube:0.025": 0}, "positive number"),
+                         ({"cube:0.025": float("nan")}, "positive number"), ({"cube:0.025": "2"}, "positive number")]:
+        with pytest.raises(ConfigError, match=message):
+            F.pick_set_weights(bad, family)
+    with pytest.raises(ConfigError, match="weighs the pick sets of family:picksets"):
+        gym.make("hingelab/ToolPick-v0", object="sphere", pick_set_weights={"cube:0.02": 2})

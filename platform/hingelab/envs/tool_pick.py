@@ -53,15 +53,20 @@ path), ``randomize`` (True: object friction 1-5, finger friction, gains
 ``object_perception`` ("truth": the true centre and extent with 2 mm noise; or an object estimator,
 "centroid" (the paper's), "ray_corrected", "primitive_fit", on the camera's frame, which needs
 ``perception="camera"``: ``hingelab.perception.object_perception``; the estimate and the truth are in
-``last_record["object_estimate"]``).
+``last_record["object_estimate"]``), ``pick_set_weights`` (None: ``family:picksets`` draws its 12 sets
+uniformly; ``{"SHAPE:SIZE": weight}``, e.g. ``{"tetrahedron:0.015": 4}``, an unnamed set weighing 1: a
+curriculum toward the sets a policy misses; ``hingelab.sim.object_families.pick_set_weights``).
 
 ## Version History
 v0: first version. Changed within v0: the observed object position is the centre, not the body
 origin (the same observation for the sphere, cube, cylinder and meshes); ``object`` may be a family.
-``object_perception`` (default "truth": the observation as before).
+``object_perception`` (default "truth": the observation as before); ``pick_set_weights`` (default None: the
+draws as before).
 """
 
 from __future__ import annotations
+
+from dataclasses import replace
 
 import gymnasium as gym
 import numpy as np
@@ -80,6 +85,7 @@ from hingelab.sim import scripted
 from hingelab.sim.core import SimCore
 from hingelab.sim.delay import DelayLine
 from hingelab.sim.object_families import ObjectFamily, is_family
+from hingelab.sim.object_families import pick_set_weights as pick_set_weights_of
 from hingelab.sim.objects import ObjectSpec
 from hingelab.sim.randomization import RandomizationConfig
 from hingelab.tasks import MAX_SPEED, Z_SCALE, observation_dim
@@ -98,9 +104,12 @@ class ToolPickEnv(SimRenderMixin, gym.Env):
                  max_episode_steps: int = 200, encoder_path: str | None = None,
                  reward: HighLevelRewardConfig | None = None, render_mode: str | None = None,
                  terminate_on_drop: bool = True, observe_extent: bool = False, perception: str = "synthesized",
-                 object_perception: str = TRUTH):
+                 object_perception: str = TRUTH, pick_set_weights: dict | None = None):
         # a family draws a new object at each reset (the model is rebuilt for it); until then its seed-0 draw
         self.object_family = ObjectFamily.parse(object, size) if is_family(object) else None
+        if pick_set_weights is not None:  # more of the sets a policy misses (its failures' share of training)
+            self.object_family = replace(self.object_family, set_weights=pick_set_weights_of(
+                pick_set_weights, self.object_family, f"{self.env_name} pick_set_weights"))
         self.object = self.object_family.draw(0) if self.object_family else ObjectSpec(object, size, mass)
         self.object_record: dict | None = self.object.record if self.object_family else None
         if max_episode_steps < 1:

@@ -359,6 +359,8 @@ class ObjectFamily:
     seed: int | None = None
     size_cap: float = FAMILY_SIZE_RANGE[1]
     density: float = TRAINING_DENSITY
+    # the pick sets' chances (PICK_SETS order, summing to 1); None: uniform, the draws of every earlier run
+    set_weights: tuple[float, ...] | None = None
 
     @classmethod
     def parse(cls, text: str, size_cap: float, density: float = TRAINING_DENSITY) -> ObjectFamily:
@@ -420,10 +422,31 @@ class ObjectFamily:
         """``family:picksets``: one of the pick table's 12 shape-size sets, uniformly, at the training object's
         mass (what ``eval high --object SHAPE --size SIZE`` picks), as MuJoCo's own primitives."""
         rng = np.random.default_rng(object_draw_entropy(episode_seed, self.seed))
-        shape, size = PICK_SETS[int(rng.integers(len(PICK_SETS)))]
+        if self.set_weights is None:
+            shape, size = PICK_SETS[int(rng.integers(len(PICK_SETS)))]
+        else:
+            shape, size = PICK_SETS[int(rng.choice(len(PICK_SETS), p=self.set_weights))]
         record = {"family": self.label, "kind": shape, "params": {"size": size}, "size_m": size,
                   "mass_kg": TRAINING_MASS, "mesh_sha256": None}
         return ChosenObject(shape, size, TRAINING_MASS, record_json=_canonical(record))
+
+
+def pick_set_weights(weights: dict, family: ObjectFamily | None, where: str = "pick_set_weights") -> tuple[float, ...]:
+    """``{"SHAPE:SIZE": weight}`` (sizes in m as the pick table names them, e.g. ``"tetrahedron:0.015"``; a set
+    not named weighs 1) -> the chances of the 12 pick sets, in ``PICK_SETS`` order; a one-line ConfigError for
+    a family that draws no pick sets, an unknown set or a weight that is not a positive finite number."""
+    if family is None or family.name not in (PICK_SETS_NAME, TRAINING_MIX_NAME):
+        raise ConfigError(f"{where} weighs the pick sets of family:{PICK_SETS_NAME} or family:{TRAINING_MIX_NAME}; "
+                          f"the object is {family.label if family else 'not a family'}")
+    names = {f"{shape}:{size:g}": i for i, (shape, size) in enumerate(PICK_SETS)}
+    chances = np.ones(len(PICK_SETS))
+    for key, weight in dict(weights).items():
+        if key not in names:
+            raise ConfigError(f"{where}: {key!r} is not a pick set; give SHAPE:SIZE, one of {', '.join(names)}")
+        if isinstance(weight, bool) or not isinstance(weight, (int, float)) or not (np.isfinite(weight) and weight > 0):
+            raise ConfigError(f"{where}: the weight of {key} must be a positive number, not {weight!r}")
+        chances[names[key]] = float(weight)
+    return tuple(float(c) for c in chances / chances.sum())
 
 
 def drawn_object(mesh: FamilyMesh, density: float = TRAINING_DENSITY, label: str = "") -> DrawnObject:
