@@ -1,10 +1,11 @@
-"""``hingelab diagnose reward|noise --out DIR``: checks of the high level's learning problem that can fail.
+"""``hingelab diagnose WHAT --out DIR``: checks of the high level's learning problem that can fail.
 
 ``reward``: is finishing worth more to a critic than lingering near the target, under each reward mode
 (``hingelab.rollouts.reward_diagnostic``). ``noise``: how much exploration noise each action dimension
 tolerates before the scripted demonstrator fails (``hingelab.rollouts.noise_tolerance``). ``object-estimate``: how far
 each estimator of the object's position from the depth camera lands from the truth
-(``hingelab.rollouts.object_estimate_errors``)."""
+(``hingelab.rollouts.object_estimate_errors``). ``grasp``: whether where the tips hold the object at the lift
+explains a policy's failed picks (``hingelab.rollouts.grasp_offsets``)."""
 
 from __future__ import annotations
 
@@ -15,6 +16,7 @@ from pathlib import Path
 from hingelab.provenance import code_version, require_clean_for
 from hingelab.rollouts import (
     bias_tolerance,
+    grasp_offsets,
     noise_tolerance,
     object_estimate_errors,
     residual_diagnostic,
@@ -24,12 +26,14 @@ from hingelab.rollouts import (
 
 def add_parser(subparsers) -> None:
     p = subparsers.add_parser("diagnose",
-                              help="diagnostics of the high level's learning problem (reward, noise, residual, bias)",
+                              help="diagnostics of the high level's learning problem (reward, noise, residual, bias, "
+                                   "object-estimate, grasp)",
                               description="Diagnostics that can fail: what the high-level reward pays for "
                                           "finishing against lingering, how much exploration noise and constant "
                                           "offset each action dimension tolerates, why a fine-tuned residual "
                                           "picks less than its base, and how far the depth camera's object "
-                                          "estimate is from the truth.")
+                                          "estimate is from the truth, and where the tips hold the object when a "
+                                          "policy's picks fail.")
     what = p.add_subparsers(title="diagnostics", metavar="WHAT", required=True)
     reward = what.add_parser(
         "reward", help="the value of succeeding against hovering 1.1 cm short, under each reward mode",
@@ -100,7 +104,18 @@ def add_parser(subparsers) -> None:
     objects.add_argument("--frames", type=int, default=5, help="frames per spot (default 5)")
     objects.add_argument("--seed", type=int, default=0, help="seed of the spots, noise and mask errors (default 0)")
     objects.set_defaults(func=run_object_estimate)
-    for sub in (reward, noise, residual, bias, objects):
+    grasp = what.add_parser(
+        "grasp", help="where the tips hold the object at the lift, against the demonstrator's picks",
+        description="For each episode of the eval high datasets given, the tips' midpoint minus the object's centre "
+                    "at the first lift command (hand_base frame, mm); per axis, the episodes inside and outside the "
+                    "range where --reference (the demonstrator on the same seeds, e.g. eval high --baseline "
+                    "scripted-observed) picked, and how often each failed at the first attempt: whether the grasp "
+                    "pose explains the failures. Writes grasp_offsets.md, summary.csv and episodes.csv into --out.")
+    grasp.add_argument("datasets", type=Path, nargs="+", metavar="DATASET", help="eval high dataset folders")
+    grasp.add_argument("--reference", type=Path, required=True,
+                       help="the demonstrator's eval high dataset whose first-attempt picks set the ranges")
+    grasp.set_defaults(func=run_grasp)
+    for sub in (reward, noise, residual, bias, objects, grasp):
         sub.add_argument("--out", type=Path, required=True, help="report folder, e.g. analysis/high-level/reward")
         sub.add_argument("--allow-dirty", action="store_true",
                          help="write under analysis/ from uncommitted code (the report then says so)")
@@ -184,5 +199,18 @@ def run_object_estimate(args: argparse.Namespace) -> int:
         if s["shape"] == "all":
             print(f"{s['estimator']}: median {s['median_mm']:.1f} mm, 95th percentile {s['p95_mm']:.1f} mm, "
                   f"ray bias {s['ray_bias_median_mm']:+.1f} mm ({s['flagged']} flagged)")
+    print(f"wrote {path}")
+    return 0
+
+
+def run_grasp(args: argparse.Namespace) -> int:
+    require_clean_for(args.out, args.allow_dirty, "hingelab diagnose grasp")
+    ranges = grasp_offsets.reference_ranges(grasp_offsets.episode_rows(args.reference))
+    rows = [row for root in args.datasets for row in grasp_offsets.episode_rows(root)]
+    summary = grasp_offsets.summarize(rows, ranges)
+    options = [str(d) for d in args.datasets] + ["--reference", str(args.reference)]
+    path = grasp_offsets.write_report(rows, summary, args.out, _command(args, "grasp", options), str(args.reference))
+    for name in dict.fromkeys(r["dataset"] for r in rows):
+        print(grasp_offsets.verdict(summary, name))
     print(f"wrote {path}")
     return 0
