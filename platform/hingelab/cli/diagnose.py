@@ -4,7 +4,8 @@
 (``hingelab.rollouts.reward_diagnostic``). ``noise``: how much exploration noise each action dimension
 tolerates before the scripted demonstrator fails (``hingelab.rollouts.noise_tolerance``). ``object-estimate``: how far
 each estimator of the object's position from the depth camera lands from the truth
-(``hingelab.rollouts.object_estimate_errors``)."""
+(``hingelab.rollouts.object_estimate_errors``). ``object-noise-fit``: a model of those errors fitted on its frames
+(``hingelab.rollouts.object_noise_fit``)."""
 
 from __future__ import annotations
 
@@ -17,6 +18,7 @@ from hingelab.rollouts import (
     bias_tolerance,
     noise_tolerance,
     object_estimate_errors,
+    object_noise_fit,
     residual_diagnostic,
     reward_diagnostic,
 )
@@ -100,7 +102,17 @@ def add_parser(subparsers) -> None:
     objects.add_argument("--frames", type=int, default=5, help="frames per spot (default 5)")
     objects.add_argument("--seed", type=int, default=0, help="seed of the spots, noise and mask errors (default 0)")
     objects.set_defaults(func=run_object_estimate)
-    for sub in (reward, noise, residual, bias, objects):
+    fitted = what.add_parser(
+        "object-noise-fit", help="a model of the camera's object estimate (bias, noise, dropout) for ToolPick-v0",
+        description="Fits hingelab.perception.object_noise_model on object-estimate's frames.csv: per estimator, "
+                    "shape and size, the error's bias and noise along and across the viewing ray, outliers, "
+                    "dropouts and the extent's error; samples it against the measured frames. Writes "
+                    "object_noise_model.json, residuals.csv and residuals.md into --out.")
+    fitted.add_argument("--frames", type=Path, default=Path("analysis/objects/frames.csv"),
+                        help="frames.csv of hingelab diagnose object-estimate (default analysis/objects/frames.csv)")
+    fitted.add_argument("--seed", type=int, default=0, help="seed of the residuals' sampling (default 0)")
+    fitted.set_defaults(func=run_object_noise_fit)
+    for sub in (reward, noise, residual, bias, objects, fitted):
         sub.add_argument("--out", type=Path, required=True, help="report folder, e.g. analysis/high-level/reward")
         sub.add_argument("--allow-dirty", action="store_true",
                          help="write under analysis/ from uncommitted code (the report then says so)")
@@ -184,5 +196,18 @@ def run_object_estimate(args: argparse.Namespace) -> int:
         if s["shape"] == "all":
             print(f"{s['estimator']}: median {s['median_mm']:.1f} mm, 95th percentile {s['p95_mm']:.1f} mm, "
                   f"ray bias {s['ray_bias_median_mm']:+.1f} mm ({s['flagged']} flagged)")
+    print(f"wrote {path}")
+    return 0
+
+
+def run_object_noise_fit(args: argparse.Namespace) -> int:
+    require_clean_for(args.out, args.allow_dirty, "hingelab diagnose object-noise-fit")
+    options = ["--frames", str(args.frames), "--seed", str(args.seed)]
+    path, model, table = object_noise_fit.fit_and_report(args.frames, args.out, args.seed,
+                                                         _command(args, "object-noise-fit", options), code_version())
+    for r in table:
+        if r["shape"] == "all":
+            print(f"{r['estimator']}: 95th percentile {r['measured_p95_mm']:.1f} mm measured, {r['model_p95_mm']:.1f} "
+                  f"mm by the model; ray bias {r['measured_ray_mm']:+.1f} / {r['model_ray_mm']:+.1f} mm")
     print(f"wrote {path}")
     return 0
