@@ -36,15 +36,20 @@ other-version file with one line.
 
 from __future__ import annotations
 
+import hashlib
 import json
 from pathlib import Path
 
 import numpy as np
 
 from hingelab.errors import ConfigError
+from hingelab.paths import ANALYSIS_DIR
 from hingelab.perception.object_estimate import ESTIMATORS, TemporalFilter
 from hingelab.sim.rig_camera import RIG_VIEW, camera_world_position
 
+GAUSSIAN = "gaussian"  # ToolPick-v0's default: the truth with its 2 mm Gaussian noise
+FITTED_PREFIX = "fitted:"
+DEFAULT_MODEL = ANALYSIS_DIR / "objects" / "noise-model" / "object_noise_model.json"
 MODEL_FORMAT = "hingelab.object_noise_model"
 MODEL_VERSION = 1
 AXES = ("toward_camera", "right", "up")
@@ -173,6 +178,7 @@ class ObjectNoiseModel:
 
     def __init__(self, data: dict, path: str = "<memory>"):
         self.data, self.path = data, str(path)
+        self.sha256 = hashlib.sha256(json.dumps(data, sort_keys=True).encode()).hexdigest()
         self._entries: dict[str, dict] = {}
         for entry in data["entries"]:
             by_shape = self._entries.setdefault(entry["estimator"], {})
@@ -239,7 +245,8 @@ def load(path) -> ObjectNoiseModel:
     if not path.is_file():
         raise ConfigError(f"no object noise model at {path}: fit one with `hingelab diagnose object-noise-fit`")
     try:
-        data = json.loads(path.read_text())
+        text = path.read_bytes()
+        data = json.loads(text)
     except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
         raise ConfigError(f"the object noise model {path} is not readable JSON ({exc.__class__.__name__}): refit it "
                           "with `hingelab diagnose object-noise-fit`") from None
@@ -250,8 +257,9 @@ def load(path) -> ObjectNoiseModel:
                           f"version {MODEL_VERSION}: refit it with `hingelab diagnose object-noise-fit`")
     try:
         model = ObjectNoiseModel(data, path)
+        model.sha256 = hashlib.sha256(text).hexdigest()  # the file's, as a dataset records it
         for estimator in model.estimators:
-            model.params(estimator, POOLED, 0.0)
+            model.params(model.base(estimator)[0], POOLED, 0.0)
     except (KeyError, TypeError, ValueError, IndexError) as exc:
         raise ConfigError(f"the object noise model {path} is corrupt ({exc.__class__.__name__}: {exc}): refit it "
                           "with `hingelab diagnose object-noise-fit`") from None
@@ -326,10 +334,26 @@ class FittedObjectEstimate:
         return self.extent
 
 
-def check_estimator_name(estimator: str) -> str:
-    """A name the camera path or a temporal filter of it could be: one line otherwise (before a model loads)."""
+def fitted_estimator(object_noise: str) -> str | None:
+    """The estimator of an ``object_noise`` setting: None for ``"gaussian"``, NAME for ``"fitted:NAME"`` (a
+    per-frame estimator or ``temporal_NAME``); one line for anything else."""
     names = [*ESTIMATORS, *(f"{TEMPORAL_PREFIX}{n}" for n in ESTIMATORS)]
+    if object_noise == GAUSSIAN:
+        return None
+    estimator = object_noise[len(FITTED_PREFIX):] if str(object_noise).startswith(FITTED_PREFIX) else None
     if estimator not in names:
-        raise ConfigError(f"unknown object estimator {estimator!r} for the fitted noise; choose one of "
-                          f"{', '.join(names)}")
+        raise ConfigError(f"object noise {object_noise!r} is unknown; choose {GAUSSIAN} or {FITTED_PREFIX}NAME with "
+                          f"NAME one of {', '.join(names)} (e.g. {FITTED_PREFIX}ray_corrected)")
     return estimator
+
+
+def make_fitted(object_noise: str, model_path=None) -> FittedObjectEstimate | None:
+    """The drawer of an ``object_noise`` setting from the model at ``model_path`` (default ``DEFAULT_MODEL``);
+    None for ``"gaussian"``."""
+    estimator = fitted_estimator(object_noise)
+    if estimator is None:
+        if model_path is not None:
+            raise ConfigError(f"an object noise model ({model_path}) is for object noise {FITTED_PREFIX}NAME, not "
+                              f"{GAUSSIAN}")
+        return None
+    return FittedObjectEstimate(load(model_path or DEFAULT_MODEL), estimator)
