@@ -211,13 +211,14 @@ def evaluate_high(policy=None, *, out, baseline: str | None = None, object: str 
             finally:
                 env.close()
     table = H.success_table(rows, object, size)
+    noted = f" (object noise {object_noise})" if noise else ""
     rows.to_csv(out / "episodes.csv", index=False)
     journal.finish()
     table.to_csv(out / "table.csv", index=False)
     row = table.iloc[0]
     failures = ", ".join(f"{r} {int(row[f'failures_{r}'])}" for r in H.FAILURE_REASONS if row[f"failures_{r}"])
     summary = (f"Evaluated {label} (low level {low_level}) on {episodes} episodes of ToolPick-v0 with a "
-               f"{object} of {size * 100:g} cm, {perception} perception, seed {seed}: success within 200 steps "
+               f"{object} of {size * 100:g} cm, {perception} perception{noted}, seed {seed}: success within 200 steps "
                f"(object within 1 cm of the target, the episodes' recorded verdict) {int(row['successes'])}/"
                f"{episodes} = {row['success_rate']:.2f} [{row['ci_low']:.2f}, {row['ci_high']:.2f}], at the first "
                f"attempt {int(row['first_attempt_successes'])}/{episodes} = {row['first_attempt_success_rate']:.2f} "
