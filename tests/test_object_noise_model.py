@@ -86,6 +86,17 @@ def test_the_residuals_match_the_synthetic_data(model_path, tmp_path):
     assert "| ray_corrected |" in path.read_text()
 
 
+def test_the_fit_command_writes_the_model_and_says_so(tmp_path, capsys):
+    from hingelab.cli.main import main
+
+    frames = _write_csv(synthetic_rows(100), tmp_path / "frames.csv")
+    out = tmp_path / "fit"
+    assert main(["diagnose", "object-noise-fit", "--frames", str(frames), "--out", str(out), "--allow-dirty"]) == 0
+    assert onm.load(out / object_noise_fit.MODEL_FILE).data["source"]["rows"] == len(synthetic_rows(100))
+    assert "ray_corrected: 95th percentile" in capsys.readouterr().out
+    assert main(["diagnose", "object-noise-fit", "--frames", str(tmp_path / "none.csv"), "--out", str(out)]) != 0
+
+
 def _write_csv(rows: list[dict], path: Path) -> Path:
     import csv
 

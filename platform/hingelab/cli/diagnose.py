@@ -30,8 +30,9 @@ def add_parser(subparsers) -> None:
                               description="Diagnostics that can fail: what the high-level reward pays for "
                                           "finishing against lingering, how much exploration noise and constant "
                                           "offset each action dimension tolerates, why a fine-tuned residual "
-                                          "picks less than its base, and how far the depth camera's object "
-                                          "estimate is from the truth.")
+                                          "picks less than its base, how far the depth camera's object "
+                                          "estimate is from the truth, and a model of that error fitted for "
+                                          "training without rendering.")
     what = p.add_subparsers(title="diagnostics", metavar="WHAT", required=True)
     reward = what.add_parser(
         "reward", help="the value of succeeding against hovering 1.1 cm short, under each reward mode",

@@ -17,7 +17,6 @@ import numpy as np
 
 from hingelab.errors import ConfigError
 from hingelab.perception import object_noise_model as onm
-from hingelab.perception.object_estimate import TemporalFilter
 from hingelab.rollouts.reward_diagnostic import write_tables
 
 SAMPLES = 4000  # draws per shape, size and estimator for the residuals
@@ -53,18 +52,12 @@ def _sampled(model: onm.ObjectNoiseModel, estimator: str, shape: str, size: floa
         kept = rng.random(samples) >= params["dropout"]
         errors = 1000 * onm.draw_error(params, rng, samples)[kept]
     else:
+        # the filter after ``window`` frames (``TemporalFilter``: the per-axis median of the good ones among them)
         frames = 1000 * onm.draw_error(params, rng, samples * window).reshape(samples, window, 3)
         kept = rng.random((samples, window)) >= params["dropout"]
-        errors, filt = [], TemporalFilter(window)
-        for i in range(samples):
-            filt.reset()
-            for k in np.flatnonzero(kept[i]):
-                filt.update(frames[i, k])
-            out = filt.update(None)
-            if out is not None:
-                errors.append(out)
-        errors = np.array(errors).reshape(-1, 3)
-        kept = np.ones(len(errors), bool) if len(errors) else np.zeros(0, bool)
+        frames[~kept] = np.nan
+        seen = kept.any(axis=1)
+        errors = np.nanmedian(frames[seen], axis=1) if seen.any() else np.zeros((0, 3))
     norm = np.linalg.norm(errors, axis=1)
     return {"errors": errors, "median": np.median(norm) if len(norm) else np.nan,
             "p95": np.percentile(norm, 95) if len(norm) else np.nan,
