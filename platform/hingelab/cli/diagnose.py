@@ -4,7 +4,8 @@
 (``hingelab.rollouts.reward_diagnostic``). ``noise``: how much exploration noise each action dimension
 tolerates before the scripted demonstrator fails (``hingelab.rollouts.noise_tolerance``). ``object-estimate``: how far
 each estimator of the object's position from the depth camera lands from the truth
-(``hingelab.rollouts.object_estimate_errors``). ``grasp``: whether where the tips hold the object at the lift
+(``hingelab.rollouts.object_estimate_errors``). ``object-noise-fit``: a model of those errors fitted on its frames
+(``hingelab.rollouts.object_noise_fit``). ``grasp``: whether where the tips hold the object at the lift
 explains a policy's failed picks (``hingelab.rollouts.grasp_offsets``)."""
 
 from __future__ import annotations
@@ -19,6 +20,7 @@ from hingelab.rollouts import (
     grasp_offsets,
     noise_tolerance,
     object_estimate_errors,
+    object_noise_fit,
     residual_diagnostic,
     reward_diagnostic,
 )
@@ -31,9 +33,10 @@ def add_parser(subparsers) -> None:
                               description="Diagnostics that can fail: what the high-level reward pays for "
                                           "finishing against lingering, how much exploration noise and constant "
                                           "offset each action dimension tolerates, why a fine-tuned residual "
-                                          "picks less than its base, and how far the depth camera's object "
-                                          "estimate is from the truth, and where the tips hold the object when a "
-                                          "policy's picks fail.")
+                                          "picks less than its base, how far the depth camera's object "
+                                          "estimate is from the truth, a model of that error fitted for "
+                                          "training without rendering, and where the tips hold the object "
+                                          "when a policy's picks fail.")
     what = p.add_subparsers(title="diagnostics", metavar="WHAT", required=True)
     reward = what.add_parser(
         "reward", help="the value of succeeding against hovering 1.1 cm short, under each reward mode",
@@ -115,7 +118,17 @@ def add_parser(subparsers) -> None:
     grasp.add_argument("--reference", type=Path, required=True,
                        help="the demonstrator's eval high dataset whose first-attempt picks set the ranges")
     grasp.set_defaults(func=run_grasp)
-    for sub in (reward, noise, residual, bias, objects, grasp):
+    fitted = what.add_parser(
+        "object-noise-fit", help="a model of the camera's object estimate (bias, noise, dropout) for ToolPick-v0",
+        description="Fits hingelab.perception.object_noise_model on object-estimate's frames.csv: per estimator, "
+                    "shape and size, the error's bias and noise along and across the viewing ray, outliers, "
+                    "dropouts and the extent's error; samples it against the measured frames. Writes "
+                    "object_noise_model.json, residuals.csv and residuals.md into --out.")
+    fitted.add_argument("--frames", type=Path, default=Path("analysis/objects/frames.csv"),
+                        help="frames.csv of hingelab diagnose object-estimate (default analysis/objects/frames.csv)")
+    fitted.add_argument("--seed", type=int, default=0, help="seed of the residuals' sampling (default 0)")
+    fitted.set_defaults(func=run_object_noise_fit)
+    for sub in (reward, noise, residual, bias, objects, fitted, grasp):
         sub.add_argument("--out", type=Path, required=True, help="report folder, e.g. analysis/high-level/reward")
         sub.add_argument("--allow-dirty", action="store_true",
                          help="write under analysis/ from uncommitted code (the report then says so)")
@@ -212,5 +225,18 @@ def run_grasp(args: argparse.Namespace) -> int:
     path = grasp_offsets.write_report(rows, summary, args.out, _command(args, "grasp", options), str(args.reference))
     for name in dict.fromkeys(r["dataset"] for r in rows):
         print(grasp_offsets.verdict(summary, name))
+    print(f"wrote {path}")
+    return 0
+
+
+def run_object_noise_fit(args: argparse.Namespace) -> int:
+    require_clean_for(args.out, args.allow_dirty, "hingelab diagnose object-noise-fit")
+    options = ["--frames", str(args.frames), "--seed", str(args.seed)]
+    path, model, table = object_noise_fit.fit_and_report(args.frames, args.out, args.seed,
+                                                         _command(args, "object-noise-fit", options), code_version())
+    for r in table:
+        if r["shape"] == "all":
+            print(f"{r['estimator']}: 95th percentile {r['measured_p95_mm']:.1f} mm measured, {r['model_p95_mm']:.1f} "
+                  f"mm by the model; ray bias {r['measured_ray_mm']:+.1f} / {r['model_ray_mm']:+.1f} mm")
     print(f"wrote {path}")
     return 0

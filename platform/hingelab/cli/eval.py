@@ -22,7 +22,7 @@ import argparse
 from pathlib import Path
 
 from hingelab.cli import eval_perception
-from hingelab.cli.options import add_object_perception, add_ray_argument
+from hingelab.cli.options import add_object_noise, add_object_perception, add_ray_argument
 from hingelab.policies.loading import baseline_names
 from hingelab.rollouts.evaluation import evaluate_high, evaluate_low
 
@@ -94,6 +94,7 @@ def add_parser(subparsers) -> None:
                       help="where the tool clouds come from: synthesized from the tool's model (default, as in "
                            "training) or the rendered depth camera through the camera cloud pipeline")
     add_object_perception(high, "; the estimators need --perception camera")
+    add_object_noise(high)
     high.add_argument("--no-progress", action="store_true", help="no progress bar")
     high.add_argument("--resume", action="store_true",
                       help="continue a stopped evaluation (a full disk, a kill) in --out: its finished episodes are "
@@ -116,7 +117,7 @@ def run_high(args: argparse.Namespace) -> int:
     result = evaluate_high(args.checkpoint, out=args.out, baseline=args.baseline, object=args.object,
                            size=args.size, episodes=args.episodes, seed=args.seed, low_level=args.low_level,
                            perception=args.perception, object_perception=args.object_perception, resume=args.resume,
-                           ray=args.ray,
+                           ray=args.ray, object_noise=args.object_noise, object_noise_model=args.object_noise_model,
                            progress=not args.no_progress, command=args.argv)
     print(result.table.to_string(index=False, float_format=lambda v: f"{v:.3f}"))
     print(result.summary)

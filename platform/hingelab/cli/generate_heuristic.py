@@ -5,7 +5,7 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from hingelab.cli.options import add_ray_argument
+from hingelab.cli.options import add_object_noise, add_ray_argument
 from hingelab.paths import DATASETS_DIR
 from hingelab.rollouts.heuristic_demos import HeuristicRunConfig, generate_heuristic_dataset, summarize, timed
 
@@ -40,6 +40,7 @@ def add_heuristic_parser(sources) -> None:
     p.add_argument("--seed", type=int, default=d.seed, help=f"base seed (default {d.seed})")
     add_ray_argument(p)
     p.add_argument("--no-randomize", action="store_true", help="turn domain randomization off")
+    add_object_noise(p)  # the demos observe the camera's error; the privileged heuristic acts on the truth
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
     p.add_argument("--resume", action="store_true",
                    help="continue a stopped run (a full disk, a kill) in --out to --episodes with the same "
@@ -50,7 +51,8 @@ def add_heuristic_parser(sources) -> None:
 def run_heuristic(args: argparse.Namespace) -> int:
 
     config = HeuristicRunConfig(episodes=args.episodes, object=args.object, size=args.size, mass=args.mass,
-                                seed=args.seed, workers=args.workers, randomize=not args.no_randomize)
+                                seed=args.seed, workers=args.workers, randomize=not args.no_randomize,
+                                object_noise=args.object_noise, object_noise_model=args.object_noise_model)
     summaries, seconds = timed(generate_heuristic_dataset, args.out, config, progress=not args.no_progress,
                                resume=args.resume, ray_address=args.ray)
     if not summaries:

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from hingelab.paths import REPO_ROOT
+from hingelab.perception.object_noise_model import DEFAULT_MODEL, GAUSSIAN
 from hingelab.perception.object_perception import OBJECT_PERCEPTIONS
 
 
@@ -29,3 +31,16 @@ def add_object_perception(p, needs: str) -> None:
                    help=f"where the object's position and extent come from: {', '.join(OBJECT_PERCEPTIONS)}; truth "
                         "(default) is the true centre with 2 mm noise, the others estimate it from the depth camera's "
                         f"frame each step (centroid: the paper's; hingelab.perception.object_estimate){needs}")
+
+
+def add_object_noise(p) -> None:
+    """``--object-noise gaussian|fitted:NAME`` and ``--object-noise-model PATH``: ToolPick-v0's ``object_noise``
+    (checked by the library, so a bad value is one line)."""
+    p.add_argument("--object-noise", default=GAUSSIAN, metavar="MODE",
+                   help="the error on the observed object: gaussian (default: the true centre and extent with 2 mm "
+                        "noise) or fitted:NAME, the depth camera's error without rendering, drawn from the fitted "
+                        "model of estimator NAME (centroid, ray_corrected, primitive_fit, or temporal_NAME: "
+                        "hingelab.perception.object_noise_model), e.g. fitted:ray_corrected")
+    p.add_argument("--object-noise-model", default=None, metavar="PATH",
+                   help="the fitted model for --object-noise fitted:NAME (default "
+                        f"{DEFAULT_MODEL.relative_to(REPO_ROOT)}, made by hingelab diagnose object-noise-fit)")

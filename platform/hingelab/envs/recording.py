@@ -80,10 +80,15 @@ def object_metadata(record: dict | None) -> dict:
 
 
 def object_perception_metadata(env) -> dict:
-    """The object estimator an env (or robot) ran, as an episode fact; {} for the truth (the default, as episodes
-    recorded before there was a choice)."""
+    """The object estimator an env (or robot) ran, and the fitted camera error it drew (``object_noise``) with its
+    model file's hash, as episode facts; {} for the truth with the Gaussian (the default, as episodes recorded
+    before there was a choice)."""
     name = getattr(env, "object_perception", "truth")
-    return {} if name == "truth" else {S.KEY_OBJECT_PERCEPTION: name}
+    facts = {} if name == "truth" else {S.KEY_OBJECT_PERCEPTION: name}
+    fitted = getattr(env, "object_fitted", None)
+    if fitted is not None:
+        facts.update({S.KEY_OBJECT_NOISE: env.object_noise, S.KEY_OBJECT_NOISE_MODEL: fitted.model.sha256})
+    return facts
 
 
 def success_verdict(env: gym.Env) -> str | None:

@@ -53,15 +53,20 @@ path), ``randomize`` (True: object friction 1-5, finger friction, gains
 ``object_perception`` ("truth": the true centre and extent with 2 mm noise; or an object estimator,
 "centroid" (the paper's), "ray_corrected", "primitive_fit", on the camera's frame, which needs
 ``perception="camera"``: ``hingelab.perception.object_perception``; the estimate and the truth are in
-``last_record["object_estimate"]``), ``pick_set_weights`` (None: ``family:picksets`` draws its 12 sets
-uniformly; ``{"SHAPE:SIZE": weight}``, e.g. ``{"tetrahedron:0.015": 4}``, an unnamed set weighing 1: a
-curriculum toward the sets a policy misses; ``hingelab.sim.object_families.pick_set_weights``).
+``last_record["object_estimate"]``), ``object_noise`` ("gaussian": the 2 mm Gaussian of ``object_perception="truth"``;
+"fitted:ESTIMATOR": the camera's error without rendering, drawn from the fitted model of
+``hingelab.perception.object_noise_model``, ``object_noise_model`` its file (default the one under
+``analysis/objects/noise-model/``): the centre as truth + the estimator's bias and noise in the rig camera's ray
+frame, dropouts keeping the last estimate, the extent from its extent fit; only with ``object_perception="truth"``),
+``pick_set_weights`` (None: ``family:picksets`` draws its 12 sets uniformly; ``{"SHAPE:SIZE": weight}``, e.g.
+``{"tetrahedron:0.015": 4}``, an unnamed set weighing 1: a curriculum toward the sets a policy misses;
+``hingelab.sim.object_families.pick_set_weights``).
 
 ## Version History
 v0: first version. Changed within v0: the observed object position is the centre, not the body
 origin (the same observation for the sphere, cube, cylinder and meshes); ``object`` may be a family.
-``object_perception`` (default "truth": the observation as before); ``pick_set_weights`` (default None: the
-draws as before).
+``object_perception`` (default "truth": the observation as before). ``object_noise`` (default "gaussian": the
+observation as before). ``pick_set_weights`` (default None: the draws as before).
 """
 
 from __future__ import annotations
@@ -78,6 +83,7 @@ from hingelab.envs.rewards import HighLevelRewardConfig, high_level_terms
 from hingelab.envs.tool_shape import DROP_DISTANCE_M
 from hingelab.errors import ConfigError
 from hingelab.perception.encoder import load_encoder
+from hingelab.perception.object_noise_model import GAUSSIAN, fitted_estimator, make_fitted
 from hingelab.perception.object_perception import TRUTH, CameraObjectEstimate, check_object_perception_with
 from hingelab.perception.tool_perception import ToolPerception, camera_for
 from hingelab.policies.low_level import SHIPPED_LOW_LEVEL
@@ -104,7 +110,8 @@ class ToolPickEnv(SimRenderMixin, gym.Env):
                  max_episode_steps: int = 200, encoder_path: str | None = None,
                  reward: HighLevelRewardConfig | None = None, render_mode: str | None = None,
                  terminate_on_drop: bool = True, observe_extent: bool = False, perception: str = "synthesized",
-                 object_perception: str = TRUTH, pick_set_weights: dict | None = None):
+                 object_perception: str = TRUTH, object_noise: str = GAUSSIAN, object_noise_model: str | None = None,
+                 pick_set_weights: dict | None = None):
         # a family draws a new object at each reset (the model is rebuilt for it); until then its seed-0 draw
         self.object_family = ObjectFamily.parse(object, size) if is_family(object) else None
         if pick_set_weights is not None:  # more of the sets a policy misses (its failures' share of training)
@@ -119,6 +126,11 @@ class ToolPickEnv(SimRenderMixin, gym.Env):
                            camera=camera_for(perception))
         self.perception = ToolPerception(load_encoder(encoder_path), dt=self.sim.control_dt, perception=perception)
         self.object_camera = None if object_perception == TRUTH else CameraObjectEstimate(object_perception)
+        if fitted_estimator(object_noise) is not None and self.object_camera is not None:
+            raise ConfigError(f"object noise {object_noise!r} draws the camera's error without rendering; object "
+                              f"perception {object_perception!r} renders it: choose one")
+        self.object_fitted = make_fitted(object_noise, object_noise_model)
+        self.object_noise = object_noise
         calibration = self.perception.calibration
         if calibration is None:
             raise ConfigError("the encoder checkpoint has no latent-opening calibration; retrain it")
@@ -159,6 +171,8 @@ class ToolPickEnv(SimRenderMixin, gym.Env):
         self.perception.reset(episode_seed)
         if self.object_camera is not None:
             self.object_camera.new_episode(episode_seed, self.sim.model)
+        if self.object_fitted is not None:
+            self.object_fitted.new_episode(episode_seed, self.object.shape, self.object.size)
         self.low_level.reset()
         self.object_start = self.state.object_pos_world.copy()
         self.tool_start = self.state.tool_pos_hand.copy()
@@ -292,18 +306,22 @@ class ToolPickEnv(SimRenderMixin, gym.Env):
         return d.xmat[self._hand_body].reshape(3, 3).T @ (p_world - d.xpos[self._hand_body])
 
     def _fresh_observation(self) -> np.ndarray:
-        # the truth's noise is drawn with a camera estimate too, so both start each step from the same stream
+        # the truth's noise is drawn with an estimate too, so all start each step from the same stream
         centre_noise = self.np_random.normal(0.0, OBJECT_NOISE_M, 3)
-        camera = self.object_camera
-        centre = self.observed_object_centre() + centre_noise if camera is None else camera.centre
+        estimate = self.object_camera if self.object_camera is not None else self.object_fitted
+        centre = self.observed_object_centre() + centre_noise if estimate is None else estimate.centre
         parts = [self._tool_pose, self.sample.z_smoothed[0], self._to_hand(centre), self._to_hand(self.target)]
         if self.observe_extent:
             extent_noise = self.np_random.normal(0.0, OBJECT_NOISE_M, 3)
-            parts.append(self.observed_object_extent() + extent_noise if camera is None else camera.box)
+            box = None if estimate is None else estimate.box  # a model without an extent fit: the Gaussian
+            parts.append(self.observed_object_extent() + extent_noise if box is None else box)
         return np.concatenate(parts)
 
     def _observe_object(self) -> None:
-        """The camera's object estimate on this step's frame (``object_perception`` an estimator)."""
+        """The camera's object estimate on this step's frame (``object_perception`` an estimator), or drawn from the
+        fitted model (``object_noise``)."""
+        if self.object_fitted is not None:
+            self.object_fitted.observe(self.observed_object_centre(), self.observed_object_extent())
         if self.object_camera is not None:
             d = self.sim.data
             self.object_camera.observe(self.perception.camera, d.xmat[self._hand_body].reshape(3, 3),
@@ -311,10 +329,16 @@ class ToolPickEnv(SimRenderMixin, gym.Env):
 
     def object_estimate_record(self) -> dict | None:
         """This step's camera estimate of the object beside the truth, in hand_base (m), for the episode; None
-        with ``object_perception="truth"``."""
-        camera = self.object_camera
+        with ``object_perception="truth"`` and ``object_noise="gaussian"``; a fitted model's draw has no points."""
+        camera = self.object_camera if self.object_camera is not None else self.object_fitted
         if camera is None:
             return None
+        if camera is self.object_fitted:
+            box = camera.box
+            return {"estimator": self.object_noise, "position": self._to_hand(camera.centre),
+                    "extent": np.full(3, np.nan) if box is None else box.copy(), "n_points": 0,
+                    "fresh": camera.fresh, "flag": camera.flag or "",
+                    "true_position": self._to_hand(self.observed_object_centre()), "points": None}
         d = self.sim.data
         rotation, origin = d.xmat[self._hand_body].reshape(3, 3), d.xpos[self._hand_body]
         points = None if camera.points is None else ((camera.points - origin) @ rotation).astype(np.float32)

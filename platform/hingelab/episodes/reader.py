@@ -43,7 +43,7 @@ from hingelab.episodes.metadata import metadata_digest, parse_metadata
 # Schema versions this reader understands. A newer reader keeps the older ones here and
 # maps old topics/fields onto new names when a version renames them. Version 2 added metadata keys only
 # (``success_verdict``, ``last_step_success``): a version-1 file reads as before, without them.
-SUPPORTED_SCHEMA_VERSIONS = frozenset({1, 2, 3, 4})
+SUPPORTED_SCHEMA_VERSIONS = frozenset({1, 2, 3, 4, 5})
 
 
 @dataclass

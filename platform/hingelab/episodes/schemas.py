@@ -34,7 +34,10 @@ from google.protobuf.message_factory import GetMessageClass
 #      ``operator`` or ``simulation``). Files of versions 1 and 2 have none of them and read as before.
 #   4: optional topics of the camera's object estimate (``object_perception`` an estimator): /object/estimate
 #      (hingelab.ObjectEstimate) and /object/points; metadata key ``object_perception``. Older files have none.
-SCHEMA_VERSION = 4
+#   5: metadata keys ``object_noise`` and ``object_noise_model_sha256`` (the camera's error drawn from a fitted model,
+#      ``object_noise="fitted:NAME"``), whose episodes also carry /object/estimate (``estimator`` "fitted:NAME",
+#      no points). Older files have neither key and read as before.
+SCHEMA_VERSION = 5
 
 # --- frames -------------------------------------------------------------------
 FRAME_HAND = "hand_base"  # the SVH hand's base frame; every position below is in it
@@ -109,6 +112,8 @@ KEY_OUTCOME_BY = "outcome_by"  # (v3) who judged a trial's outcome: "operator" o
 KEY_FIRST_ATTEMPT_SUCCESS = "first_attempt_success"  # ToolPick-v0 episodes and trials: success at attempt 1
 KEY_REWARD_CONFIG = "reward_config"  # the env's reward config (JSON) the episode's rewards were computed with
 KEY_OBJECT_PERCEPTION = "object_perception"  # (v4) the object estimator (absent: the truth with 2 mm noise)
+KEY_OBJECT_NOISE = "object_noise"  # (v5) "fitted:NAME": the object observed with a fitted camera error (absent: none)
+KEY_OBJECT_NOISE_MODEL = "object_noise_model_sha256"  # (v5) the fitted model file's sha256, with ``object_noise``
 
 # The verdicts ``success`` may be (the ``success_verdict`` values): one per task, the one the
 # env's info["is_success"], the demo, eval, report and the benches count.

@@ -151,12 +151,14 @@ def evaluate_low(policy=None, *, out, baseline: str | None = None, episodes: int
 def evaluate_high(policy=None, *, out, baseline: str | None = None, object: str = "sphere", size: float = 0.02,
                   episodes: int = 10, seed: int = 0, low_level: str | None = None, perception: str = "synthesized",
                   object_perception: str = "truth", resume: bool = False, ray: str | None = None, progress: bool = True,
+                  object_noise: str = "gaussian", object_noise_model: str | None = None,
                   command: list[str] | None = None, name: str | None = None,
                   description: str | None = None) -> Evaluation:
     """``episodes`` episodes of ToolPick-v0 with one object for a high-level checkpoint (default: the shipped
     one) or a baseline (``heuristic``, ``scripted``, ...), over ``low_level`` (default: the one the checkpoint
     learned over; the privileged one for the heuristic), recorded into ``out``; ``object_perception``: the
-    object's true centre with 2 mm noise (``truth``) or a camera object estimator (needs ``perception="camera"``)."""
+    object's true centre with 2 mm noise (``truth``) or a camera object estimator (needs ``perception="camera"``);
+    ``object_noise``: ``"fitted:NAME"``, the camera's error drawn from the fitted model at ``object_noise_model``."""
     out = Path(out)
     _check_choice(policy, baseline, "high", episodes)
     if policy is None and not baseline:
@@ -176,23 +178,27 @@ def evaluate_high(policy=None, *, out, baseline: str | None = None, object: str 
         acting, label, extent = ModelPolicy(model), str(policy), observes_extent(model)
     # a bad object or low level: an error before files
     check_object_perception_with(object_perception, perception)  # before building an env
+    noise = {} if object_noise == "gaussian" and object_noise_model is None else {
+        "object_noise": object_noise, "object_noise_model": object_noise_model}
     H.make_eval_env(object, size, low_level, observe_extent=extent, perception=perception,
-                    object_perception=object_perception).close()
+                    object_perception=object_perception, **noise).close()
     config = {"policy": label, "object": object, "size": size, "episodes": episodes, "low_level": low_level,
               "observe_extent": extent, "seeds": f"{H.SEED_BASE} + seed * {H.SEED_STRIDE} + episode"}
     if perception != "synthesized":  # recorded only when it differs: older evaluations resume unchanged
         config["perception"] = perception
     if object_perception != "truth":  # the same: recorded only when it differs
         config["object_perception"] = object_perception
+    config.update(noise)  # the same
     if name is None:
         name = f"eval-high-{baseline or Path(policy).stem}" + (f"-{perception}" if perception != "synthesized" else "")
         name += f"-object-{object_perception}" if object_perception != "truth" else ""
+        name += f"-object-noise-{object_noise.replace(':', '-')}" if noise else ""
     journal = _start(out, config, seed, resume, name, "high_level_evaluation",
                      description or f"hingelab eval high: {label} on ToolPick-v0, {object} {size * 100:g} cm")
     env_options = {"object": object, "size": size, "low_level": low_level, "observe_extent": extent,
                    "extra_metadata": {"policy": label, "low_level": low_level, "perception": perception},
                    "perception": perception,
-                   **({"object_perception": object_perception} if object_perception != "truth" else {})}
+                   **({"object_perception": object_perception} if object_perception != "truth" else {}), **noise}
     with stop_cleanly_on_a_full_disk(out, journal, episodes, command):
         if ray:
             rows = evaluate_high_on_ray(episodes, seed, env_options, out, None if baseline else policy, baseline,
@@ -205,13 +211,14 @@ def evaluate_high(policy=None, *, out, baseline: str | None = None, object: str 
             finally:
                 env.close()
     table = H.success_table(rows, object, size)
+    noted = f" (object noise {object_noise})" if noise else ""
     rows.to_csv(out / "episodes.csv", index=False)
     journal.finish()
     table.to_csv(out / "table.csv", index=False)
     row = table.iloc[0]
     failures = ", ".join(f"{r} {int(row[f'failures_{r}'])}" for r in H.FAILURE_REASONS if row[f"failures_{r}"])
     summary = (f"Evaluated {label} (low level {low_level}) on {episodes} episodes of ToolPick-v0 with a "
-               f"{object} of {size * 100:g} cm, {perception} perception, seed {seed}: success within 200 steps "
+               f"{object} of {size * 100:g} cm, {perception} perception{noted}, seed {seed}: success within 200 steps "
                f"(object within 1 cm of the target, the episodes' recorded verdict) {int(row['successes'])}/"
                f"{episodes} = {row['success_rate']:.2f} [{row['ci_low']:.2f}, {row['ci_high']:.2f}], at the first "
                f"attempt {int(row['first_attempt_successes'])}/{episodes} = {row['first_attempt_success_rate']:.2f} "

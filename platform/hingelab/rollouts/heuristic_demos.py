@@ -48,6 +48,8 @@ class HeuristicRunConfig:
     workers: int = 1
     randomize: bool = True
     max_episode_steps: int = 200
+    object_noise: str = "gaussian"  # ToolPick-v0's: or "fitted:NAME", the camera's error on the observation
+    object_noise_model: str | None = None  # the fitted model's file (None: the default one)
 
 
 @dataclass
@@ -67,7 +69,8 @@ def make_env(config: HeuristicRunConfig, dataset_dir: Path | None = None):
     """ToolPick-v0 for ``config`` (privileged low level), recorded into ``dataset_dir`` if given."""
 
     env = gym.make(TOOL_PICK_ID, object=config.object, size=config.size, mass=config.mass,
-                   randomize=config.randomize, max_episode_steps=config.max_episode_steps)
+                   randomize=config.randomize, max_episode_steps=config.max_episode_steps,
+                   object_noise=config.object_noise, object_noise_model=config.object_noise_model)
     if dataset_dir is not None:
         extra = {"object_size": config.size}
         if is_mesh(config.object):  # object "mesh:<file name>"; the file's content named by its hash
@@ -148,7 +151,9 @@ def _seeds_to_run(out: Path, config: HeuristicRunConfig, resume: bool) -> list[i
         return seeds
     if not (out / "dataset.json").exists():
         raise ConfigError(f"--resume: {out} holds no dataset to continue; leave --resume out to start one")
-    differ = differing_settings(load_card(out).config, asdict(config), ignore=RESUMABLE)
+    # a card from before the object noise: made with the default
+    recorded = {"object_noise": "gaussian", "object_noise_model": None, **(load_card(out).config or {})}
+    differ = differing_settings(recorded, asdict(config), ignore=RESUMABLE)
     if differ:
         raise ConfigError(f"--resume: {out} was made with other settings ("
                           + ", ".join(f"{k} {old!r}, now {new!r}" for k, (old, new) in differ.items())
@@ -189,7 +194,9 @@ def generate_heuristic_dataset(out: Path, config: HeuristicRunConfig, progress: 
         kept = len(list((out / "episodes").glob("*.mcap")))
         command = (f"hingelab generate heuristic --out {out} --episodes {config.episodes} --object {config.object} "
                    f"--size {config.size:g} --mass {config.mass:g} --seed {config.seed}"
-                   + ("" if config.randomize else " --no-randomize"))
+                   + ("" if config.randomize else " --no-randomize")
+                   + ("" if config.object_noise == "gaussian" else f" --object-noise {config.object_noise}")
+                   + (f" --object-noise-model {config.object_noise_model}" if config.object_noise_model else ""))
         raise disk_full_error(out, kept, config.episodes, command) from exc
 
 

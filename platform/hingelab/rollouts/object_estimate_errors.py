@@ -10,7 +10,10 @@ temporal filter over each estimator's frames at the spot (its estimate after the
 
 Errors are against the object's true centre (the middle of its resting height, as ToolPick-v0
 observes it), in mm: the distance, its component along the viewing ray (the ray from the camera to
-the true centre; positive: toward the camera) and across it. The camera's pose is the true one: a
+the true centre; positive: toward the camera) and across it, and the error's two components across the ray
+(``hingelab.perception.object_noise_model.ray_frame``: right and up, so that a fitted model can draw it); per
+frame also the visible extent's error against the object's true bounding box along the world axes (the
+extent ToolPick-v0 observes, ``observe_extent``). The camera's pose is the true one: a
 hand-eye calibration error (``CameraClouds``' per-episode one) is left out here, so the table is the
 estimators' own error.
 """
@@ -37,11 +40,17 @@ from hingelab.perception.object_estimate import (  # noqa: E402
     fit_sphere,
     object_cloud,
 )
+from hingelab.perception.object_noise_model import ray_frame  # noqa: E402
 from hingelab.rollouts.reward_diagnostic import write_tables  # noqa: E402
 from hingelab.sim import scripted  # noqa: E402
 from hingelab.sim.core import SimCore  # noqa: E402
 from hingelab.sim.depth_noise import DepthNoise  # noqa: E402
-from hingelab.sim.object_render import ObjectDepthRenderer, platform_crop, true_object_centre  # noqa: E402
+from hingelab.sim.object_render import (  # noqa: E402
+    ObjectDepthRenderer,
+    platform_crop,
+    true_object_centre,
+    true_object_extent,
+)
 from hingelab.sim.objects import SHAPES, ObjectSpec  # noqa: E402
 
 SIZES = (0.015, 0.02, 0.025)
@@ -51,14 +60,16 @@ PICTURE = ("sphere", 0.02)  # the object of the picture: its first spot's first 
 
 
 def errors(estimate: np.ndarray, truth: np.ndarray, camera_position: np.ndarray) -> dict:
-    """The error in mm: its length, its component along the ray camera -> truth (positive toward the camera)
-    and across it."""
+    """The error in mm: its length, its component along the ray camera -> truth (positive toward the camera),
+    its length across it, and its components across it (``ray_frame``'s right and up)."""
     error = np.asarray(estimate, float) - truth
-    ray = truth - camera_position
-    ray /= np.linalg.norm(ray)
-    along = float(error @ ray)
-    return {"error_mm": 1000 * float(np.linalg.norm(error)), "ray_bias_mm": -1000 * along,
-            "lateral_mm": 1000 * float(np.linalg.norm(error - along * ray))}
+    toward, right, up = 1000 * (ray_frame(camera_position, truth).T @ error)
+    return {"error_mm": 1000 * float(np.linalg.norm(error)), "ray_bias_mm": float(toward),
+            "lateral_mm": float(np.hypot(right, up)), "across_right_mm": float(right), "across_up_mm": float(up)}
+
+
+ERROR_COLUMNS = ("error_mm", "ray_bias_mm", "lateral_mm", "across_right_mm", "across_up_mm")
+EXTENT_COLUMNS = ("extent_error_x_mm", "extent_error_y_mm", "extent_error_z_mm")
 
 
 def measure(placements: int = 20, frames: int = 5, seed: int = 0, shapes=SHAPES, sizes=SIZES,
@@ -82,6 +93,7 @@ def measure(placements: int = 20, frames: int = 5, seed: int = 0, shapes=SHAPES,
             sim.reset(seed=int(rng.integers(2**31)), object_xy=xy)
             rendered = renderer.render(sim.data)
             truth = true_object_centre(sim.model, sim.data, obj)
+            true_extent = true_object_extent(sim.model, sim.data)
             clean_depth = rendered.frame.depth
             filters = {name: TemporalFilter(TEMPORAL_WINDOW) for name in ESTIMATORS}
             base = {"shape": shape, "size_m": size, "spot": spot, "x_m": round(float(xy[0]), 4),
@@ -93,7 +105,8 @@ def measure(placements: int = 20, frames: int = 5, seed: int = 0, shapes=SHAPES,
                 cloud = object_cloud(frame, mask, config)
                 for name in ESTIMATORS:
                     result = estimate_object(frame, mask, name, config, cloud=cloud)
-                    rows.append(_row(base, f, name, result.estimate, truth, frame.camera_position, cloud))
+                    rows.append(_row(base, f, name, result.estimate, truth, frame.camera_position, cloud,
+                                     None if result.extent is None else result.extent - true_extent))
                     filters[name].update(result.estimate)
                 if not picture and (spot == 0 and f == 0) and ((shape, size) == PICTURE or PICTURE not in combos):
                     picture = _picture_data(frame, rendered.object_mask, mask, cloud, truth, obj)
@@ -107,13 +120,17 @@ def measure(placements: int = 20, frames: int = 5, seed: int = 0, shapes=SHAPES,
     return rows, picture
 
 
-def _row(base: dict, frame: int, estimator: str, estimate, truth, camera_position, cloud) -> dict:
+def _row(base: dict, frame: int, estimator: str, estimate, truth, camera_position, cloud,
+         extent_error: np.ndarray | None = None) -> dict:
+    """One frame's (or a temporal filter's) row; ``extent_error`` (3,) m, the visible extent's error (None: a
+    temporal filter's row, which filters the centre only, or a flagged frame)."""
     row = {**base, "frame": frame, "estimator": estimator, "flag": "" if estimate is not None else
            (cloud.flag if cloud is not None else "no_estimate"),
            "points": 0 if cloud is None or cloud.points is None else len(cloud.points)}
-    if estimate is None:
-        return {**row, "error_mm": np.nan, "ray_bias_mm": np.nan, "lateral_mm": np.nan}
-    return {**row, **{k: round(v, 3) for k, v in errors(estimate, truth, camera_position).items()}}
+    row.update({k: np.nan for k in ERROR_COLUMNS} if estimate is None else
+               {k: round(v, 3) for k, v in errors(estimate, truth, camera_position).items()})
+    extent = [np.nan] * 3 if extent_error is None else [round(1000 * float(v), 3) for v in extent_error]
+    return {**row, **dict(zip(EXTENT_COLUMNS, extent))}
 
 
 def summarize(rows: list[dict]) -> list[dict]:

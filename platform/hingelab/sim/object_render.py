@@ -62,3 +62,14 @@ def true_object_centre(model: mujoco.MjModel, data: mujoco.MjData, obj: ObjectSp
     body = model.body(names.OBJECT_BODY).id
     up = data.xmat[body].reshape(3, 3)[:, 2]
     return data.xpos[body] + up * obj.centre_height
+
+
+def true_object_extent(model: mujoco.MjModel, data: mujoco.MjData) -> np.ndarray:
+    """(3,) the object's bounding box along the world axes, m, from its geoms' boxes (``geom_aabb``) as posed now:
+    what ``ToolPickEnv.observed_object_extent`` observes for a fixed object (a family's drawn mesh pieces aside)."""
+    geoms = np.flatnonzero(model.geom_bodyid == model.body(names.OBJECT_BODY).id)
+    signs = np.array([[sx, sy, sz] for sx in (-1, 1) for sy in (-1, 1) for sz in (-1, 1)], float)
+    corners = model.geom_aabb[geoms, None, :3] + signs * model.geom_aabb[geoms, None, 3:]  # (geoms, 8, 3)
+    rotations = data.geom_xmat[geoms].reshape(-1, 3, 3)
+    world = (data.geom_xpos[geoms, None] + np.einsum("gij,gkj->gki", rotations, corners)).reshape(-1, 3)
+    return world.max(axis=0) - world.min(axis=0)
