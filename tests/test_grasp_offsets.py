@@ -32,14 +32,16 @@ def test_the_verdict_can_say_yes_and_no():
     ranges = G.reference_ranges(reference)
     assert ranges["z"] == pytest.approx((-0.5, 1.0))
     # the failures sit outside the reference's z range and the picks inside: explained, along z
-    off_centre = [_row("a", z, True) for z in (0.0, 0.3, 0.6)] + [_row("a", z, False) for z in (1.8, 2.5)]
+    off_centre = [_row("a", z, True) for z in (0.0, 0.3, 0.6)] + [_row("a", z, False) for z in (1.8, 2.5, 3.0)]
     # the failures sit where the reference picked: not explained
-    centred = [_row("b", z, True) for z in (0.0, 0.3, 0.6)] + [_row("b", z, False) for z in (0.1, 0.5)]
-    summary = G.summarize(off_centre + centred, ranges)
+    centred = [_row("b", z, True) for z in (0.0, 0.3, 0.6)] + [_row("b", z, False) for z in (0.1, 0.5, 0.7)]
+    thin = [_row("c", z, True) for z in (0.0, 0.3)] + [_row("c", z, False) for z in (1.8, 2.5)]  # two failures
+    summary = G.summarize(off_centre + centred + thin, ranges)
     assert "along z" in G.verdict(summary, "a") and "explains its failures" in G.verdict(summary, "a")
     assert "does not explain its failures" in G.verdict(summary, "b")
+    assert "too few to tell" in G.verdict(summary, "c")
     z = next(s for s in summary if s["dataset"] == "a" and s["axis"] == "z")
-    assert (z["inside"], z["failed_inside"], z["outside"], z["failed_outside"]) == (3, 0, 2, 2)
+    assert (z["inside"], z["failed_inside"], z["outside"], z["failed_outside"]) == (3, 0, 3, 3)
     with pytest.raises(ConfigError, match="at least 5"):
         G.reference_ranges(reference[:4])
 

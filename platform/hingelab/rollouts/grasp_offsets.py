@@ -27,6 +27,7 @@ from hingelab.rollouts.reward_diagnostic import write_tables
 
 LIFT_COMMAND = 0.3  # action units of the hand's x velocity: the scripted lift commands 0.5, its descent -0.5 to -1
 MIN_REFERENCE_PICKS = 5
+MIN_FAILURES = 3  # lifted failures below which a verdict would rest on one or two episodes
 AXES = ("x", "y", "z")
 TOPICS = ["/sim/privileged", "/step"]
 
@@ -120,6 +121,10 @@ def verdict(summary: list[dict], dataset: str) -> str:
     if not any(s["failed_inside"] + s["failed_outside"] for s in rows):
         failures = rows[0]["episodes"] - rows[0]["first_attempt_successes"]
         return f"{dataset}: no lifted episode failed ({failures} failed at the first attempt before any lift)"
+
+    lifted_failures = rows[0]["failed_inside"] + rows[0]["failed_outside"]
+    if lifted_failures < MIN_FAILURES:
+        return f"{dataset}: {lifted_failures} lifted failures, too few to tell (at least {MIN_FAILURES})"
 
     def rate(failed, n):
         return failed / n if n else 0.0
