@@ -1,13 +1,13 @@
 """``verify``: find every cut-off, corrupt, foreign or schema-less episode file.
 
-A file passes when: it opens as MCAP with a summary (not cut off), every channel uses the
-contract's protobuf schema for its topic, it has an ``episode`` record with the required keys,
-every chunk passes its CRC, the metadata records match the CRC32s stored beside the columns
-(``reader``), every message decodes, the ``/step`` messages match ``length`` (one per step, the
-reset's record aside), and its ``episode_id`` is a safe file name (``hingelab.safe_names``:
-exports name folders by it); a dataset card whose name is not one is reported too. ``.partial``
-files are unfinished writes (a writer still running, or killed): they are reported, and
-``recover`` salvages them.
+A file passes when: it is a file (not a dangling symlink or a symlink loop), it opens as MCAP
+with a summary (not cut off), every channel uses the contract's protobuf schema for its topic,
+it has an ``episode`` record with the required keys, every chunk passes its CRC, the metadata
+records match the CRC32s stored beside the columns (``reader``), every message decodes, the
+``/step`` messages match ``length`` (one per step, the reset's record aside), and its
+``episode_id`` is a safe file name (``hingelab.safe_names``: exports name folders by it); a
+dataset card whose name is not one is reported too. ``.partial`` files are unfinished writes
+(a writer still running, or killed): they are reported, and ``recover`` salvages them.
 """
 
 from __future__ import annotations
@@ -18,6 +18,7 @@ from pathlib import Path
 from mcap.reader import SeekingReader
 from tqdm import tqdm
 
+from hingelab.bounded_reads import unreadable_reason
 from hingelab.episodes import schemas as S
 from hingelab.episodes.card import CARD_FILE, EPISODES_DIR, load_card
 from hingelab.episodes.errors import DatasetError
@@ -29,7 +30,8 @@ from hingelab.safe_names import shown, unsafe_name_reason
 @dataclass
 class Problem:
     path: Path
-    kind: str  # "cut-off", "partial", "corrupt", "foreign", "not-mcap", "metadata", "unexpected", "unsafe-name"
+    kind: str  # "cut-off", "partial", "corrupt", "foreign", "not-mcap", "metadata", "unexpected", "unsafe-name",
+    # "unreadable"
     message: str
 
     def __str__(self) -> str:
@@ -47,6 +49,9 @@ def verify_episode(path: Path) -> Problem | None:
 
 
 def _verify_episode(path: Path) -> Problem | None:
+    reason = unreadable_reason(path)
+    if reason is not None:
+        return Problem(path, "unreadable", f"{reason}; restore what it points to or remove it from episodes/")
     try:
         with EpisodeFile(path) as episode_file:
             meta = episode_file.metadata()
