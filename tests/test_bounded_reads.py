@@ -1,8 +1,10 @@
-"""Bounded reads: a dangling symlink or a symlink loop is reported as an unreadable file (never a
-traceback)."""
+"""Bounded reads: a mesh file far too large is refused from its size before it is read; a dangling
+symlink or a symlink loop is reported as an unreadable file (never a traceback)."""
 
 from __future__ import annotations
 
+import os
+import time
 from pathlib import Path
 
 import pytest
@@ -13,12 +15,71 @@ from hingelab.episodes import create_dataset
 from hingelab.episodes.dataset import Dataset, corrupt_policy
 from hingelab.episodes.synthetic import write_synthetic_episode
 from hingelab.errors import ConfigError
+from hingelab.sim.mesh_objects import MAX_MESH_MB_ENV, load_unit_hull
 
 
 def _one_line_error(capsys) -> str:
     err = capsys.readouterr().err.strip().splitlines()
     assert err and err[-1].startswith("hingelab: error: ") and "Traceback" not in "\n".join(err)
     return err[-1]
+
+
+# ------------------------------------------------------------------------------------------- meshes
+@pytest.fixture
+def huge_mesh(tmp_path) -> Path:
+    """A 1 GB sparse STL: no disk used, but reading it whole would take seconds and gigabytes."""
+    path = tmp_path / "huge.stl"
+    with open(path, "wb") as f:
+        f.truncate(1 << 30)
+    return path
+
+
+def test_a_huge_mesh_is_refused_before_it_is_read(huge_mesh, monkeypatch):
+    monkeypatch.delenv(MAX_MESH_MB_ENV, raising=False)
+    started = time.perf_counter()
+    with pytest.raises(ConfigError) as caught:
+        load_unit_hull(f"mesh:{huge_mesh}")
+    assert time.perf_counter() - started < 0.5
+    message = str(caught.value)
+    assert "\n" not in message and str(huge_mesh) in message and "1.1 GB" in message and "200.0 MB" in message
+    assert "--max-mesh-mb" in message
+
+
+def test_generate_refuses_a_huge_mesh_in_one_line(huge_mesh, tmp_path, monkeypatch, capsys):
+    monkeypatch.delenv(MAX_MESH_MB_ENV, raising=False)
+    assert main(["generate", "heuristic", "--object", f"mesh:{huge_mesh}", "--episodes", "1",
+                 "--out", str(tmp_path / "demos")]) == 1
+    assert "above the 200.0 MB limit" in _one_line_error(capsys)
+
+
+def test_the_limit_is_raised_by_the_flag_and_the_environment(tmp_path, monkeypatch):
+    import trimesh
+
+    box = tmp_path / "box.stl"
+    trimesh.creation.box(extents=[1.0, 1.0, 1.0]).export(box)  # 684 bytes
+    monkeypatch.setenv(MAX_MESH_MB_ENV, "0.0001")  # 100 bytes
+    with pytest.raises(ConfigError, match="above the 100 bytes limit"):
+        load_unit_hull(f"mesh:{box}")
+    monkeypatch.setenv(MAX_MESH_MB_ENV, "0.01")
+    assert len(load_unit_hull(f"mesh:{box}").vertices) == 8
+    monkeypatch.setenv(MAX_MESH_MB_ENV, "lots")
+    with pytest.raises(ConfigError, match="not a size in MB"):
+        load_unit_hull(f"mesh:{box}")
+    from hingelab.cli.main import build_parser
+
+    monkeypatch.delenv(MAX_MESH_MB_ENV)
+    for argv in (["generate", "heuristic", "--out", "x"], ["trial", "--out", "x"], ["eval", "high", "--out", "x"],
+                 ["train", "high"]):
+        args = build_parser(argv + ["--max-mesh-mb", "500"]).parse_args(argv + ["--max-mesh-mb", "500"])
+        assert args.max_mesh_mb == 500 and os.environ[MAX_MESH_MB_ENV] == "500.0"  # workers inherit it
+        monkeypatch.delenv(MAX_MESH_MB_ENV)
+
+
+def test_a_mesh_path_that_is_a_symlink_loop_is_one_line(tmp_path):
+    loop = tmp_path / "loop.stl"
+    loop.symlink_to(loop)
+    with pytest.raises(ConfigError, match="symlink loop"):
+        load_unit_hull(f"mesh:{loop}")
 
 
 # ------------------------------------------------------------------------------------------- symlinks

@@ -14,6 +14,7 @@ from pathlib import Path
 
 from hingelab import paths
 from hingelab.bounded_reads import resolved_input
+from hingelab.cli.options import add_max_mesh_mb
 from hingelab.errors import ConfigError
 from hingelab.learners import registry
 from hingelab.paths import refuse_to_replace_shipped
@@ -62,6 +63,7 @@ def add_policy_parser(levels, level: str, name: str) -> None:
     learner = found.get(name) or found[registry.DEFAULT_LEARNER]
     p = levels.add_parser(level, help=found[registry.DEFAULT_LEARNER].help, description=learner.description)
     registry.add_learner_arguments(p, level, learner)
+    add_max_mesh_mb(p)
     p.set_defaults(func=run_policy, level=level, learner_class=learner)
 
 
