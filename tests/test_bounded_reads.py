@@ -1,5 +1,6 @@
-"""Bounded reads: a mesh file far too large is refused from its size before it is read; a dangling
-symlink or a symlink loop is reported as an unreadable file (never a traceback)."""
+"""Bounded reads: a mesh file far too large is refused from its size before it is read; a PointCloud2
+whose header does not describe its data is one line naming the bag and topic; a dangling symlink or a
+symlink loop is reported as an unreadable file (never a traceback)."""
 
 from __future__ import annotations
 
@@ -7,14 +8,19 @@ import os
 import time
 from pathlib import Path
 
+import numpy as np
 import pytest
+from rosbags.typesys import Stores, get_typestore
 
 from hingelab.bounded_reads import resolved_input, unreadable_reason
 from hingelab.cli.main import main
 from hingelab.episodes import create_dataset
 from hingelab.episodes.dataset import Dataset, corrupt_policy
+from hingelab.episodes.errors import DatasetError
 from hingelab.episodes.synthetic import write_synthetic_episode
 from hingelab.errors import ConfigError
+from hingelab.ros2 import rig_bag
+from hingelab.ros2.ros_messages import cloud_xyz, depth_image_m
 from hingelab.sim.mesh_objects import MAX_MESH_MB_ENV, load_unit_hull
 
 
@@ -80,6 +86,74 @@ def test_a_mesh_path_that_is_a_symlink_loop_is_one_line(tmp_path):
     loop.symlink_to(loop)
     with pytest.raises(ConfigError, match="symlink loop"):
         load_unit_hull(f"mesh:{loop}")
+
+
+# ------------------------------------------------------------------------------------------- PointCloud2
+def _cloud(n: int = 50, **change):
+    ts = get_typestore(Stores.ROS2_HUMBLE)
+    msg = rig_bag.point_cloud2(ts, 10**9, "camera", np.random.default_rng(0).normal(size=(n, 3)))
+    for name, value in change.items():
+        setattr(msg, name, value)
+    return msg
+
+
+def _fields(**datatype_offset):
+    ts = get_typestore(Stores.ROS2_HUMBLE)
+    return [ts.types["sensor_msgs/msg/PointField"](name=n, offset=o, datatype=d, count=1)
+            for n, (d, o) in datatype_offset.items()]
+
+
+WHERE = "rig.mcap: /camera/depth/points at 1.000 s"
+BAD_CLOUDS = {
+    "point_step 0": dict(point_step=0),
+    "field beyond point_step": dict(fields=_fields(x=(7, 0), y=(7, 4), z=(7, 12))),
+    "unknown datatype": dict(fields=_fields(x=(7, 0), y=(7, 4), z=(99, 8))),
+    "row_step short": dict(height=2, width=25, row_step=25 * 12 - 4),
+    "row_step long": dict(row_step=50 * 12 + 400),
+    "data short": dict(width=10**9, row_step=12 * 10**9),
+}
+
+
+@pytest.mark.parametrize("case", sorted(BAD_CLOUDS))
+def test_a_point_cloud2_header_that_lies_is_one_line_naming_the_topic(case):
+    with pytest.raises(DatasetError) as caught:
+        cloud_xyz(_cloud(**BAD_CLOUDS[case]), WHERE)
+    message = str(caught.value)
+    assert message.startswith(WHERE + ": PointCloud2") and "\n" not in message
+
+
+def test_sound_point_clouds_still_read_padded_rows_too():
+    points = np.random.default_rng(1).normal(size=(6, 3)).astype("<f4")
+    assert np.allclose(cloud_xyz(_cloud(6, data=points.view(np.uint8).ravel()), WHERE), points)
+    padded = np.zeros((2, 3 * 12 + 4), np.uint8)  # two rows of three points, four bytes of padding each
+    padded[:, :36] = points.view(np.uint8).reshape(2, 36)
+    msg = _cloud(6, height=2, width=3, row_step=40, data=padded.ravel())
+    assert np.allclose(cloud_xyz(msg, WHERE), points)
+
+
+def test_a_depth_image_shorter_than_its_header_is_one_line():
+    ts = get_typestore(Stores.ROS2_HUMBLE)
+    msg = ts.types["sensor_msgs/msg/Image"](header=rig_bag._header(ts, 0), height=4, width=4, encoding="32FC1",
+                                            is_bigendian=0, step=16, data=np.zeros(60, np.uint8))
+    with pytest.raises(DatasetError, match="depth image of 4 x 4 32FC1 with step 16 holds 60 bytes"):
+        depth_image_m(msg, WHERE)
+
+
+def test_import_of_a_bag_with_a_bad_point_cloud2_is_one_line_and_leaves_no_dataset(tmp_path, monkeypatch, capsys):
+    original = rig_bag.point_cloud2
+
+    def zero_step(ts, stamp_ns, frame_id, points):
+        msg = original(ts, stamp_ns, frame_id, points)
+        msg.point_step = 0
+        return msg
+
+    monkeypatch.setattr(rig_bag, "point_cloud2", zero_step)
+    rig_bag.write_rig_bag(tmp_path / "bag", rig_bag.RigBagSpec(trials=[rig_bag.RigTrial(duration_s=0.3)], gap_s=0.2))
+    out = tmp_path / "real"
+    assert main(["datasets", "import-ros2", str(tmp_path / "bag"), "--out", str(out), "--no-progress"]) == 1
+    line = _one_line_error(capsys)
+    assert "/camera/depth/points at" in line and "point_step 0" in line
+    assert not out.exists()
 
 
 # ------------------------------------------------------------------------------------------- symlinks
