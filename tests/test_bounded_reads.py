@@ -1,10 +1,12 @@
 """Bounded reads: a mesh file far too large is refused from its size before it is read; a PointCloud2
 whose header does not describe its data is one line naming the bag and topic; a dangling symlink or a
-symlink loop is reported as an unreadable file (never a traceback)."""
+symlink loop is reported as an unreadable file (never a traceback); a cut-off bag's drop counts are what
+was read, not what its metadata.yaml says."""
 
 from __future__ import annotations
 
 import os
+import shutil
 import time
 from pathlib import Path
 
@@ -212,3 +214,30 @@ def test_train_high_from_a_symlink_loop_is_one_line(tmp_path, capsys):
     assert "--from" in line and "symlink loop" in line and not out.exists()
     with pytest.raises(ConfigError, match="--init-from .* symlink loop"):
         resolved_input(loop, "--init-from")
+
+
+# ------------------------------------------------------------------------------------------- cut-off bags
+def test_a_cut_off_bag_counts_what_was_read_not_what_metadata_yaml_says(tmp_path, capsys):
+    from mcap.reader import make_reader
+
+    from hingelab.ros2.bag_source import open_bag
+
+    rig_bag.write_rig_bag(tmp_path / "bag", rig_bag.RigBagSpec(trials=[rig_bag.RigTrial(duration_s=0.6)] * 4,
+                                                               gap_s=0.3))
+    cut = tmp_path / "cut"
+    shutil.copytree(tmp_path / "bag", cut)
+    (mcap_file,) = cut.glob("*.mcap")
+    with open(mcap_file, "rb") as f:
+        chunks = sorted(make_reader(f).get_summary().chunk_indexes, key=lambda c: c.chunk_start_offset)
+    with open(mcap_file, "r+b") as f:
+        f.truncate(chunks[1].chunk_start_offset + chunks[1].chunk_length // 2)
+    meta = cut / "metadata.yaml"
+    meta.write_text(meta.read_text().replace("message_count: ", "message_count: 999999999"))  # a lie
+    bag = open_bag(cut)
+    read = sum(bag.counts.values())
+    assert f"{read} messages read" in bag.cut_off
+    assert main(["datasets", "import-ros2", str(cut), "--out", str(tmp_path / "a"), "--no-progress"]) == 0
+    out = capsys.readouterr().out
+    dropped = out.split("dropped:")[1].split(" Note:")[0]
+    assert "99999999" not in dropped and "cut-off" not in dropped  # no drop count from the lying file
+    assert f"{read} messages read" in out and "metadata.yaml lists" in out

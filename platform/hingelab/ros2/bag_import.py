@@ -284,10 +284,8 @@ def import_bag(path, out, names: dict, state, progress: bool = False,
     create_dataset(out, name=Path(out).name, source=SOURCE, config=import_config(names, cloud),
                    description="real-rig trials imported from ROS 2 bags (hingelab datasets import-ros2)")
     summary = BagSummary(bag.name)
-    if bag.cut_off:
+    if bag.cut_off:  # what was read is counted; metadata.yaml's counts are only quoted in the note
         summary.notes.append(bag.cut_off)
-        for topic, n in bag.lost_messages.items():
-            summary.drop(f"{topic} messages lost in the cut-off end of the bag", n)
     small = [k for k in ("joints", "action", "object", "events", "tf", "tf_static")
              + (("camera_info",) if camera_kind == "depth" else ()) if names[k] in bag.topics]
     raw = bag.read({names[k] for k in small})
