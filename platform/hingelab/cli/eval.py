@@ -22,7 +22,7 @@ import argparse
 from pathlib import Path
 
 from hingelab.cli import eval_perception
-from hingelab.cli.options import add_object_noise, add_object_perception, add_ray_argument
+from hingelab.cli.options import add_max_mesh_mb, add_object_noise, add_object_perception, add_ray_argument
 from hingelab.policies.loading import baseline_names
 from hingelab.rollouts.evaluation import evaluate_high, evaluate_low
 
@@ -75,6 +75,7 @@ def add_parser(subparsers) -> None:
                       help="object: sphere, cube, cylinder, tetrahedron, mesh:PATH or family:NAME[:SEED] (a new "
                            "object each episode from a procedural family: hingelab.sim.object_families) "
                            "(default sphere)")
+    add_max_mesh_mb(high)
     high.add_argument("--size", type=float, default=0.02,
                       help="object size in m; a family's size cap, 0.008 to 0.03 (default 0.02)")
     high.add_argument("--episodes", type=int, default=20, help="evaluation episodes (default 20)")

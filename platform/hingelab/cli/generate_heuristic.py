@@ -5,7 +5,7 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from hingelab.cli.options import add_object_noise, add_ray_argument
+from hingelab.cli.options import add_max_mesh_mb, add_object_noise, add_ray_argument
 from hingelab.paths import DATASETS_DIR
 from hingelab.rollouts.heuristic_demos import HeuristicRunConfig, generate_heuristic_dataset, summarize, timed
 
@@ -29,6 +29,7 @@ def add_heuristic_parser(sources) -> None:
                         "its z axis up; recorded as mesh:<file name> with the file's sha256), or family:NAME[:SEED] "
                         "(a new object each episode from a procedural family, e.g. family:train or family:holdout; "
                         "each episode records its draw: hingelab.sim.object_families) (default sphere)")
+    add_max_mesh_mb(p)
     p.add_argument("--size", type=float, default=d.size,
                    help=f"object width in metres; a mesh's largest extent; a family's size cap, 0.008 to 0.03 "
                         f"(default {d.size})")

@@ -2,9 +2,13 @@
 
 from __future__ import annotations
 
+import argparse
+import os
+
 from hingelab.paths import REPO_ROOT
 from hingelab.perception.object_noise_model import DEFAULT_MODEL, GAUSSIAN
 from hingelab.perception.object_perception import OBJECT_PERCEPTIONS
+from hingelab.sim.mesh_objects import DEFAULT_MAX_MESH_MB, MAX_MESH_MB_ENV
 
 
 def add_on_corrupt(p) -> None:
@@ -44,3 +48,21 @@ def add_object_noise(p) -> None:
     p.add_argument("--object-noise-model", default=None, metavar="PATH",
                    help="the fitted model for --object-noise fitted:NAME (default "
                         f"{DEFAULT_MODEL.relative_to(REPO_ROOT)}, made by hingelab diagnose object-noise-fit)")
+
+
+class _MaxMeshMb(argparse.Action):
+    """Sets ``$HINGELAB_MAX_MESH_MB`` when parsed: meshes are loaded wherever a scene is built (the
+    command's process, its env subprocesses, its Ray workers), and all of them inherit the environment."""
+
+    def __call__(self, parser, namespace, value, option_string=None):
+        if not value > 0 or value == float("inf"):
+            parser.error(f"{option_string} must be a positive number of MB, not {value:g}")
+        os.environ[MAX_MESH_MB_ENV] = repr(value)
+        setattr(namespace, self.dest, value)
+
+
+def add_max_mesh_mb(p) -> None:
+    """``--max-mesh-mb MB``: the largest ``mesh:PATH`` file read (a larger one is refused before it is read)."""
+    p.add_argument("--max-mesh-mb", type=float, default=None, action=_MaxMeshMb, metavar="MB",
+                   help=f"largest mesh:PATH file to read, in MB (default {DEFAULT_MAX_MESH_MB:g}, or "
+                        f"${MAX_MESH_MB_ENV}); a larger file is refused before it is read")

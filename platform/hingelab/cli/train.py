@@ -13,6 +13,8 @@ import argparse
 from pathlib import Path
 
 from hingelab import paths
+from hingelab.bounded_reads import resolved_input
+from hingelab.cli.options import add_max_mesh_mb
 from hingelab.errors import ConfigError
 from hingelab.learners import registry
 from hingelab.paths import refuse_to_replace_shipped
@@ -61,6 +63,7 @@ def add_policy_parser(levels, level: str, name: str) -> None:
     learner = found.get(name) or found[registry.DEFAULT_LEARNER]
     p = levels.add_parser(level, help=found[registry.DEFAULT_LEARNER].help, description=learner.description)
     registry.add_learner_arguments(p, level, learner)
+    add_max_mesh_mb(p)
     p.set_defaults(func=run_policy, level=level, learner_class=learner)
 
 
@@ -71,12 +74,12 @@ def run_policy(args: argparse.Namespace) -> int:
         raise ConfigError(f"--learner {args.learner}: write it out as --learner {args.learner} (not abbreviated)")
     # paths the run records: absolute, so the run folder says where its inputs were wherever it is run
     if getattr(args, "init_from", ""):
-        args.init_from = str(Path(args.init_from).resolve())
+        args.init_from = str(resolved_input(args.init_from, "--init-from"))
     if hasattr(args, "from_datasets"):
-        args.from_datasets = tuple(str(Path(p).resolve()) if args.level != "low" else str(p)
+        args.from_datasets = tuple(str(resolved_input(p, "--from")) if args.level != "low" else str(p)
                                    for p in args.from_datasets)
     if getattr(args, "low_level", "none") not in ("policy", "privileged", "none"):
-        args.low_level = str(Path(args.low_level).resolve())
+        args.low_level = str(resolved_input(args.low_level, "--low-level"))
     config = config_from_args(learner.config_class, args)
     if args.out is None:
         default = learner.default_out_for(config) if hasattr(learner, "default_out_for") else \

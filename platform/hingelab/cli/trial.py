@@ -7,7 +7,7 @@ import argparse
 import sys
 from pathlib import Path
 
-from hingelab.cli.options import add_object_perception
+from hingelab.cli.options import add_max_mesh_mb, add_object_perception
 from hingelab.robot.interface import ROBOTS
 from hingelab.robot.trial import TrialConfig, run_trial_session
 from hingelab.seeds import STRIDE, TRIALS_BASE
@@ -30,6 +30,7 @@ def add_parser(subparsers) -> None:
     p.add_argument("--object", default="sphere",
                    help="object: sphere, cube, cylinder, tetrahedron, mesh:PATH or family:NAME[:SEED] (a new "
                         "object each trial from a procedural family: hingelab.sim.object_families) (default sphere)")
+    add_max_mesh_mb(p)
     p.add_argument("--size", type=float, default=0.02,
                    help="object size in m; a family's size cap, 0.008 to 0.03 (default 0.02)")
     p.add_argument("--trials", type=int, default=12, help="trials (default 12, the paper's per shape)")

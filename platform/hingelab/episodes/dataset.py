@@ -6,10 +6,10 @@ from its rows (writers never touch it, so concurrent writers need no lock), and
 it is replaced atomically. ``.partial`` files (being written, or cut off) are
 not episodes and are never indexed; ``hingelab datasets verify`` reports them.
 
-An episode file that cannot be read (corrupt, cut off, foreign) is handled by the dataset's
-``on_corrupt``: ``stop`` (the default) raises one ``DatasetError`` listing every such file
-of the folder; ``skip`` leaves them out of the index and the iteration and says on stderr how
-many it left out. Commands set it for a whole run with ``--on-corrupt`` (``corrupt_policy``).
+An episode file that cannot be read (corrupt, cut off, foreign, a dangling symlink or a symlink
+loop) is handled by the dataset's ``on_corrupt``: ``stop`` (the default) raises one ``DatasetError``
+listing every such file of the folder; ``skip`` leaves them out of the index and the iteration and
+says on stderr how many it left out. Commands set it for a whole run with ``--on-corrupt`` (``corrupt_policy``).
 """
 
 from __future__ import annotations
@@ -24,10 +24,11 @@ from pathlib import Path
 import pandas as pd
 from tqdm import tqdm
 
+from hingelab.bounded_reads import unreadable_reason
 from hingelab.episodes import schemas as S
 from hingelab.episodes.card import CARD_FILE, EPISODES_DIR, INDEX_FILE, DatasetCard, atomic_write_bytes, load_card
 from hingelab.episodes.errors import DatasetError
-from hingelab.episodes.reader import Episode, EpisodeFile, corrupt_error, read_episode
+from hingelab.episodes.reader import Episode, EpisodeFile, corrupt_error, read_episode, unreadable_error
 from hingelab.episodes.writer import PARTIAL_SUFFIX
 
 # Index columns and their dtypes; facts an episode lacks are NA.
@@ -134,6 +135,10 @@ class Dataset:
                 cached = {}
         rows, changed, bad = [], len(cached) != len(files), []
         for path in tqdm(files, desc=f"index {self.root.name}", unit="episode", disable=not progress):
+            reason = unreadable_reason(path)  # a dangling symlink or a loop: reported like a corrupt file
+            if reason is not None:
+                bad.append((path, unreadable_error(path, reason)))
+                continue
             stat = path.stat()
             row = cached.get(path.name)
             if row is None or row["bytes"] != stat.st_size or row["mtime_ns"] != stat.st_mtime_ns:

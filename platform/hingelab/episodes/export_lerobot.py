@@ -60,6 +60,7 @@ from hingelab.episodes.export_source import (
     scan_schema,
     write_back,
 )
+from hingelab.safe_names import safe_relative_path
 
 CODEBASE_VERSION = "v3.0"
 ROBOT_TYPE = "jaka_zu7_schunk_svh"
@@ -308,7 +309,7 @@ def import_lerobot(path, root) -> Path:
     for row in sorted(episodes, key=lambda r: r["episode_index"]):
         key = (row["data/chunk_index"], row["data/file_index"])
         if key not in files:
-            files[key] = pq.read_table(path / info["data_path"].format(chunk_index=key[0], file_index=key[1]))
+            files[key] = pq.read_table(path / _data_file(info_path, info, *key))
         table = files[key]
         table = table.filter(pc.equal(table.column("episode_index"), row["episode_index"]))
         table = table.sort_by("frame_index")
@@ -330,6 +331,16 @@ def import_lerobot(path, root) -> Path:
                    _numpy(table, "action", feats["action"]), _numpy(table, "next.reward", feats["next.reward"]),
                    terminated, _numpy(table, "next.truncated", feats["next.truncated"]), infos, points, valid)
     return Path(root)
+
+
+def _data_file(info_path: Path, info: dict, chunk_index, file_index) -> Path:
+    """The data file of (chunk, file) by info.json's ``data_path`` template, which must stay inside the dataset."""
+    try:
+        relative = str(info["data_path"]).format(chunk_index=int(chunk_index), file_index=int(file_index))
+    except (KeyError, IndexError, ValueError, AttributeError, TypeError) as exc:
+        raise DatasetError(f"{info_path}: data_path {info.get('data_path')!r} is not a LeRobot data path template "
+                           f"({type(exc).__name__}: {exc})") from None
+    return safe_relative_path(relative, "data_path", info_path)
 
 
 __all__ = ["export_lerobot", "import_lerobot", "features", "CODEBASE_VERSION"]

@@ -45,7 +45,7 @@ import h5py
 import numpy as np
 
 from hingelab.episodes import schemas as S
-from hingelab.episodes.card import create_dataset
+from hingelab.episodes.card import CARD_FILE, create_dataset
 from hingelab.episodes.errors import DatasetError
 from hingelab.episodes.export_output import ExportResult, atomic_folder
 from hingelab.episodes.export_source import (
@@ -59,6 +59,7 @@ from hingelab.episodes.export_source import (
     scan_schema,
     write_back,
 )
+from hingelab.safe_names import safe_file_name
 
 MINARI_VERSION = "0.5.4"  # the Minari whose reader this layout is written (and tested) for
 DEFAULT_NAMESPACE = "hingelab"
@@ -70,7 +71,7 @@ POINTS_INFO = "tool_points"
 
 
 def default_dataset_id(card_name: str) -> str:
-    name = re.sub(r"[^-\w]+", "_", card_name).strip("_-") or "dataset"
+    name = re.sub(r"[^-\w]+", "_", card_name)[:100].strip("_-") or "dataset"
     return f"{DEFAULT_NAMESPACE}/{name}-v0"
 
 
@@ -103,11 +104,14 @@ def _dataset(group, name: str, data: np.ndarray) -> None:
 
 def export_minari(dataset, out, dataset_id: str | None = None, progress: bool = False) -> ExportResult:
     """Write ``dataset`` as the Minari dataset ``dataset_id`` under the datasets root ``out``."""
+    source = "--dataset-id" if dataset_id else dataset.root / CARD_FILE
     dataset_id = check_dataset_id(dataset_id or default_dataset_id(dataset.card.name))
     root = Path(out)
     if root.exists() and not root.is_dir():
         raise DatasetError(f"{root} is a file; --out names a Minari datasets folder (MINARI_DATASETS_PATH)")
-    final = root / dataset_id
+    parts = dataset_id.split("/")
+    final = root.joinpath(*(safe_file_name(part, "the Minari dataset id's part", source,
+                                           fix="give --dataset-id NAMESPACE/NAME-vN") for part in parts))
     if final.exists():
         raise DatasetError(f"{final} exists (Minari dataset {dataset_id}); choose another --dataset-id version "
                            f"or another --out")

@@ -35,6 +35,7 @@ from pathlib import Path
 import numpy as np
 from mcap.reader import make_reader
 
+from hingelab.bounded_reads import unreadable_reason
 from hingelab.episodes import codec, mcap_raw
 from hingelab.episodes import schemas as S
 from hingelab.episodes.errors import DatasetError
@@ -86,8 +87,10 @@ class EpisodeFile:
     def __init__(self, path, validate: bool = True):
         self.path = Path(path)
         self.validate = validate
-        if not self.path.is_file():
-            raise DatasetError(f"{self.path}: no such episode file; check the path")
+        reason = unreadable_reason(self.path)
+        if reason is not None:
+            raise (DatasetError(f"{self.path}: no such episode file; check the path") if reason == "does not exist"
+                   else unreadable_error(self.path, reason))
         self._stream = open(self.path, "rb")
         self._reader = None
         self._raw_metadata = None
@@ -346,6 +349,11 @@ def read_episode(path, topics: Iterable[str] | None = None, generic: bool = Fals
         raise corrupt_error(path, exc) from exc
 
 
+def unreadable_error(path, reason: str) -> DatasetError:
+    """The one-line error of an episode file that cannot even be opened (``bounded_reads.unreadable_reason``)."""
+    return DatasetError(f"{path} {reason}; restore what it points to, or remove it")
+
+
 def corrupt_error(path, exc: BaseException) -> DatasetError:
     """The one-line error of an episode file that cannot be read."""
     path = Path(path)
@@ -384,8 +392,8 @@ def _read_episode(path, topics, generic: bool, validate: bool) -> Episode:
     return Episode(path=Path(path), metadata=metadata, topics=arrays, final=final)
 
 
-__all__ = ["Episode", "EpisodeFile", "corrupt_error", "read_episode", "stack_messages", "columns_to_topics",
-           "SUPPORTED_SCHEMA_VERSIONS"]
+__all__ = ["Episode", "EpisodeFile", "corrupt_error", "unreadable_error", "read_episode", "stack_messages",
+           "columns_to_topics", "SUPPORTED_SCHEMA_VERSIONS"]
 
 
 def _gather_rows(records, starts: np.ndarray, n_bytes: int, out: np.ndarray) -> None:

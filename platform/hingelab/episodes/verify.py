@@ -1,12 +1,13 @@
 """``verify``: find every cut-off, corrupt, foreign or schema-less episode file.
 
-A file passes when: it opens as MCAP with a summary (not cut off), every channel
-uses the contract's protobuf schema for its topic, it has an ``episode`` record
-with the required keys, every chunk passes its CRC, the metadata records match the CRC32s
-stored beside the columns (``reader``), every message decodes, and
-the ``/step`` messages match ``length`` (one per step, the reset's record aside). ``.partial``
-files are unfinished writes (a writer still running, or killed): they are reported, and
-``recover`` salvages them.
+A file passes when: it is a file (not a dangling symlink or a symlink loop), it opens as MCAP
+with a summary (not cut off), every channel uses the contract's protobuf schema for its topic,
+it has an ``episode`` record with the required keys, every chunk passes its CRC, the metadata
+records match the CRC32s stored beside the columns (``reader``), every message decodes, the
+``/step`` messages match ``length`` (one per step, the reset's record aside), and its
+``episode_id`` is a safe file name (``hingelab.safe_names``: exports name folders by it); a
+dataset card whose name is not one is reported too. ``.partial`` files are unfinished writes
+(a writer still running, or killed): they are reported, and ``recover`` salvages them.
 """
 
 from __future__ import annotations
@@ -17,17 +18,20 @@ from pathlib import Path
 from mcap.reader import SeekingReader
 from tqdm import tqdm
 
+from hingelab.bounded_reads import unreadable_reason
 from hingelab.episodes import schemas as S
-from hingelab.episodes.card import EPISODES_DIR, load_card
+from hingelab.episodes.card import CARD_FILE, EPISODES_DIR, load_card
 from hingelab.episodes.errors import DatasetError
 from hingelab.episodes.reader import EpisodeFile, read_episode
 from hingelab.episodes.writer import PARTIAL_SUFFIX
+from hingelab.safe_names import shown, unsafe_name_reason
 
 
 @dataclass
 class Problem:
     path: Path
-    kind: str  # "cut-off", "partial", "corrupt", "foreign", "not-mcap", "metadata", "unexpected"
+    kind: str  # "cut-off", "partial", "corrupt", "foreign", "not-mcap", "metadata", "unexpected", "unsafe-name",
+    # "unreadable"
     message: str
 
     def __str__(self) -> str:
@@ -45,6 +49,9 @@ def verify_episode(path: Path) -> Problem | None:
 
 
 def _verify_episode(path: Path) -> Problem | None:
+    reason = unreadable_reason(path)
+    if reason is not None:
+        return Problem(path, "unreadable", f"{reason}; restore what it points to or remove it from episodes/")
     try:
         with EpisodeFile(path) as episode_file:
             meta = episode_file.metadata()
@@ -81,6 +88,12 @@ def _verify_episode(path: Path) -> Problem | None:
     if S.KEY_LENGTH in meta and indices and not _steps_match(sorted(indices), int(meta[S.KEY_LENGTH]), version):
         return Problem(path, "corrupt", f"/step messages {indices[0]}..{indices[-1]} ({len(indices)} of them) do "
                                         f"not match length={meta[S.KEY_LENGTH]}")
+    episode_id = meta.get(S.KEY_EPISODE_ID)
+    unsafe = None if episode_id is None else unsafe_name_reason(str(episode_id))
+    if unsafe is not None:  # sound, but a fact no path may be built from
+        return Problem(path, "unsafe-name", f"episode_id {shown(str(episode_id))} {unsafe}; exports "
+                                             "name a folder by it, so they refuse this file: rewrite it with "
+                                             "EpisodeWriter or move it out of episodes/")
     return None
 
 
@@ -98,11 +111,15 @@ def _steps_match(indices: list[int], length: int, schema_version: int = 2) -> bo
 def verify_dataset(root, progress: bool = False) -> tuple[list[Path], list[Problem]]:
     """(sound episode files, problems) of a dataset folder."""
     root = Path(root)
-    load_card(root)
+    name = load_card(root).name
     episodes_dir = root / EPISODES_DIR
     if not episodes_dir.is_dir():
         raise DatasetError(f"{episodes_dir} is missing; a dataset keeps its episodes there")
     good, problems = [], []
+    unsafe = unsafe_name_reason(name)
+    if unsafe is not None:  # the card's name is a default file name (hingelab view) and the Minari id
+        problems.append(Problem(root / CARD_FILE, "unsafe-name", f"the dataset's name {shown(name)} {unsafe}; "
+                                                                  "rewrite the name in dataset.json"))
     for path in tqdm(sorted(episodes_dir.iterdir()), desc=f"verify {root.name}", unit="file",
                      disable=not progress):
         if path.name.startswith("."):

@@ -55,6 +55,7 @@ from hingelab.episodes import schemas as S
 from hingelab.episodes.card import CARD_FILE, EPISODES_DIR, load_card
 from hingelab.episodes.metadata import digest_columns, format_metadata
 from hingelab.provenance import code_version
+from hingelab.safe_names import safe_file_name
 
 PARTIAL_SUFFIX = ".partial"
 COMPRESSIONS = mcap_raw.COMPRESSIONS  # "zstd", "lz4", "none"
@@ -63,7 +64,7 @@ COMPRESSIONS = mcap_raw.COMPRESSIONS  # "zstd", "lz4", "none"
 def new_episode_id(source: str) -> str:
     """``<source>-<UTC time>-<12 random hex>``: sortable by time, unique across processes."""
     stamp = _dt.datetime.now(_dt.timezone.utc).strftime("%Y%m%dT%H%M%S")
-    safe = re.sub(r"[^A-Za-z0-9_.-]+", "_", source) or "episode"
+    safe = re.sub(r"[^A-Za-z0-9_.-]+", "_", source)[:64].strip(".") or "episode"  # a source may come from data
     return f"{safe}-{stamp}-{uuid.uuid4().hex[:12]}"
 
 
@@ -106,7 +107,8 @@ class EpisodeWriter:
                  extra_metadata: Mapping | None = None):
         self.dataset_dir = Path(dataset_dir)
         card = load_card(self.dataset_dir)  # refuses a folder without dataset.json
-        self.episode_id = episode_id or new_episode_id(source)
+        self.episode_id = safe_file_name(episode_id, "episode_id", self.dataset_dir) if episode_id else \
+            new_episode_id(source)
         self.path = self.dataset_dir / EPISODES_DIR / f"{self.episode_id}.mcap"
         self.partial_path = self.path.with_name(self.path.name + PARTIAL_SUFFIX)
         self.facts = {

@@ -1,7 +1,8 @@
 """Episodes -> ROS 2 bags: each episode a rosbag2 folder with MCAP storage, readable by rosbags and ROS 2 tools.
 
 ``export_ros2(dataset, out)`` writes ``OUT/<episode_id>/`` (``metadata.yaml`` + ``<episode_id>.mcap``)
-per episode, with the standard types (definitions stored in the bag, as ``ros2 bag record`` does):
+per episode (an ``episode_id`` that is not a plain file name is refused: ``hingelab.safe_names``),
+with the standard types (definitions stored in the bag, as ``ros2 bag record`` does):
 
 | topic | type | from the episode |
 |---|---|---|
@@ -32,11 +33,13 @@ from scipy.spatial.transform import Rotation
 from tqdm.auto import tqdm
 
 from hingelab.episodes import schemas as S
+from hingelab.episodes.errors import DatasetError
 from hingelab.episodes.export import register_exporter
 from hingelab.episodes.export_output import ExportResult, atomic_folder
 from hingelab.errors import ConfigError
 from hingelab.ros2.rig_bag import _header, _tf, point_cloud2
 from hingelab.ros2.topics import ARM_JOINT_NAMES, HAND_JOINTS, KINDS
+from hingelab.safe_names import safe_file_name
 
 TOOL_POINTS_TOPIC = "/tool/points"
 
@@ -144,7 +147,11 @@ def export_ros2(dataset, out, progress: bool = False) -> ExportResult:
             if not any(len(f.get("log_time_ns", [])) for f in episode.topics.values()):
                 result.skipped.setdefault("no messages", []).append(path.name)
                 continue
-            name = str(episode.metadata.get(S.KEY_EPISODE_ID) or path.stem)
+            episode_id = episode.metadata.get(S.KEY_EPISODE_ID)
+            name = safe_file_name(path.stem if episode_id is None else str(episode_id), "episode_id", path)
+            if (tmp / name).exists():
+                raise DatasetError(f"{path}: episode_id {name!r} is also the id of an episode exported before it; "
+                                   "a ros2 export names each bag folder by its episode's id, so ids must differ")
             messages += export_episode(episode, tmp / name)
             result.episodes += 1
             result.frames += int(episode.length)

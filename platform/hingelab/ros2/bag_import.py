@@ -23,6 +23,7 @@ and why.
 
 from __future__ import annotations
 
+import shutil
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -31,7 +32,7 @@ import numpy as np
 from tqdm.auto import tqdm
 
 from hingelab.camera import CameraFrame
-from hingelab.episodes.card import create_dataset
+from hingelab.episodes.card import EPISODES_DIR, create_dataset
 from hingelab.episodes.errors import DatasetError
 from hingelab.episodes.writer import EpisodeWriter
 from hingelab.perception.camera_cloud import ToolCloudConfig, tool_cloud_from_frame, tool_cloud_from_points, transform
@@ -83,7 +84,13 @@ def import_bags(bags, out, topics=(), progress: bool = False, encoder=None,
     names = topic_names(topics)
     out = Path(out)
     state = ToolState(encoder=encoder or load_encoder(), n_tools=1, dt=STEP_NS / 1e9)  # reset per episode
-    return [import_bag(bag, out, names, state, progress=progress, cloud=cloud) for bag in bags]
+    created = not out.exists()
+    try:
+        return [import_bag(bag, out, names, state, progress=progress, cloud=cloud) for bag in bags]
+    except BaseException:
+        if created and out.is_dir() and not any((out / EPISODES_DIR).glob("*.mcap")):
+            shutil.rmtree(out, ignore_errors=True)  # a bag refused midway (a malformed message): no empty dataset
+        raise
 
 
 def _check_topics(bag: Bag, names: dict) -> str:
@@ -277,10 +284,8 @@ def import_bag(path, out, names: dict, state, progress: bool = False,
     create_dataset(out, name=Path(out).name, source=SOURCE, config=import_config(names, cloud),
                    description="real-rig trials imported from ROS 2 bags (hingelab datasets import-ros2)")
     summary = BagSummary(bag.name)
-    if bag.cut_off:
+    if bag.cut_off:  # what was read is counted; metadata.yaml's counts are only quoted in the note
         summary.notes.append(bag.cut_off)
-        for topic, n in bag.lost_messages.items():
-            summary.drop(f"{topic} messages lost in the cut-off end of the bag", n)
     small = [k for k in ("joints", "action", "object", "events", "tf", "tf_static")
              + (("camera_info",) if camera_kind == "depth" else ()) if names[k] in bag.topics]
     raw = bag.read({names[k] for k in small})

@@ -8,7 +8,8 @@ camera's large messages are never all held at once. A healthy bag is read with
 MCAP bag whose end is missing (a recorder killed mid-chunk: AnyReader refuses it, it needs the
 summary at the end) is read record by record with the ``mcap`` library's stream reader until
 the cut: every complete chunk is kept, the chunk the cut went through is lost, and the
-``Bag.cut_off`` note says so (with the message counts ``metadata.yaml`` promised, if present).
+``Bag.cut_off`` note says so with the messages actually read (and, as the recorder's unchecked
+claim, the count ``metadata.yaml`` lists: a file that can say anything is never a drop count).
 
 Stamps: a message whose type starts with a ``std_msgs/Header`` (JointState, PointCloud2,
 Image, CameraInfo, PoseStamped) is stamped by its header, read from the CDR bytes without
@@ -30,8 +31,10 @@ from rosbags.highlevel import AnyReader
 from rosbags.typesys import Stores, get_types_from_idl, get_types_from_msg, get_typestore
 from ruamel.yaml import YAML
 
+from hingelab.bounded_reads import unreadable_reason
 from hingelab.episodes.errors import DatasetError
 
+METADATA_YAML_MAX_BYTES = 16 << 20  # a rosbag2 metadata.yaml is a few kB; a larger one is not read
 HEADER_FIRST = frozenset({
     "sensor_msgs/msg/JointState", "sensor_msgs/msg/PointCloud2", "sensor_msgs/msg/Image",
     "sensor_msgs/msg/CameraInfo", "geometry_msgs/msg/PoseStamped",
@@ -69,7 +72,7 @@ class Bag:
     end_ns: int
     typestore: object
     cut_off: str | None = None  # why part of the bag was lost, if it was
-    lost_messages: dict = field(default_factory=dict)  # topic -> messages metadata.yaml promised that were lost
+    listed_counts: dict = field(default_factory=dict)  # topic -> messages metadata.yaml lists (a cut-off bag)
     mcap_file: Path | None = None  # the file read record by record (a cut-off bag)
 
     @property
@@ -139,10 +142,11 @@ def _mcap_file(path: Path) -> Path | None:
     return files[0] if len(files) == 1 else None
 
 
-def _promised_counts(path: Path) -> dict:
-    """{topic: message count} from a rosbag2 folder's metadata.yaml (empty if none)."""
+def _listed_counts(path: Path) -> dict:
+    """{topic: message count} as a rosbag2 folder's metadata.yaml states them (empty if none, or if the file
+    is larger than any real one): a claim of the recorder, never a count of what a cut-off bag lost."""
     meta = path / "metadata.yaml" if path.is_dir() else None
-    if meta is None or not meta.exists():
+    if meta is None or unreadable_reason(meta) is not None or meta.stat().st_size > METADATA_YAML_MAX_BYTES:
         return {}
     try:
         info = YAML(typ="safe").load(meta.read_text())["rosbag2_bagfile_information"]
@@ -220,10 +224,15 @@ def _open_cut_off(path: Path, mcap_file: Path, reason: str) -> Bag:
     typestore = get_typestore(Stores.EMPTY)
     typestore.register(types)
     topic_types = {c.topic: schemas[c.schema_id].name for c in channels.values() if c.schema_id in schemas}
-    lost = {t: n - counts.get(t, 0) for t, n in _promised_counts(path).items() if n > counts.get(t, 0)}
+    read = sum(counts.values())
+    listed = _listed_counts(path)
+    claim = sum(listed.values())
+    said = (f"; metadata.yaml lists {claim} (the recorder's count, not checked: the messages after the cut are "
+            "not counted as dropped)") if claim > read else ""
     return Bag(path, topic_types, counts, first or 0, last or 0, typestore,
                cut_off=f"{mcap_file.name} is cut off ({cut or 'it ends early'}); kept every complete chunk, up to "
-                       f"{(last or 0) / 1e9:.3f} s", lost_messages=lost, mcap_file=mcap_file)
+                       f"{(last or 0) / 1e9:.3f} s: {read} messages read{said}", listed_counts=listed,
+               mcap_file=mcap_file)
 
 
 __all__ = ["Bag", "Stream", "open_bag"]

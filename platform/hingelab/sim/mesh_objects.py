@@ -8,24 +8,44 @@ re-centred on its axis-aligned bounding box's centre (the object body's origin, 
 the object's ``size``. The object is placed unrotated: the file's z axis points up and
 its y axis is the tweezer tips' closing direction.
 
-Hulls are cached per (resolved path, modification time, file size), so an ``ObjectSpec``
-keeps only the string and stays frozen and hashable.
+A file above ``max_mesh_mb()`` (200 MB unless ``--max-mesh-mb`` raises it) is refused from its
+size before it is read. Hulls are cached per (resolved path, modification time, file size), so
+an ``ObjectSpec`` keeps only the string and stays frozen and hashable.
 """
 
 from __future__ import annotations
 
 import hashlib
+import os
 from dataclasses import dataclass
 from functools import lru_cache
 from pathlib import Path
 
 import numpy as np
 
+from hingelab.bounded_reads import check_file_size, unreadable_reason
 from hingelab.errors import ConfigError
 
 MESH_PREFIX = "mesh:"
 MESH_SUFFIXES = (".stl", ".obj", ".ply")
+DEFAULT_MAX_MESH_MB = 200.0  # a mesh file above this is refused before it is read (trimesh holds several copies)
+MAX_MESH_MB_ENV = "HINGELAB_MAX_MESH_MB"
 FIX = "give an STL, OBJ or PLY file of a solid object (at least 4 non-coplanar vertices)"
+
+
+def max_mesh_mb() -> float:
+    """The largest mesh file read, in MB: ``$HINGELAB_MAX_MESH_MB`` (set by ``--max-mesh-mb``, inherited by
+    workers), else ``DEFAULT_MAX_MESH_MB``."""
+    text = os.environ.get(MAX_MESH_MB_ENV, "").strip()
+    if not text:
+        return DEFAULT_MAX_MESH_MB
+    try:
+        value = float(text)
+    except ValueError:
+        value = float("nan")
+    if not value > 0 or value == float("inf"):
+        raise ConfigError(f"{MAX_MESH_MB_ENV}={text!r} is not a size in MB; give a positive number, e.g. 500")
+    return value
 
 
 def is_mesh(shape: str) -> bool:
@@ -83,11 +103,18 @@ class UnitHull:
 def load_unit_hull(shape: str) -> UnitHull:
     """The hull of ``mesh:PATH``'s file (cached), or a one-line ConfigError naming the file."""
     path = mesh_path(shape)
-    if not path.is_file():
+    reason = unreadable_reason(path)
+    if reason == "does not exist":
         raise ConfigError(f"mesh file {path} not found; give the path of an existing STL, OBJ or PLY file "
                           f"as --object mesh:PATH")
+    if reason is not None:
+        raise ConfigError(f"mesh file {path} {reason}; give the path of an STL, OBJ or PLY file as --object mesh:PATH")
     if path.suffix.lower() not in MESH_SUFFIXES:
         raise ConfigError(f"mesh file {path} has suffix {path.suffix!r}; {FIX}")
+    limit_mb = max_mesh_mb()
+    check_file_size(path, int(limit_mb * 1e6), "mesh file",
+                    f"give a smaller mesh (a convex hull needs few vertices), or raise the limit with "
+                    f"--max-mesh-mb (or {MAX_MESH_MB_ENV}=MB)")
     stat = path.stat()
     if stat.st_size == 0:
         raise ConfigError(f"mesh file {path} is empty; {FIX}")

@@ -21,8 +21,10 @@ from pathlib import Path
 import rerun as rr
 
 from hingelab.episodes import read_episode
+from hingelab.episodes.card import CARD_FILE
 from hingelab.episodes.dataset import Dataset, open_dataset
 from hingelab.errors import HingelabError
+from hingelab.safe_names import safe_file_name
 from hingelab.viewers import entities as E
 from hingelab.viewers.blueprints import dataset_blueprint, episode_blueprint
 from hingelab.viewers.dataset_log import DatasetLogStats, log_dataset
@@ -72,6 +74,13 @@ def _target(path: Path) -> tuple[str, Dataset | Path]:
     return "dataset", dataset
 
 
+def _file_name(name: str, kind: str, target) -> str:
+    """The recording's default file name: a dataset's name is a fact of its card, checked before it names a file."""
+    if kind == "episode":
+        return name
+    return safe_file_name(name, "the dataset card's name", target.root / CARD_FILE, fix="give --save FILE.rrd")
+
+
 def _open_recording(name: str, blueprint, save: Path | None) -> rr.RecordingStream:
     rec = rr.RecordingStream(E.APPLICATION_ID, recording_id=E.RECORDING_ID_PREFIX + name)
     if save is not None:
@@ -95,8 +104,10 @@ def view(path, save=None, web: bool = False, cloud_every: int = 10, max_episodes
     path = Path(path)
     kind, target = _target(path)
     name = path.stem if kind == "episode" else target.card.name
+    # a default file name is checked before anything is made (a dataset's name comes from its card)
+    file_name = _file_name(name, kind, target) if save is None and (web or not has_display()) else None
     if save is None and not web and not has_display():
-        save = Path.cwd() / f"{name}.rrd"
+        save = Path.cwd() / f"{file_name}.rrd"
     save = Path(save) if save is not None else None
     if save is not None and save.suffix != ".rrd":
         raise ViewError(f"--save {save}: a Rerun recording file must end in .rrd")
@@ -104,7 +115,7 @@ def view(path, save=None, web: bool = False, cloud_every: int = 10, max_episodes
         raise ViewError("give either save (an .rrd file) or web, not both")
     workdir = serving_workdir() if web else None
     if workdir is not None:
-        save = Path(workdir.name) / f"{name}.rrd"
+        save = Path(workdir.name) / f"{file_name}.rrd"
     if kind == "episode":
         episode = read_episode(target)  # before opening the sink: a bad file leaves no .rrd behind
         rec = _open_recording(name, episode_blueprint(), save)
