@@ -133,3 +133,16 @@ def test_what_a_checkpoint_covers_and_what_an_older_ones_counts_say():
     assert covered_episodes({"episode_counts": [3, 4], "mid_episode": False}) == [3, 4]
     # ... mid-episode they count each env's episode under way, which had not finished
     assert covered_episodes({"episode_counts": [3, 4], "mid_episode": True}) == [2, 3]
+
+
+def test_a_resume_keeps_one_of_a_rollout_an_older_resume_recorded_twice(uninterrupted, tmp_path):
+    run = tmp_path / "copy"
+    shutil.copytree(uninterrupted, run)
+    episodes = run / "dataset" / "episodes"
+    first = sorted(episodes.glob("*.mcap"))[0]
+    twice = episodes / first.name.replace("low_level_training-", "low_level_training-9")  # recorded later
+    shutil.copy(first, twice)
+    assert len(Dataset(run / "dataset").index) == len(_rollouts(uninterrupted)) + 1
+    train_low(TINY, run, resume=True, progress=False)  # nothing left to train: only the set-up runs
+    pd.testing.assert_frame_equal(_rollouts(run), _rollouts(uninterrupted))
+    assert twice.exists() and not first.exists()  # the later one, the replay the checkpoint learned from

@@ -23,8 +23,6 @@ import time
 from dataclasses import fields, replace
 from pathlib import Path
 
-import pandas as pd
-
 from hingelab.analysis.learning_curves import old_metrics_renames
 from hingelab.episodes import create_dataset
 from hingelab.episodes.card import EPISODES_DIR
@@ -208,17 +206,20 @@ class RunFolder:
         The resumed run replays those episodes from their seeds (``training_episode_seed``), so the
         dataset ends as an uninterrupted run's, each rollout once. They are removed, not set aside in a
         folder of their own: the replay is the same episode (the run resumes exactly), and a second copy
-        anywhere in the run folder is one a later glob could count again."""
+        anywhere in the run folder is one a later glob could count again. A covered seed recorded twice
+        (a run resumed by an older hingelab) keeps its last episode, the replay the checkpoint learned from."""
         episodes = self.dataset_path / EPISODES_DIR
         if not self.config.record or not episodes.is_dir():
             return []
         seed = self.config.seed
         kept = {training_episode_seed(seed, env, k) for env, n in enumerate(covered) for k in range(n)}
         index = Dataset(self.dataset_path, on_corrupt=getattr(self.config, "on_corrupt", None)).build_index()
-        later = [name for name, s in zip(index["file"], index["seed"]) if not pd.isna(s) and int(s) not in kept]
-        for name in later:
+        rollouts = index.dropna(subset=["seed"]).sort_values("file")  # episode ids sort by the time they began
+        covered_rows = rollouts["seed"].astype(int).isin(kept)
+        drop = list(rollouts["file"][~covered_rows | rollouts["seed"].duplicated(keep="last")])
+        for name in drop:
             (episodes / name).unlink()
-        return later
+        return drop
 
 
 __all__ = ["RunFolder", "has_started", "covered_episodes", "MetricsLog", "CONFIG_FILE", "METRICS_FILE", "DATASET_DIR",
