@@ -180,3 +180,10 @@ def test_sweep_resume_leaves_a_trial_someone_is_training_alone(tmp_path, capsys)
     finally:
         child.send_signal(signal.SIGKILL)
         child.wait()
+
+
+def test_an_out_that_is_a_file_is_one_line(tmp_path, capsys):
+    (tmp_path / "file").write_text("not a folder")
+    assert main(["generate", "clouds", "--n", "2", "--out", str(tmp_path / "file"), "--no-progress"]) == 1
+    err = capsys.readouterr().err.strip().splitlines()
+    assert err == [f"hingelab: error: {tmp_path / 'file'} is a file, not a folder; give a folder"]

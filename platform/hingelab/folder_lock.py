@@ -31,7 +31,7 @@ import time
 from collections.abc import Iterator, Sequence
 from pathlib import Path
 
-from hingelab.errors import FolderBusyError
+from hingelab.errors import ConfigError, FolderBusyError
 
 LOCK_FILE = ".hingelab.lock"
 
@@ -98,7 +98,12 @@ def folder_lock(folder, command: Sequence[str] | str | None = None) -> Iterator[
     process's command line. Raises ``FolderBusyError`` when another process holds the lock."""
     folder = Path(folder)
     made = _missing_folders(folder)
-    folder.mkdir(parents=True, exist_ok=True)
+    try:
+        folder.mkdir(parents=True, exist_ok=True)
+    except FileExistsError:
+        raise ConfigError(f"{folder} is a file, not a folder; give a folder") from None
+    except OSError as exc:
+        raise ConfigError(f"cannot create {folder} ({exc.strerror}); give another folder") from None
     path = folder / LOCK_FILE
     fd = _acquire(path, folder)
     line = command if isinstance(command, str) else command_line(command)
