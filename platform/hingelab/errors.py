@@ -19,3 +19,7 @@ class ConfigError(HingelabError, ValueError):
 
 class DiskFullError(HingelabError):
     """The disk filled up during a run; what was finished is kept and the run can be resumed."""
+
+
+class FolderBusyError(HingelabError):
+    """Another hingelab command is writing the folder (``hingelab.folder_lock``); one writer per folder."""

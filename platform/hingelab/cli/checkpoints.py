@@ -6,6 +6,7 @@ import argparse
 from pathlib import Path
 
 from hingelab.errors import ConfigError
+from hingelab.folder_lock import folder_lock
 from hingelab.perception.encoder import SHIPPED_CHECKPOINT, convert_checkpoint
 from hingelab.policies.phase_clone import PhaseClone, is_phase_clone
 from hingelab.policies.sb3_zip import read_plain_data
@@ -37,7 +38,8 @@ def run_convert(args: argparse.Namespace) -> int:
     for path in args.files or [SHIPPED_CHECKPOINT]:
         if path.is_dir():
 
-            rewritten = convert_pickled(path)
+            with folder_lock(path, args.argv):
+                rewritten = convert_pickled(path)
             print(f"{path}: {len(rewritten)} pickled checkpoint(s) rewritten as state.json and replay_buffer.npz"
                   if rewritten else f"{path}: no pickled checkpoints; nothing to convert.")
             continue

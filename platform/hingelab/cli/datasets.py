@@ -13,6 +13,7 @@ from hingelab.episodes.export import EXPORTERS, export_dataset
 from hingelab.episodes.recover import recover_episode, recover_folder
 from hingelab.episodes.verify import verify_dataset
 from hingelab.errors import ConfigError
+from hingelab.folder_lock import folder_lock
 from hingelab.paths import DATASETS_DIR
 from hingelab.ros2 import bag_export  # noqa: F401  (registers the ros2 export format)
 from hingelab.ros2.bag_import import import_bags
@@ -160,7 +161,8 @@ def run_recover(args: argparse.Namespace) -> int:
         if args.out is not None:
             raise ConfigError("--out names one recovered file; a dataset folder's .partial files are recovered "
                               "under their own names (leave --out out)")
-        result = recover_folder(args.file, discard=args.discard)
+        with folder_lock(args.file, args.argv):  # its .partial files may be a running command's episodes
+            result = recover_folder(args.file, discard=args.discard)
         failed = "".join(f"; kept {path.name}: {reason}" for path, reason in result["failed"])
         print(f"{args.file}: recovered {len(result['recovered'])} and removed {len(result['discarded'])} .partial "
               f"files{failed}.")
@@ -189,7 +191,8 @@ def run_export(args: argparse.Namespace) -> int:
 def run_import_ros2(args: argparse.Namespace) -> int:
 
     topic_names(args.topic)  # a malformed --topic is refused before anything is read
-    summaries = import_bags(args.bags, args.out, topics=args.topic, progress=not args.no_progress)
+    with folder_lock(args.out, args.argv):
+        summaries = import_bags(args.bags, args.out, topics=args.topic, progress=not args.no_progress)
     for summary in summaries:
         print(summary.line())
     episodes = sum(len(s.episodes) for s in summaries)

@@ -23,6 +23,7 @@ from pathlib import Path
 
 from hingelab.cli import eval_perception
 from hingelab.cli.options import add_max_mesh_mb, add_object_noise, add_object_perception, add_ray_argument
+from hingelab.folder_lock import folder_lock
 from hingelab.policies.loading import baseline_names
 from hingelab.rollouts.evaluation import evaluate_high, evaluate_low
 
@@ -106,20 +107,22 @@ def add_parser(subparsers) -> None:
 
 
 def run_low(args: argparse.Namespace) -> int:
-    result = evaluate_low(args.checkpoint, out=args.out, baseline=args.baseline, episodes=args.episodes,
-                          seed=args.seed, randomize=not args.no_randomize, perception=args.perception,
-                          resume=args.resume, ray=args.ray, progress=not args.no_progress, command=args.argv)
+    with folder_lock(args.out, args.argv):
+        result = evaluate_low(args.checkpoint, out=args.out, baseline=args.baseline, episodes=args.episodes,
+                              seed=args.seed, randomize=not args.no_randomize, perception=args.perception,
+                              resume=args.resume, ray=args.ray, progress=not args.no_progress, command=args.argv)
     print(result.table.to_string(index=False, float_format=lambda v: f"{v:.3f}"))
     print(result.summary)
     return 0
 
 
 def run_high(args: argparse.Namespace) -> int:
-    result = evaluate_high(args.checkpoint, out=args.out, baseline=args.baseline, object=args.object,
-                           size=args.size, episodes=args.episodes, seed=args.seed, low_level=args.low_level,
-                           perception=args.perception, object_perception=args.object_perception, resume=args.resume,
-                           ray=args.ray, object_noise=args.object_noise, object_noise_model=args.object_noise_model,
-                           progress=not args.no_progress, command=args.argv)
+    with folder_lock(args.out, args.argv):
+        result = evaluate_high(args.checkpoint, out=args.out, baseline=args.baseline, object=args.object,
+                               size=args.size, episodes=args.episodes, seed=args.seed, low_level=args.low_level,
+                               perception=args.perception, object_perception=args.object_perception, resume=args.resume,
+                               ray=args.ray, object_noise=args.object_noise, object_noise_model=args.object_noise_model,
+                               progress=not args.no_progress, command=args.argv)
     print(result.table.to_string(index=False, float_format=lambda v: f"{v:.3f}"))
     print(result.summary)
     return 0

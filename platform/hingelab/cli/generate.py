@@ -14,6 +14,7 @@ import importlib
 import time
 from pathlib import Path
 
+from hingelab.folder_lock import folder_lock
 from hingelab.paths import DATASETS_DIR
 from hingelab.perception.synthetic_dataset import CloudDatasetConfig, generate_cloud_dataset
 
@@ -73,7 +74,8 @@ def run_clouds(args: argparse.Namespace) -> int:
                                 noise_std_m=args.noise, noise_std_max_m=args.noise_max,
                                 removal_fraction=args.removal)
     start = time.perf_counter()
-    dataset = generate_cloud_dataset(args.out, config, progress=not args.no_progress)
+    with folder_lock(args.out, args.argv):
+        dataset = generate_cloud_dataset(args.out, config, progress=not args.no_progress)
     seconds = time.perf_counter() - start
     index = dataset.index
     size_mb = sum(p.stat().st_size for p in dataset.paths()) / 1e6

@@ -6,6 +6,7 @@ import argparse
 from pathlib import Path
 
 from hingelab.cli.options import add_max_mesh_mb, add_object_noise, add_ray_argument
+from hingelab.folder_lock import folder_lock
 from hingelab.paths import DATASETS_DIR
 from hingelab.rollouts.heuristic_demos import HeuristicRunConfig, generate_heuristic_dataset, summarize, timed
 
@@ -54,8 +55,9 @@ def run_heuristic(args: argparse.Namespace) -> int:
     config = HeuristicRunConfig(episodes=args.episodes, object=args.object, size=args.size, mass=args.mass,
                                 seed=args.seed, workers=args.workers, randomize=not args.no_randomize,
                                 object_noise=args.object_noise, object_noise_model=args.object_noise_model)
-    summaries, seconds = timed(generate_heuristic_dataset, args.out, config, progress=not args.no_progress,
-                               resume=args.resume, ray_address=args.ray)
+    with folder_lock(args.out, args.argv):
+        summaries, seconds = timed(generate_heuristic_dataset, args.out, config, progress=not args.no_progress,
+                                   resume=args.resume, ray_address=args.ray)
     if not summaries:
         print(f"{args.out} already holds the {config.episodes} episodes; nothing to do.")
         return 0

@@ -7,6 +7,7 @@ import time
 from pathlib import Path
 
 from hingelab.errors import ConfigError
+from hingelab.folder_lock import folder_lock
 from hingelab.sweeps.runner import run_sweep, summary
 from hingelab.sweeps.spec import load_sweep
 
@@ -52,8 +53,9 @@ def run(args: argparse.Namespace) -> int:
     spec = load_sweep(args.sweep_file)  # every trial's command line checked before anything starts
     started = time.perf_counter()
     try:
-        records = run_sweep(spec, args.out, address=args.address, resume=args.resume, num_cpus=args.cpus,
-                            progress=not args.no_progress)
+        with folder_lock(args.out, args.argv):  # the driver's; each trial's train locks its own run folder
+            records = run_sweep(spec, args.out, address=args.address, resume=args.resume, num_cpus=args.cpus,
+                                progress=not args.no_progress)
     except KeyboardInterrupt:
         print(f"Sweep stopped; continue it with: hingelab sweep {args.out / 'sweep.toml'} --out {args.out} --resume",
               flush=True)

@@ -16,6 +16,7 @@ from hingelab import paths
 from hingelab.bounded_reads import resolved_input
 from hingelab.cli.options import add_max_mesh_mb
 from hingelab.errors import ConfigError
+from hingelab.folder_lock import folder_lock
 from hingelab.learners import registry
 from hingelab.paths import refuse_to_replace_shipped
 from hingelab.perception.encoder import EncoderConfig
@@ -94,7 +95,8 @@ def run_policy(args: argparse.Namespace) -> int:
             raise ConfigError(f"{out} is a run of --learner {recorded}, not {learner.name}: resume it with "
                               f"--learner {recorded}")
         config = resumed_config(out, config, given_settings(learner.config_class, args))
-    result = learner.train(config, out, resume=args.resume, progress=not args.no_progress, name=args.name)
+    with folder_lock(out, args.argv):
+        result = learner.train(config, out, resume=args.resume, progress=not args.no_progress, name=args.name)
     print(learner.summary(result, config, out))
     return 0
 

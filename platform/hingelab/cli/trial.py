@@ -8,6 +8,7 @@ import sys
 from pathlib import Path
 
 from hingelab.cli.options import add_max_mesh_mb, add_object_perception
+from hingelab.folder_lock import folder_lock
 from hingelab.robot.interface import ROBOTS
 from hingelab.robot.trial import TrialConfig, run_trial_session
 from hingelab.seeds import STRIDE, TRIALS_BASE
@@ -59,7 +60,8 @@ def run(args: argparse.Namespace) -> int:
     config = TrialConfig(object=args.object, size=args.size, trials=args.trials, seed=args.seed,
                          max_steps=args.max_steps, depth_every=args.depth_every, operator=args.operator,
                          object_perception=args.object_perception)
-    session = run_trial_session(args.robot, config, args.out, policy=args.policy, low_level=args.low_level,
-                                progress=not args.no_progress, warn=lambda text: print(text, file=sys.stderr))
+    with folder_lock(args.out, args.argv):
+        session = run_trial_session(args.robot, config, args.out, policy=args.policy, low_level=args.low_level,
+                                    progress=not args.no_progress, warn=lambda text: print(text, file=sys.stderr))
     print(session.summary)
     return 0

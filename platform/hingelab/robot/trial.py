@@ -42,6 +42,7 @@ from hingelab.envs.recording import object_metadata, object_perception_metadata,
 from hingelab.episodes import EpisodeWriter, create_dataset
 from hingelab.episodes import schemas as S
 from hingelab.errors import ConfigError
+from hingelab.folder_lock import is_empty
 from hingelab.perception.object_perception import TRUTH, check_object_perception
 from hingelab.policies.high_level import SHIPPED_HIGH_LEVEL
 from hingelab.robot import stand_in  # noqa: F401  (registers the "sim" robot)
@@ -246,7 +247,7 @@ def run_trial_session(robot_name: str, config: TrialConfig, out, policy=None, lo
     out = Path(out)
     if robot_name not in ROBOTS:
         raise ConfigError(f"no robot {robot_name!r}; the robots: {', '.join(ROBOTS)}")
-    if out.exists() and any(out.iterdir()):
+    if not is_empty(out):
         raise ConfigError(f"{out} exists and is not empty; give a new folder to --out")
     make, options = ROBOTS[robot_name], {}
     if config.object_perception != TRUTH:

@@ -16,6 +16,7 @@ from pathlib import Path
 from hingelab.episodes.card import load_card
 from hingelab.episodes.dataset import Dataset
 from hingelab.errors import ConfigError
+from hingelab.folder_lock import is_empty
 from hingelab.provenance import differing_settings
 
 JOURNAL_FILE = "episodes.partial.jsonl"
@@ -59,7 +60,7 @@ def prepare_resume(out: Path, config: dict, resume: bool) -> EpisodeJournal:
     out = Path(out)
     journal = EpisodeJournal(out)
     if not resume:
-        if out.exists() and any(out.iterdir()):
+        if not is_empty(out):
             raise ConfigError(f"{out} is not empty; evaluate into a new folder, or continue a stopped "
                               "evaluation there with --resume")
         return journal

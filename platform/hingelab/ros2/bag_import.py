@@ -18,7 +18,9 @@ encoder, EMA) as in simulation: tool pose, latents z and z_bar.
 
 Each episode keeps the bag's name, path, topics and time range in its metadata (``ros2_*``
 keys); the summary of a bag (``BagSummary``) counts episodes, steps and the messages dropped
-and why.
+and why. An import is idempotent: a trial the dataset holds already (``trial_key``: the bag's topic
+set and time range and the trial's own; not the bag's file name, so a renamed or copied bag is the
+same recording) is skipped, and the summary says so.
 """
 
 from __future__ import annotations
@@ -34,7 +36,11 @@ from tqdm.auto import tqdm
 from hingelab.camera import CameraFrame
 from hingelab.episodes.card import EPISODES_DIR, create_dataset
 from hingelab.episodes.errors import DatasetError
+from hingelab.episodes.metadata import format_value
+from hingelab.episodes.reader import EpisodeFile
+from hingelab.episodes.schemas import METADATA_EPISODE
 from hingelab.episodes.writer import EpisodeWriter
+from hingelab.folder_lock import LOCK_FILE, entries, is_empty
 from hingelab.perception.camera_cloud import ToolCloudConfig, tool_cloud_from_frame, tool_cloud_from_points, transform
 from hingelab.perception.encoder import load_encoder
 from hingelab.perception.tool_state import ToolState
@@ -78,18 +84,49 @@ def import_config(names: dict, cloud: ToolCloudConfig) -> dict:
     return {"importer": "ros2", "topics": dict(sorted(names.items())), "tool_cloud": cloud.to_json()}
 
 
+def trial_key(bag_topics, bag_start_ns: int, bag_end_ns: int, trial_start_ns: int, trial_end_ns: int) -> tuple:
+    """What identifies an imported trial: its bag's topic set and time range and its own time range, as
+    the episode's ``ros2_*`` metadata stores them."""
+    return (format_value(sorted(bag_topics)), *(str(int(t)) for t in (bag_start_ns, bag_end_ns, trial_start_ns,
+                                                                      trial_end_ns)))
+
+
+META_KEY = ("ros2_bag_topics", "ros2_bag_start_ns", "ros2_bag_end_ns", "ros2_trial_start_ns", "ros2_trial_end_ns")
+
+
+def imported_trials(out) -> dict[tuple, str]:
+    """The trials the dataset folder ``out`` holds (``trial_key`` -> episode file name); an episode file that
+    cannot be read, or was not imported from a bag, names none."""
+    episodes = Path(out) / EPISODES_DIR
+    found = {}
+    for path in sorted(episodes.glob("*.mcap")) if episodes.is_dir() else []:
+        try:
+            with EpisodeFile(path) as episode_file:
+                meta = episode_file.raw_metadata().get(METADATA_EPISODE, {})
+        except Exception:  # noqa: BLE001 - a corrupt file is verify's to report; it identifies no trial
+            continue
+        if all(k in meta for k in META_KEY):
+            found.setdefault(tuple(meta[k] for k in META_KEY), path.name)
+    return found
+
+
 def import_bags(bags, out, topics=(), progress: bool = False, encoder=None,
                 cloud: ToolCloudConfig = ToolCloudConfig()) -> list[BagSummary]:
-    """Import every bag of ``bags`` into the dataset folder ``out`` (created, or reopened with the same topics)."""
+    """Import every bag of ``bags`` into the dataset folder ``out`` (created, or reopened with the same topics);
+    trials ``out`` holds already (by ``trial_key``) are skipped."""
     names = topic_names(topics)
     out = Path(out)
     state = ToolState(encoder=encoder or load_encoder(), n_tools=1, dt=STEP_NS / 1e9)  # reset per episode
-    created = not out.exists()
+    created = is_empty(out)  # new, or holding only the command's lock file
+    imported = imported_trials(out)
     try:
-        return [import_bag(bag, out, names, state, progress=progress, cloud=cloud) for bag in bags]
+        return [import_bag(bag, out, names, state, progress=progress, cloud=cloud, imported=imported) for bag in bags]
     except BaseException:
         if created and out.is_dir() and not any((out / EPISODES_DIR).glob("*.mcap")):
-            shutil.rmtree(out, ignore_errors=True)  # a bag refused midway (a malformed message): no empty dataset
+            for entry in entries(out):  # a bag refused midway (a malformed message): no empty dataset
+                shutil.rmtree(entry, ignore_errors=True) if entry.is_dir() else entry.unlink(missing_ok=True)
+            if not entries(out) and not (out / LOCK_FILE).exists():
+                shutil.rmtree(out, ignore_errors=True)
         raise
 
 
@@ -274,9 +311,10 @@ class _Joints:
 
 
 def import_bag(path, out, names: dict, state, progress: bool = False,
-               cloud: ToolCloudConfig = ToolCloudConfig()) -> BagSummary:
+               cloud: ToolCloudConfig = ToolCloudConfig(), imported: dict | None = None) -> BagSummary:
     """One bag into the dataset ``out`` (created if needed); see the module docstring. ``state``: a ``ToolState``
-    (n_tools 1, 20 Hz), reset at every episode."""
+    (n_tools 1, 20 Hz), reset at every episode. ``imported``: the trials ``out`` holds (``imported_trials``),
+    skipped here; the trials this imports are added to it."""
     path = Path(path)
     bag = open_bag(path)
     camera_kind = _check_topics(bag, names)
@@ -309,10 +347,18 @@ def import_bag(path, out, names: dict, state, progress: bool = False,
     summary.notes.extend(notes)
     if not trials:
         summary.notes.append(f"no trial: {names['events']} has no start event")
+    imported = imported_trials(out) if imported is None else imported
+    keys = [trial_key(bag.topics, bag.start_ns, bag.end_ns, t.start_ns, t.end_ns) for t in trials]
+    already = [imported[key] for key in keys if key in imported]
+    if already:
+        shown = ", ".join(already[:3]) + (" ..." if len(already) > 3 else "")
+        summary.notes.append(f"{len(already)} trial{'s' if len(already) > 1 else ''} already in {out} (the same "
+                             f"topics and time range: {shown}), skipped")
+    todo = [(index, trial, key) for index, (trial, key) in enumerate(zip(trials, keys)) if key not in imported]
     camera = _Camera(bag, names[camera_kind], camera_kind, streams.get("camera_info"), tf, cloud, summary, progress)
     summary.messages += camera.messages
     grids = [trial.start_ns + STEP_NS * np.arange(max(0, (trial.end_ns - trial.start_ns) // STEP_NS + 1))
-             for trial in trials]
+             for _, trial, _ in todo]
     if grids:
         camera.prepare(np.concatenate(grids))
     joints = _Joints(bag, streams["joints"], summary)
@@ -320,11 +366,12 @@ def import_bag(path, out, names: dict, state, progress: bool = False,
     bar = tqdm(total=sum(len(g) for g in grids), desc=f"import {bag.name}", unit="step", disable=not progress,
                leave=False)
     try:
-        for index, trial in enumerate(trials):
+        for index, trial, key in todo:
             written = _write_episode(bag, trial, index, out, names, joints, camera, action, streams.get("object"), tf,
                                      state, summary, bar)
             if written is not None:
                 summary.episodes.append(written)
+                imported[key] = Path(written).name
     finally:
         bar.close()
     return summary

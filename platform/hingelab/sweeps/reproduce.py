@@ -28,7 +28,6 @@ stage still running from a killed reproduction is refused on resume until it has
 
 from __future__ import annotations
 
-import fcntl
 import json
 import os
 import shlex
@@ -44,6 +43,7 @@ from datetime import datetime
 from pathlib import Path
 
 from hingelab.errors import ConfigError, HingelabError
+from hingelab.folder_lock import folder_lock, is_empty
 from hingelab.provenance import code_version
 from hingelab.rollouts.journal import JOURNAL_FILE
 from hingelab.sweeps.reproduce_plan import (
@@ -59,7 +59,7 @@ from hingelab.sweeps.trial_task import _die_with_parent
 from hingelab.training.checkpoints import latest_checkpoint
 from hingelab.training.run_folder import CONFIG_FILE
 
-STATE_FILE, LOCK_FILE = "reproduce.json", ".reproduce.lock"
+STATE_FILE = "reproduce.json"
 FORMAT, FORMAT_VERSION = "hingelab reproduce", 1
 STATUSES = ("pending", "running", "done", "failed")
 POLL_S = 0.5
@@ -141,30 +141,9 @@ def open_folder(out: Path, scale: str | None, resume: bool) -> dict:
         return doc
     if (out / STATE_FILE).exists():
         raise ConfigError(f"{out} holds a reproduction; continue it with --resume, or give a new --out")
-    if out.exists() and (not out.is_dir() or any(out.iterdir())):
+    if out.exists() and (not out.is_dir() or not is_empty(out)):
         raise ConfigError(f"{out} is not empty; give a new or empty --out (or --resume a reproduction there)")
     return new_state(out, scale or "shipped")
-
-
-@contextmanager
-def folder_lock(out: Path):
-    """One reproduction process per folder (the lock goes with the process, even when it is killed)."""
-    path = Path(out) / LOCK_FILE
-    with open(path, "a+") as f:
-        try:
-            fcntl.flock(f, fcntl.LOCK_EX | fcntl.LOCK_NB)
-        except BlockingIOError:
-            f.seek(0)
-            raise ConfigError(f"another hingelab reproduce is running in {out} (pid {f.read().strip() or '?'}); "
-                              "wait for it or stop it first") from None
-        f.seek(0)
-        f.truncate()
-        f.write(str(os.getpid()))
-        f.flush()
-        try:
-            yield
-        finally:
-            fcntl.flock(f, fcntl.LOCK_UN)
 
 
 # ---------------------------------------------------------------------------- a stage's launch
@@ -353,15 +332,20 @@ def run_reproduction(out, scale: str | None = None, resume: bool = False, jobs: 
     if jobs < 1:
         raise ConfigError("--jobs must be at least 1")
     out = Path(out).resolve()
+    with folder_lock(out):  # one reproduction per folder (hingelab.folder_lock), before its state is read
+        return _run_locked(out, scale, resume, jobs, progress, command, table)
+
+
+def _run_locked(out: Path, scale: str | None, resume: bool, jobs: int, progress: bool, command: list[str] | None,
+                table: bool) -> Reproduction:
     doc = open_folder(out, scale, resume)
-    out.mkdir(parents=True, exist_ok=True)
     command = list(command or hingelab_command())
 
     def say(message: str) -> None:
         if progress:
             print(f"[{datetime.now().strftime('%H:%M:%S')}] {message}", flush=True)
 
-    with folder_lock(out), sigterm_as_interrupt():
+    with sigterm_as_interrupt():
         if resume:
             prepare_resume(doc, out, say)
         (out / LOGS_DIR).mkdir(exist_ok=True)

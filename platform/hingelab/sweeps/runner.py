@@ -32,6 +32,7 @@ from pathlib import Path
 import numpy as np
 
 from hingelab.errors import ConfigError, HingelabError
+from hingelab.folder_lock import is_empty, refuse_if_locked
 from hingelab.provenance import code_version
 from hingelab.sweeps.spec import SweepSpec
 from hingelab.sweeps.trial_task import run_trial
@@ -122,7 +123,7 @@ def _start_folder(spec: SweepSpec, out: Path, resume: bool, address: str | None)
         if record.read_text() != spec.text:
             raise ConfigError(f"--resume: {spec.path} differs from {record}, the file this sweep was started with; "
                               f"resume with `hingelab sweep {record} --out {out} --resume`, or start a new --out")
-    elif record.exists() or (out.exists() and any(out.iterdir())):
+    elif record.exists() or not is_empty(out):
         raise ConfigError(f"{out} is not empty; continue the sweep there with --resume, or give a new --out")
     out.mkdir(parents=True, exist_ok=True)
     (out / LOGS_DIR).mkdir(exist_ok=True)
@@ -153,6 +154,7 @@ def _plan(spec: SweepSpec, out: Path, resume: bool) -> tuple[list[TrialRecord], 
         if old.get("state") == "finished" and (run_dir / "model.zip").exists():
             record.state, record.returncode = "finished", old.get("returncode", 0)
             continue
+        refuse_if_locked(run_dir)  # its train still runs (a sweep's whose driver died, or one started by hand)
         argv = [*trial.argv, "--out", str(run_dir.resolve())]
         latest = ckpt.latest_checkpoint(run_dir) if run_dir.is_dir() else None
         if latest is not None:

@@ -6,7 +6,8 @@
                             train high, ``prior``: the datasets and sources that filled the buffer)
     RUNDIR/run.json         the curve label for ``hingelab report``
     RUNDIR/metrics.csv      one row per evaluation (``MetricsLog``)
-    RUNDIR/dataset/         every training rollout, one MCAP episode each
+    RUNDIR/dataset/         every training rollout, one MCAP episode each (once: a resume removes those
+                            that finished after its checkpoint, which it replays)
     RUNDIR/checkpoints/     resumable checkpoints (``hingelab.training.checkpoints``)
     RUNDIR/model.zip        the last policy;  RUNDIR/best_model.zip  the best evaluated one
 
@@ -24,8 +25,11 @@ from pathlib import Path
 
 from hingelab.analysis.learning_curves import old_metrics_renames
 from hingelab.episodes import create_dataset
+from hingelab.episodes.card import EPISODES_DIR
+from hingelab.episodes.dataset import Dataset
 from hingelab.errors import ConfigError
 from hingelab.provenance import code_version
+from hingelab.seeds import training_episode_seed
 from hingelab.training.run_config import flag_of
 
 CONFIG_FILE = "config.json"
@@ -109,6 +113,15 @@ def resumed_config(run_dir: Path, config, given: set[str]):
     return replace(saved, **{name: getattr(config, name) for name in RESUME_SETTINGS if name in given})
 
 
+def covered_episodes(state: dict) -> list[int]:
+    """Per rollout env, how many of its episodes a checkpoint covers (its ``state.json``): those the env had
+    finished when the checkpoint was written. A checkpoint of an older hingelab records its episode counts
+    only: at an episode boundary they are the finished episodes; mid-episode they count the one under way."""
+    if "finished_episodes" in state:
+        return [int(n) for n in state["finished_episodes"]]
+    return [int(n) - (1 if state.get("mid_episode") else 0) for n in state["episode_counts"]]
+
+
 def has_started(path: Path) -> bool:
     """Whether the run in ``path`` got as far as its first step: an evaluation, a checkpoint, a saved
     policy or a recorded rollout (its config.json, run.json and a generated prior alone do not count)."""
@@ -186,5 +199,28 @@ class RunFolder:
                 partial.unlink()
         return root
 
+    def drop_rollouts_after(self, covered: list[int]) -> list[str]:
+        """Remove the recorded rollouts that finished after the checkpoint a resume continues from
+        (``covered``: per env, the episodes it covers, ``covered_episodes``); returns their file names.
 
-__all__ = ["RunFolder", "has_started", "MetricsLog", "CONFIG_FILE", "METRICS_FILE", "DATASET_DIR", "RUN_FILE"]
+        The resumed run replays those episodes from their seeds (``training_episode_seed``), so the
+        dataset ends as an uninterrupted run's, each rollout once. They are removed, not set aside in a
+        folder of their own: the replay is the same episode (the run resumes exactly), and a second copy
+        anywhere in the run folder is one a later glob could count again. A covered seed recorded twice
+        (a run resumed by an older hingelab) keeps its last episode, the replay the checkpoint learned from."""
+        episodes = self.dataset_path / EPISODES_DIR
+        if not self.config.record or not episodes.is_dir():
+            return []
+        seed = self.config.seed
+        kept = {training_episode_seed(seed, env, k) for env, n in enumerate(covered) for k in range(n)}
+        index = Dataset(self.dataset_path, on_corrupt=getattr(self.config, "on_corrupt", None)).build_index()
+        rollouts = index.dropna(subset=["seed"]).sort_values("file")  # episode ids sort by the time they began
+        covered_rows = rollouts["seed"].astype(int).isin(kept)
+        drop = list(rollouts["file"][~covered_rows | rollouts["seed"].duplicated(keep="last")])
+        for name in drop:
+            (episodes / name).unlink()
+        return drop
+
+
+__all__ = ["RunFolder", "has_started", "covered_episodes", "MetricsLog", "CONFIG_FILE", "METRICS_FILE", "DATASET_DIR",
+           "RUN_FILE"]

@@ -9,7 +9,9 @@ subclasses it and gives its task's pieces: the evaluation (``make_evaluator``,
 Checkpoints are taken where every env has just finished an episode (its next episode is
 fully determined by its seed and count), after the updates of that step (an overlapped run's
 checkpoints record that step's updates as pending: ``hingelab.learners.sac.overlap``): resuming
-from one continues the run as if it had never stopped. Evaluations use held-out seeds with
+from one continues the run as if it had never stopped. A checkpoint records the rollouts it covers
+(``finished_episodes``, per env); a resume removes the recorded rollouts that finished after it,
+which the resumed run replays, so the run's dataset holds each rollout once. Evaluations use held-out seeds with
 deterministic actions and do not touch the training RNG.
 """
 
@@ -30,7 +32,7 @@ from hingelab.provenance import code_version
 from hingelab.training import checkpoints as ckpt
 from hingelab.training import resume_state
 from hingelab.training.envs import episode_counts, make_training_vec_env, set_episode_counts
-from hingelab.training.run_folder import RunFolder
+from hingelab.training.run_folder import RunFolder, covered_episodes
 from hingelab.training.torch_process import configure_torch
 
 PROVENANCE_ATTRIBUTE = "hingelab_provenance"  # saved inside every model.zip
@@ -157,6 +159,7 @@ class SACRun:
             self.best = state["best"]
             self.next_eval, self.next_checkpoint = state["next_eval"], state["next_checkpoint"]
             set_episode_counts(self.env, state["episode_counts"])
+            self.folder.drop_rollouts_after(covered_episodes(state))
             self.metrics.truncate_after(self.model.num_timesteps)
             self.mid_episode = state.get("mid_episode", False)
             if state.get("pending_updates"):  # an overlapped run's updates of its last step, run in the next one
@@ -188,7 +191,10 @@ class SACRun:
             counts = [c - 1 for c in counts]
         schedules = {k: v for cb in self.callbacks.callbacks if hasattr(cb, "state_dict")
                      for k, v in cb.state_dict().items()}
+        # the rollouts this checkpoint covers: every env's finished episodes (each env has one under way)
+        finished = [c - 1 for c in episode_counts(self.env)]
         state = {"elapsed_s": self.clock.elapsed(), "best": self.best, **schedules, "episode_counts": counts,
+                 "finished_episodes": finished,
                  "mid_episode": mid_episode, "pending_updates": getattr(self.model, "pending_updates", 0),
                  # random actions before learning_starts come from the action space's own generator
                  "action_space_rng": self.model.action_space.np_random.bit_generator.state}
