@@ -39,7 +39,6 @@ import random
 from contextlib import contextmanager
 
 import numpy as np
-import torch
 
 STRIDE = 100_003  # episodes per block (a prime: blocks of neighbouring seeds do not line up)
 SEED_LIMIT = 1_000  # the --seed values the plan keeps apart ...
@@ -101,6 +100,8 @@ def preserved_global_rngs():
     builds networks (whose initial weights are drawn, then overwritten) and stable-baselines3 reseeds the
     generators when it sets a model up, and a run that loads one after seeding must train what its seed
     says, whether or not the process loaded it before."""
+    import torch  # only the callers that load torch models come here; the seed plan itself is light
+
     states = random.getstate(), np.random.get_state(), torch.random.get_rng_state()
     try:
         yield

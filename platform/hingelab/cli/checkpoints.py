@@ -6,10 +6,6 @@ import argparse
 from pathlib import Path
 
 from hingelab.errors import ConfigError
-from hingelab.perception.encoder import SHIPPED_CHECKPOINT, convert_checkpoint
-from hingelab.policies.phase_clone import PhaseClone, is_phase_clone
-from hingelab.policies.sb3_zip import read_plain_data
-from hingelab.training.checkpoints import convert_pickled
 
 
 def add_parser(subparsers) -> None:
@@ -33,6 +29,13 @@ def add_parser(subparsers) -> None:
 
 
 def run_convert(args: argparse.Namespace) -> int:
+    from hingelab.perception.encoder import (  # on run: the parser stays light (hingelab.cli)
+        SHIPPED_CHECKPOINT,
+        convert_checkpoint,
+    )
+    from hingelab.policies.phase_clone import PhaseClone, is_phase_clone
+    from hingelab.policies.sb3_zip import read_plain_data
+    from hingelab.training.checkpoints import convert_pickled
 
     for path in args.files or [SHIPPED_CHECKPOINT]:
         if path.is_dir():

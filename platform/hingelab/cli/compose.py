@@ -11,7 +11,6 @@ from pathlib import Path
 
 from hingelab.errors import ConfigError
 from hingelab.paths import refuse_to_replace_shipped
-from hingelab.policies.goal_experts import load_experts, write_experts
 
 
 def add_parser(subparsers) -> None:
@@ -51,6 +50,10 @@ def parse_expert(text: str) -> tuple[Path, float | None]:
 
 
 def run_low(args: argparse.Namespace) -> int:
+    from hingelab.policies.goal_experts import (  # on run: the parser stays light (hingelab.cli)
+        load_experts,
+        write_experts,
+    )
 
     refuse_to_replace_shipped(args.out, args.force)
     experts = [parse_expert(text) for text in args.expert]

@@ -6,17 +6,10 @@ import argparse
 import sys
 from pathlib import Path
 
+from hingelab.cli.names import EXPORT_FORMATS
 from hingelab.cli.options import add_on_corrupt
-from hingelab.episodes.dataset import open_dataset
-from hingelab.episodes.errors import DatasetError
-from hingelab.episodes.export import EXPORTERS, export_dataset
-from hingelab.episodes.recover import recover_episode, recover_folder
-from hingelab.episodes.verify import verify_dataset
 from hingelab.errors import ConfigError
 from hingelab.paths import DATASETS_DIR
-from hingelab.ros2 import bag_export  # noqa: F401  (registers the ros2 export format)
-from hingelab.ros2.bag_import import import_bags
-from hingelab.ros2.topics import KINDS, topic_names
 
 
 def add_parser(subparsers) -> None:
@@ -74,7 +67,8 @@ def add_parser(subparsers) -> None:
             "and renames it into place at the end."),
     )
     export.add_argument("dir", type=Path, help="dataset folder")
-    export.add_argument("--format", choices=tuple(EXPORTERS), required=True, help="target layout")
+    export.add_argument("--format", required=True, metavar="FORMAT",
+                        help=f"target layout: {', '.join(EXPORT_FORMATS)} (or a plug-in's format)")
     export.add_argument("--out", type=Path, required=True,
                         help="minari: the datasets root (MINARI_DATASETS_PATH); lerobot: the new dataset folder; "
                              "ros2: the new folder of bags")
@@ -83,6 +77,8 @@ def add_parser(subparsers) -> None:
                              "must not exist under --out")
     add_on_corrupt(export)
     export.set_defaults(func=run_export)
+
+    from hingelab.ros2.topics import KINDS  # the topics' table: only for this subcommand's description
 
     kinds = "\n".join(f"  {k.kind}={k.default}  ({k.msgtype}{'' if k.required else ', optional'}): {k.meaning}"
                       for k in KINDS.values())
@@ -109,6 +105,7 @@ def add_parser(subparsers) -> None:
 
 
 def _open(root: Path):
+    from hingelab.episodes.dataset import open_dataset  # on run: the parser stays light (hingelab.cli)
 
     return open_dataset(root)
 
@@ -141,6 +138,8 @@ def run_index(args: argparse.Namespace) -> int:
 
 
 def run_verify(args: argparse.Namespace) -> int:
+    from hingelab.episodes.errors import DatasetError  # on run: the parser stays light (hingelab.cli)
+    from hingelab.episodes.verify import verify_dataset
 
     _open(args.dir)
     good, problems = verify_dataset(args.dir, progress=True)
@@ -155,6 +154,10 @@ def run_verify(args: argparse.Namespace) -> int:
 
 
 def run_recover(args: argparse.Namespace) -> int:
+    from hingelab.episodes.recover import (  # on run: the parser stays light (hingelab.cli)
+        recover_episode,
+        recover_folder,
+    )
 
     if args.file.is_dir():
         if args.out is not None:
@@ -175,7 +178,11 @@ def run_recover(args: argparse.Namespace) -> int:
 
 
 def run_export(args: argparse.Namespace) -> int:
+    from hingelab.episodes.export import EXPORTERS, export_dataset  # on run: the parser stays light (hingelab.cli)
+    from hingelab.ros2 import bag_export  # noqa: F401  (registers the ros2 export format)
 
+    if args.format not in EXPORTERS:
+        raise ConfigError(f"--format {args.format}: not an export format; choose one of {', '.join(EXPORTERS)}")
     dataset = _open(args.dir)
     result = export_dataset(dataset, args.format, args.out, dataset_id=args.dataset_id, progress=True)
     skipped = "".join(f"; skipped {len(files)} ({reason}): {', '.join(files[:3])}{' ...' if len(files) > 3 else ''}"
@@ -187,6 +194,8 @@ def run_export(args: argparse.Namespace) -> int:
 
 
 def run_import_ros2(args: argparse.Namespace) -> int:
+    from hingelab.ros2.bag_import import import_bags  # on run: the parser stays light (hingelab.cli)
+    from hingelab.ros2.topics import topic_names
 
     topic_names(args.topic)  # a malformed --topic is refused before anything is read
     summaries = import_bags(args.bags, args.out, topics=args.topic, progress=not args.no_progress)

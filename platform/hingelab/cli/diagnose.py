@@ -12,14 +12,9 @@ import argparse
 import shlex
 from pathlib import Path
 
+from hingelab.cli.names import BIAS_LEVELS, NOISE_LEVELS
 from hingelab.provenance import code_version, require_clean_for
-from hingelab.rollouts import (
-    bias_tolerance,
-    noise_tolerance,
-    object_estimate_errors,
-    residual_diagnostic,
-    reward_diagnostic,
-)
+from hingelab.tasks import HIGH_LEVEL_ACTION_NAMES
 
 
 def add_parser(subparsers) -> None:
@@ -48,9 +43,9 @@ def add_parser(subparsers) -> None:
                     "from the same starts; a table of successes and tool drops and the tolerated level per "
                     "dimension. Writes noise_tolerance.md and noise_tolerance.csv into --out.")
     noise.add_argument("--episodes", type=int, default=20, help="episodes per level (default 20)")
-    noise.add_argument("--levels", type=float, nargs="+", default=list(noise_tolerance.DEFAULT_LEVELS),
+    noise.add_argument("--levels", type=float, nargs="+", default=list(NOISE_LEVELS),
                        metavar="STD", help="noise stds in action units (default "
-                                           f"{' '.join(map(str, noise_tolerance.DEFAULT_LEVELS))})")
+                                           f"{' '.join(map(str, NOISE_LEVELS))})")
     noise.add_argument("--seed", type=int, default=9200, help="seed of the starts, eval high's stream (default 9200)")
     noise.set_defaults(func=run_noise)
     residual = what.add_parser(
@@ -78,12 +73,12 @@ def add_parser(subparsers) -> None:
     bias.add_argument("checkpoint", type=Path, nargs="?", default=None,
                       help="a high-level policy (default: the shipped assets/checkpoints/high_level.zip)")
     bias.add_argument("--episodes", type=int, default=30, help="episodes per offset (default 30)")
-    bias.add_argument("--levels", type=float, nargs="+", default=list(bias_tolerance.DEFAULT_LEVELS), metavar="L",
+    bias.add_argument("--levels", type=float, nargs="+", default=list(BIAS_LEVELS), metavar="L",
                       help="offset sizes in action units, each tried with both signs (default "
-                           f"{' '.join(map(str, bias_tolerance.DEFAULT_LEVELS))})")
-    bias.add_argument("--dimensions", nargs="+", default=list(noise_tolerance.DIMENSIONS),
-                      choices=noise_tolerance.DIMENSIONS, metavar="DIM",
-                      help=f"action dimensions to offset (default all: {' '.join(noise_tolerance.DIMENSIONS)})")
+                           f"{' '.join(map(str, BIAS_LEVELS))})")
+    bias.add_argument("--dimensions", nargs="+", default=list(HIGH_LEVEL_ACTION_NAMES),
+                      choices=HIGH_LEVEL_ACTION_NAMES, metavar="DIM",
+                      help=f"action dimensions to offset (default all: {' '.join(HIGH_LEVEL_ACTION_NAMES)})")
     bias.add_argument("--seed", type=int, default=100, help="seed of the starts, eval high's stream (default 100)")
     bias.set_defaults(func=run_bias)
     for sub in (reward, noise, residual, bias):
@@ -113,6 +108,8 @@ def _command(args, verb: str, options: list[str]) -> str:
 
 
 def run_reward(args: argparse.Namespace) -> int:
+    from hingelab.rollouts import reward_diagnostic  # on run: the parser stays light (hingelab.cli)
+
     require_clean_for(args.out, args.allow_dirty, "hingelab diagnose reward")
     rows = reward_diagnostic.diagnose(args.episodes, args.seed, args.gamma, args.object, args.size,
                                       progress=not args.no_progress)
@@ -129,6 +126,8 @@ def run_reward(args: argparse.Namespace) -> int:
 
 
 def run_residual(args: argparse.Namespace) -> int:
+    from hingelab.rollouts import residual_diagnostic  # on run: the parser stays light (hingelab.cli)
+
     require_clean_for(args.out, args.allow_dirty, "hingelab diagnose residual")
     rows, gamma = residual_diagnostic.diagnose(args.checkpoint, args.object, args.size, args.episodes, args.seed,
                                                args.gamma, progress=not args.no_progress)
@@ -144,6 +143,8 @@ def run_residual(args: argparse.Namespace) -> int:
 
 
 def run_bias(args: argparse.Namespace) -> int:
+    from hingelab.rollouts import bias_tolerance  # on run: the parser stays light (hingelab.cli)
+
     require_clean_for(args.out, args.allow_dirty, "hingelab diagnose bias")
     rows = bias_tolerance.measure(args.checkpoint, args.episodes, args.levels, args.dimensions, args.seed,
                                   args.object, args.size, progress=not args.no_progress)
@@ -159,6 +160,8 @@ def run_bias(args: argparse.Namespace) -> int:
 
 
 def run_noise(args: argparse.Namespace) -> int:
+    from hingelab.rollouts import noise_tolerance  # on run: the parser stays light (hingelab.cli)
+
     require_clean_for(args.out, args.allow_dirty, "hingelab diagnose noise")
     rows = noise_tolerance.measure(args.episodes, args.levels, args.seed, args.object, args.size,
                                    progress=not args.no_progress)
@@ -172,6 +175,8 @@ def run_noise(args: argparse.Namespace) -> int:
 
 
 def run_object_estimate(args: argparse.Namespace) -> int:
+    from hingelab.rollouts import object_estimate_errors  # on run: the parser stays light (hingelab.cli)
+
     require_clean_for(args.out, args.allow_dirty, "hingelab diagnose object-estimate")
     rows, picture = object_estimate_errors.measure(args.placements, args.frames, args.seed,
                                                    progress=not args.no_progress)

@@ -22,9 +22,9 @@ import argparse
 from pathlib import Path
 
 from hingelab.cli import eval_perception
+from hingelab.cli.names import BASELINES
 from hingelab.cli.options import add_object_perception, add_ray_argument
-from hingelab.policies.loading import baseline_names
-from hingelab.rollouts.evaluation import evaluate_high, evaluate_low
+from hingelab.errors import ConfigError
 
 
 def add_parser(subparsers) -> None:
@@ -44,7 +44,7 @@ def add_parser(subparsers) -> None:
     low.add_argument("--episodes", type=int, default=60, help="evaluation episodes (default 60)")
     low.add_argument("--out", type=Path, required=True, help="dataset folder to write (must be new or empty)")
     low.add_argument("--seed", type=int, default=0, help="seed of the goals and episodes (default 0)")
-    low.add_argument("--baseline", choices=baseline_names("low"), default=None,
+    low.add_argument("--baseline", default=None, metavar="{" + ",".join(BASELINES["low"]) + "}",
                      help="evaluate a reference instead of a checkpoint: hold-still (zero finger changes) or "
                           "synergy (the scripted controller: z_goal -> calibrated opening -> grasp-synergy "
                           "finger targets)")
@@ -80,7 +80,7 @@ def add_parser(subparsers) -> None:
     high.add_argument("--episodes", type=int, default=20, help="evaluation episodes (default 20)")
     high.add_argument("--out", type=Path, required=True, help="dataset folder to write (must be new or empty)")
     high.add_argument("--seed", type=int, default=0, help="seed of the episodes (default 0)")
-    high.add_argument("--baseline", default=None, choices=baseline_names("high"),
+    high.add_argument("--baseline", default=None, metavar="{" + ",".join(BASELINES["high"]) + "}",
                       help="evaluate a baseline instead of a checkpoint: heuristic (privileged, commands the "
                            "hinge), scripted (the heuristic's motion as latent goals over the low level), "
                            "scripted-observed (scripted, told the object's position by the policy's observation: "
@@ -103,7 +103,19 @@ def add_parser(subparsers) -> None:
     eval_perception.add_parser(what)
 
 
+def check_baseline(name: str | None, level: str) -> None:
+    """A ``--baseline`` that names no baseline of ``level`` is one line (the parser does not load the registry)."""
+    from hingelab.policies.loading import baseline_names  # the policies' registry (torch): on run
+
+    if name is not None and name not in baseline_names(level):
+        raise ConfigError(f"--baseline {name}: not a {level}-level baseline; choose one of "
+                          f"{', '.join(baseline_names(level))}")
+
+
 def run_low(args: argparse.Namespace) -> int:
+    from hingelab.rollouts.evaluation import evaluate_low  # on run: the parser stays light (hingelab.cli)
+
+    check_baseline(args.baseline, "low")
     result = evaluate_low(args.checkpoint, out=args.out, baseline=args.baseline, episodes=args.episodes,
                           seed=args.seed, randomize=not args.no_randomize, perception=args.perception,
                           resume=args.resume, ray=args.ray, progress=not args.no_progress, command=args.argv)
@@ -113,6 +125,9 @@ def run_low(args: argparse.Namespace) -> int:
 
 
 def run_high(args: argparse.Namespace) -> int:
+    from hingelab.rollouts.evaluation import evaluate_high  # on run: the parser stays light (hingelab.cli)
+
+    check_baseline(args.baseline, "high")
     result = evaluate_high(args.checkpoint, out=args.out, baseline=args.baseline, object=args.object,
                            size=args.size, episodes=args.episodes, seed=args.seed, low_level=args.low_level,
                            perception=args.perception, object_perception=args.object_perception, resume=args.resume,

@@ -15,8 +15,6 @@ from pathlib import Path
 import numpy as np
 
 from hingelab.errors import ConfigError
-from hingelab.perception.camera_gap import GapConfig, run_gap, summarize
-from hingelab.perception.clouds import CloudRealism, CloudSynthesizer
 from hingelab.provenance import code_version, require_clean_for
 
 
@@ -39,6 +37,12 @@ def add_parser(what) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    from hingelab.perception.camera_gap import (  # on run: the parser stays light (hingelab.cli)
+        GapConfig,
+        run_gap,
+        summarize,
+    )
+    from hingelab.perception.clouds import CloudRealism, CloudSynthesizer
 
     if args.episodes < 1 or args.steps <= GapConfig.warmup_steps:
         raise ConfigError(f"--episodes must be >= 1 and --steps > {GapConfig.warmup_steps}")

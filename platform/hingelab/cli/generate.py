@@ -15,7 +15,7 @@ import time
 from pathlib import Path
 
 from hingelab.paths import DATASETS_DIR
-from hingelab.perception.synthetic_dataset import CloudDatasetConfig, generate_cloud_dataset
+from hingelab.perception.cloud_dataset_config import CloudDatasetConfig
 
 # source name -> "module:function" adding its sub-subcommand to the ``generate`` subparsers
 SOURCES = {
@@ -68,6 +68,9 @@ def add_clouds_parser(sources) -> None:
 
 
 def run_clouds(args: argparse.Namespace) -> int:
+    from hingelab.perception.synthetic_dataset import (
+        generate_cloud_dataset,  # on run: the parser stays light (hingelab.cli)
+    )
 
     config = CloudDatasetConfig(n_clouds=args.n, clouds_per_episode=args.per_episode, seed=args.seed,
                                 noise_std_m=args.noise, noise_std_max_m=args.noise_max,

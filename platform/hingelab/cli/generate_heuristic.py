@@ -7,7 +7,7 @@ from pathlib import Path
 
 from hingelab.cli.options import add_ray_argument
 from hingelab.paths import DATASETS_DIR
-from hingelab.rollouts.heuristic_demos import HeuristicRunConfig, generate_heuristic_dataset, summarize, timed
+from hingelab.rollouts.heuristic_config import HeuristicRunConfig
 
 
 def add_heuristic_parser(sources) -> None:
@@ -48,6 +48,11 @@ def add_heuristic_parser(sources) -> None:
 
 
 def run_heuristic(args: argparse.Namespace) -> int:
+    from hingelab.rollouts.heuristic_demos import (  # on run: the parser stays light (hingelab.cli)
+        generate_heuristic_dataset,
+        summarize,
+        timed,
+    )
 
     config = HeuristicRunConfig(episodes=args.episodes, object=args.object, size=args.size, mass=args.mass,
                                 seed=args.seed, workers=args.workers, randomize=not args.no_randomize)

@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from hingelab.perception.object_perception import OBJECT_PERCEPTIONS
+from hingelab.cli.names import OBJECT_PERCEPTIONS
 
 
 def add_on_corrupt(p) -> None:

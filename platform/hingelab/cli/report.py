@@ -8,12 +8,6 @@ import shlex
 import time
 from pathlib import Path
 
-import pandas as pd
-
-from hingelab.analysis import build_report
-from hingelab.analysis.pick_table import write_picks
-from hingelab.analysis.pooled import DEFAULT_BAND_EDGES, write_pooled
-from hingelab.analysis.run_report import build_run_report
 from hingelab.cli.options import add_on_corrupt
 from hingelab.errors import ConfigError
 from hingelab.provenance import require_clean_for
@@ -80,6 +74,9 @@ def pool_command(args: argparse.Namespace) -> str:
 
 
 def run_pool(args: argparse.Namespace) -> int:
+    import pandas as pd  # on run: the parser stays light (hingelab.cli)
+
+    from hingelab.analysis.pooled import DEFAULT_BAND_EDGES, write_pooled
 
     if args.datasets or args.runs:
         raise ConfigError("give DATASET... (with --runs) or --pool DIR..., not both")
@@ -107,6 +104,7 @@ def run_pool(args: argparse.Namespace) -> int:
 
 
 def run_picks(args: argparse.Namespace) -> int:
+    from hingelab.analysis.pick_table import write_picks  # on run: the parser stays light (hingelab.cli)
 
     if args.datasets or args.pool or args.runs:
         raise ConfigError("give --picks DIR... alone (not with DATASETs, --runs or --pool)")
@@ -125,6 +123,7 @@ def run_picks(args: argparse.Namespace) -> int:
 
 def run_runs(args: argparse.Namespace) -> int:
     """Training runs alone: curves grouped by run label (a sweep's condition), success at the end across seeds."""
+    from hingelab.analysis.run_report import build_run_report  # on run: the parser stays light (hingelab.cli)
 
     require_clean_for(args.out, args.allow_dirty, "hingelab report --runs")
     command = "hingelab report --runs " + " ".join(map(str, args.runs)) + f" --out {args.out}"
@@ -139,6 +138,7 @@ def run_runs(args: argparse.Namespace) -> int:
 
 
 def run(args: argparse.Namespace) -> int:
+    from hingelab.analysis import build_report  # on run: the parser stays light (hingelab.cli)
 
     if args.picks:
         return run_picks(args)

@@ -7,8 +7,6 @@ import time
 from pathlib import Path
 
 from hingelab.errors import ConfigError
-from hingelab.sweeps.runner import run_sweep, summary
-from hingelab.sweeps.spec import load_sweep
 
 
 def add_parser(subparsers) -> None:
@@ -46,6 +44,8 @@ def add_parser(subparsers) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    from hingelab.sweeps.runner import run_sweep, summary  # on run: the parser stays light (hingelab.cli)
+    from hingelab.sweeps.spec import load_sweep
 
     if args.address is not None and args.cpus is not None:
         raise ConfigError("--cpus sizes a local Ray; a cluster joined with --address has its own CPUs")

@@ -16,11 +16,8 @@ from hingelab import paths
 from hingelab.errors import ConfigError
 from hingelab.learners import registry
 from hingelab.paths import refuse_to_replace_shipped
-from hingelab.perception.encoder import EncoderConfig
-from hingelab.perception.sim_calibration import recalibrate_curve
-from hingelab.perception.train_encoder import TrainEncoderConfig, recalibrate_encoder, train_encoder
+from hingelab.perception.encoder_config import EncoderConfig, TrainEncoderConfig
 from hingelab.training.run_config import config_from_args, given_settings
-from hingelab.training.run_folder import resumed_config
 
 
 def add_parser(subparsers, argv: list[str] = ()) -> None:
@@ -86,6 +83,8 @@ def run_policy(args: argparse.Namespace) -> int:
         out = args.out
     refuse_to_replace_shipped(out, args.force)
     if args.resume:
+        from hingelab.training.run_folder import resumed_config  # on run: the parser stays light (hingelab.cli)
+
         recorded = registry.run_learner(out)
         if recorded is not None and recorded != learner.name:
             raise ConfigError(f"{out} is a run of --learner {recorded}, not {learner.name}: resume it with "
@@ -138,6 +137,10 @@ def add_encoder_parser(learners) -> None:
 
 
 def run_encoder(args: argparse.Namespace) -> int:
+    from hingelab.perception.train_encoder import (  # on run: the parser stays light (hingelab.cli)
+        recalibrate_encoder,
+        train_encoder,
+    )
 
     if args.recalibrate or args.recalibrate_curve:
         if args.out is None:
@@ -172,6 +175,7 @@ def run_encoder(args: argparse.Namespace) -> int:
 
 
 def run_curve_recalibration(args: argparse.Namespace) -> int:
+    from hingelab.perception.sim_calibration import recalibrate_curve  # on run: the parser stays light (hingelab.cli)
 
     encoder, m = recalibrate_curve(args.out, sweeps=args.sweeps, seed=args.seed, progress=not args.no_progress)
     before = ", ".join(f"{r['band_rad']} rad {r['offset']:.3f}" for r in m["offsets_before"])

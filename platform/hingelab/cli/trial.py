@@ -7,9 +7,8 @@ import argparse
 import sys
 from pathlib import Path
 
+from hingelab.cli.names import ROBOTS
 from hingelab.cli.options import add_object_perception
-from hingelab.robot.interface import ROBOTS
-from hingelab.robot.trial import TrialConfig, run_trial_session
 from hingelab.seeds import STRIDE, TRIALS_BASE
 
 
@@ -24,9 +23,9 @@ def add_parser(subparsers) -> None:
                     "--operator the simulation judges each trial (object within 1 cm of the target); with it you "
                     "are asked after each attempt. Writes trials.csv and a table with Wilson intervals "
                     "(table.csv); `hingelab report DIR` gives the paper's Fig. 7 layout.")
-    p.add_argument("--robot", choices=tuple(ROBOTS), default="sim",
-                   help="the robot (registered in hingelab.robot.interface): sim is the MuJoCo stand-in of the rig "
-                        "(the default)")
+    p.add_argument("--robot", default="sim",
+                   help=f"the robot (registered in hingelab.robot.interface: {', '.join(ROBOTS)}, or a plug-in's): "
+                        "sim is the MuJoCo stand-in of the rig (the default)")
     p.add_argument("--object", default="sphere",
                    help="object: sphere, cube, cylinder, tetrahedron, mesh:PATH or family:NAME[:SEED] (a new "
                         "object each trial from a procedural family: hingelab.sim.object_families) (default sphere)")
@@ -55,6 +54,8 @@ def add_parser(subparsers) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    from hingelab.robot.trial import TrialConfig, run_trial_session  # on run: the parser stays light (hingelab.cli)
+
     config = TrialConfig(object=args.object, size=args.size, trials=args.trials, seed=args.seed,
                          max_steps=args.max_steps, depth_every=args.depth_every, operator=args.operator,
                          object_perception=args.object_perception)
