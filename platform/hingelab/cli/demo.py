@@ -11,6 +11,8 @@ import json
 import time
 from pathlib import Path
 
+from hingelab.seeds import seed_argument
+
 
 def add_parser(subparsers) -> None:
     p = subparsers.add_parser(
@@ -31,7 +33,7 @@ def add_parser(subparsers) -> None:
             "and saves a Rerun recording (analysis/demo/demo_heuristic.rrd). Prints what it measured."
         ),
     )
-    p.add_argument("--seed", type=int, default=0, help="seed for the simulation (default 0)")
+    p.add_argument("--seed", type=seed_argument, default=0, help="seed for the simulation (default 0)")
     p.add_argument("--out", type=Path, default=None,
                    help="also write the measurements as JSON to this file")
     p.set_defaults(func=run)

@@ -12,8 +12,10 @@ import argparse
 import shlex
 from pathlib import Path
 
+from hingelab.arguments import finite_float
 from hingelab.cli.names import BIAS_LEVELS, NOISE_LEVELS
 from hingelab.provenance import code_version, require_clean_for
+from hingelab.seeds import seed_argument
 from hingelab.tasks import HIGH_LEVEL_ACTION_NAMES
 
 
@@ -33,8 +35,10 @@ def add_parser(subparsers) -> None:
                     "one, the value a critic learns at the decision point (the object first within 2 cm of the "
                     "target). Writes reward_diagnostic.md, summary.csv and episodes.csv into --out.")
     reward.add_argument("--episodes", type=int, default=10, help="starts (pairs of episodes; default 10)")
-    reward.add_argument("--seed", type=int, default=9100, help="seed of the starts, eval high's stream (default 9100)")
-    reward.add_argument("--gamma", type=float, default=0.98, help="the critic's discount (default 0.98, SAC's here)")
+    reward.add_argument("--seed", type=seed_argument, default=9100,
+                        help="seed of the starts, eval high's stream (default 9100)")
+    reward.add_argument("--gamma", type=finite_float, default=0.98,
+                        help="the critic's discount (default 0.98, SAC's here)")
     reward.set_defaults(func=run_reward)
     noise = what.add_parser(
         "noise", help="exploration noise each action dimension tolerates (the scripted demonstrator)",
@@ -43,10 +47,11 @@ def add_parser(subparsers) -> None:
                     "from the same starts; a table of successes and tool drops and the tolerated level per "
                     "dimension. Writes noise_tolerance.md and noise_tolerance.csv into --out.")
     noise.add_argument("--episodes", type=int, default=20, help="episodes per level (default 20)")
-    noise.add_argument("--levels", type=float, nargs="+", default=list(NOISE_LEVELS),
+    noise.add_argument("--levels", type=finite_float, nargs="+", default=list(NOISE_LEVELS),
                        metavar="STD", help="noise stds in action units (default "
                                            f"{' '.join(map(str, NOISE_LEVELS))})")
-    noise.add_argument("--seed", type=int, default=9200, help="seed of the starts, eval high's stream (default 9200)")
+    noise.add_argument("--seed", type=seed_argument, default=9200,
+                       help="seed of the starts, eval high's stream (default 9200)")
     noise.set_defaults(func=run_noise)
     residual = what.add_parser(
         "residual", help="why a fine-tuned residual picks less than its base: the reward or the learner",
@@ -59,9 +64,9 @@ def add_parser(subparsers) -> None:
     residual.add_argument("checkpoint", type=Path,
                           help="a residual policy (RUNDIR/model.zip) or a run's checkpoint RUNDIR/checkpoints/step_N")
     residual.add_argument("--episodes", type=int, default=30, help="starts per arm (default 30)")
-    residual.add_argument("--seed", type=int, default=100,
+    residual.add_argument("--seed", type=seed_argument, default=100,
                           help="seed of the starts, eval high's stream (default 100; not the run's own)")
-    residual.add_argument("--gamma", type=float, default=None, help="discount (default: the run's)")
+    residual.add_argument("--gamma", type=finite_float, default=None, help="discount (default: the run's)")
     residual.set_defaults(func=run_residual)
     bias = what.add_parser(
         "bias", help="the consistent offset each action dimension of a policy tolerates (a residual's reach)",
@@ -73,17 +78,18 @@ def add_parser(subparsers) -> None:
     bias.add_argument("checkpoint", type=Path, nargs="?", default=None,
                       help="a high-level policy (default: the shipped assets/checkpoints/high_level.zip)")
     bias.add_argument("--episodes", type=int, default=30, help="episodes per offset (default 30)")
-    bias.add_argument("--levels", type=float, nargs="+", default=list(BIAS_LEVELS), metavar="L",
+    bias.add_argument("--levels", type=finite_float, nargs="+", default=list(BIAS_LEVELS), metavar="L",
                       help="offset sizes in action units, each tried with both signs (default "
                            f"{' '.join(map(str, BIAS_LEVELS))})")
     bias.add_argument("--dimensions", nargs="+", default=list(HIGH_LEVEL_ACTION_NAMES),
                       choices=HIGH_LEVEL_ACTION_NAMES, metavar="DIM",
                       help=f"action dimensions to offset (default all: {' '.join(HIGH_LEVEL_ACTION_NAMES)})")
-    bias.add_argument("--seed", type=int, default=100, help="seed of the starts, eval high's stream (default 100)")
+    bias.add_argument("--seed", type=seed_argument, default=100,
+                      help="seed of the starts, eval high's stream (default 100)")
     bias.set_defaults(func=run_bias)
     for sub in (reward, noise, residual, bias):
         sub.add_argument("--object", default="sphere", help="object shape (default sphere, the training object)")
-        sub.add_argument("--size", type=float, default=0.02, help="object width in m (default 0.02)")
+        sub.add_argument("--size", type=finite_float, default=0.02, help="object width in m (default 0.02)")
     objects = what.add_parser(
         "object-estimate", help="the object's position from the depth camera: each estimator's error",
         description="The stand-in's scene with each test shape (sphere, cube, cylinder, tetrahedron) and size "
@@ -93,7 +99,8 @@ def add_parser(subparsers) -> None:
                     "object_estimate.md, summary.csv, frames.csv and frame.png into --out.")
     objects.add_argument("--placements", type=int, default=20, help="spots per shape and size (default 20)")
     objects.add_argument("--frames", type=int, default=5, help="frames per spot (default 5)")
-    objects.add_argument("--seed", type=int, default=0, help="seed of the spots, noise and mask errors (default 0)")
+    objects.add_argument("--seed", type=seed_argument, default=0,
+                         help="seed of the spots, noise and mask errors (default 0)")
     objects.set_defaults(func=run_object_estimate)
     for sub in (reward, noise, residual, bias, objects):
         sub.add_argument("--out", type=Path, required=True, help="report folder, e.g. analysis/high-level/reward")

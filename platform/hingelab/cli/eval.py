@@ -21,10 +21,12 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
+from hingelab.arguments import finite_float
 from hingelab.cli import eval_perception
 from hingelab.cli.names import BASELINES
 from hingelab.cli.options import add_object_perception, add_ray_argument
 from hingelab.errors import ConfigError
+from hingelab.seeds import seed_argument
 
 
 def add_parser(subparsers) -> None:
@@ -43,7 +45,7 @@ def add_parser(subparsers) -> None:
                           "from hingelab compose low (default: the shipped low-level policy)")
     low.add_argument("--episodes", type=int, default=60, help="evaluation episodes (default 60)")
     low.add_argument("--out", type=Path, required=True, help="dataset folder to write (must be new or empty)")
-    low.add_argument("--seed", type=int, default=0, help="seed of the goals and episodes (default 0)")
+    low.add_argument("--seed", type=seed_argument, default=0, help="seed of the goals and episodes (default 0)")
     low.add_argument("--baseline", default=None, metavar="{" + ",".join(BASELINES["low"]) + "}",
                      help="evaluate a reference instead of a checkpoint: hold-still (zero finger changes) or "
                           "synergy (the scripted controller: z_goal -> calibrated opening -> grasp-synergy "
@@ -75,11 +77,11 @@ def add_parser(subparsers) -> None:
                       help="object: sphere, cube, cylinder, tetrahedron, mesh:PATH or family:NAME[:SEED] (a new "
                            "object each episode from a procedural family: hingelab.sim.object_families) "
                            "(default sphere)")
-    high.add_argument("--size", type=float, default=0.02,
+    high.add_argument("--size", type=finite_float, default=0.02,
                       help="object size in m; a family's size cap, 0.008 to 0.03 (default 0.02)")
     high.add_argument("--episodes", type=int, default=20, help="evaluation episodes (default 20)")
     high.add_argument("--out", type=Path, required=True, help="dataset folder to write (must be new or empty)")
-    high.add_argument("--seed", type=int, default=0, help="seed of the episodes (default 0)")
+    high.add_argument("--seed", type=seed_argument, default=0, help="seed of the episodes (default 0)")
     high.add_argument("--baseline", default=None, metavar="{" + ",".join(BASELINES["high"]) + "}",
                       help="evaluate a baseline instead of a checkpoint: heuristic (privileged, commands the "
                            "hinge), scripted (the heuristic's motion as latent goals over the low level), "

@@ -16,6 +16,7 @@ import numpy as np
 
 from hingelab.errors import ConfigError
 from hingelab.provenance import code_version, require_clean_for
+from hingelab.seeds import seed_argument
 
 
 def add_parser(what) -> None:
@@ -27,7 +28,7 @@ def add_parser(what) -> None:
                     "tracking error against the simulator's truth for both, and draws one camera frame.")
     p.add_argument("--episodes", type=int, default=8, help="episodes (default 8)")
     p.add_argument("--steps", type=int, default=100, help="control steps per episode (default 100, 5 s)")
-    p.add_argument("--seed", type=int, default=0, help="seed of the episodes (default 0)")
+    p.add_argument("--seed", type=seed_argument, default=0, help="seed of the episodes (default 0)")
     p.add_argument("--out", type=Path, required=True,
                    help="folder for gap.csv, gap_steps.csv, gap.json, camera_frame.png")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")

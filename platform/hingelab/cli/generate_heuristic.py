@@ -5,9 +5,11 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
+from hingelab.arguments import add_oversubscribe, check_processes, finite_float, positive_int
 from hingelab.cli.options import add_ray_argument
 from hingelab.paths import DATASETS_DIR
 from hingelab.rollouts.heuristic_config import HeuristicRunConfig
+from hingelab.seeds import seed_argument
 
 
 def add_heuristic_parser(sources) -> None:
@@ -29,15 +31,17 @@ def add_heuristic_parser(sources) -> None:
                         "its z axis up; recorded as mesh:<file name> with the file's sha256), or family:NAME[:SEED] "
                         "(a new object each episode from a procedural family, e.g. family:train or family:holdout; "
                         "each episode records its draw: hingelab.sim.object_families) (default sphere)")
-    p.add_argument("--size", type=float, default=d.size,
+    p.add_argument("--size", type=finite_float, default=d.size,
                    help=f"object width in metres; a mesh's largest extent; a family's size cap, 0.008 to 0.03 "
                         f"(default {d.size})")
-    p.add_argument("--mass", type=float, default=d.mass,
+    p.add_argument("--mass", type=finite_float, default=d.mass,
                    help=f"object mass in kg; a family's masses come from a density (default {d.mass})")
     p.add_argument("--out", type=Path, required=True,
                    help=f"dataset folder to create (for example {DATASETS_DIR / 'heuristic_sphere'})")
-    p.add_argument("--workers", type=int, default=d.workers, help="parallel worker processes (default 1)")
-    p.add_argument("--seed", type=int, default=d.seed, help=f"base seed (default {d.seed})")
+    p.add_argument("--workers", type=positive_int, default=d.workers,
+                   help="parallel worker processes (default 1; at most the cores, and no more than --episodes)")
+    add_oversubscribe(p)
+    p.add_argument("--seed", type=seed_argument, default=d.seed, help=f"base seed (default {d.seed})")
     add_ray_argument(p)
     p.add_argument("--no-randomize", action="store_true", help="turn domain randomization off")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
@@ -54,8 +58,10 @@ def run_heuristic(args: argparse.Namespace) -> int:
         timed,
     )
 
+    check_processes(args.workers, "--workers", args.allow_oversubscribe)
+    workers = max(1, min(args.workers, args.episodes))  # a worker without an episode would only load the simulator
     config = HeuristicRunConfig(episodes=args.episodes, object=args.object, size=args.size, mass=args.mass,
-                                seed=args.seed, workers=args.workers, randomize=not args.no_randomize)
+                                seed=args.seed, workers=workers, randomize=not args.no_randomize)
     summaries, seconds = timed(generate_heuristic_dataset, args.out, config, progress=not args.no_progress,
                                resume=args.resume, ray_address=args.ray)
     if not summaries:

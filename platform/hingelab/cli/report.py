@@ -8,6 +8,7 @@ import shlex
 import time
 from pathlib import Path
 
+from hingelab.arguments import finite_float
 from hingelab.cli.options import add_on_corrupt
 from hingelab.errors import ConfigError
 from hingelab.provenance import require_clean_for
@@ -40,7 +41,7 @@ def add_parser(subparsers) -> None:
                         "episodes.csv files, or evaluation datasets; repeat --pool for several pools in one report")
     p.add_argument("--pool-name", action="append", default=[], metavar="NAME",
                    help="name of each --pool in order (default: from the folder names, e.g. experts_goals_seed3-5)")
-    p.add_argument("--bands", type=float, nargs="+", default=None, metavar="RAD",
+    p.add_argument("--bands", type=finite_float, nargs="+", default=None, metavar="RAD",
                    help="edges of the goal-opening bands of --pool (default 0.10 0.18 0.22: < 0.10, 0.10-0.18, "
                         "0.18-0.22, >= 0.22 rad)")
     p.add_argument("--picks", type=Path, nargs="+", default=[], metavar="DIR",

@@ -6,6 +6,7 @@ import argparse
 import time
 from pathlib import Path
 
+from hingelab.arguments import positive_int
 from hingelab.errors import ConfigError
 
 
@@ -34,8 +35,8 @@ def add_parser(subparsers) -> None:
     p.add_argument("--address", default=None, metavar="ADDR",
                    help="join the Ray cluster at ADDR (host:port from `ray start --head`, or auto) instead of "
                         "starting a local one")
-    p.add_argument("--cpus", type=int, default=None,
-                   help="CPUs of the local Ray (default: every core of this machine); not with --address")
+    p.add_argument("--cpus", type=positive_int, default=None,
+                   help="CPUs of the local Ray, at least 1 (default: every core of this machine); not with --address")
     p.add_argument("--resume", action="store_true",
                    help="continue a stopped sweep in --out: finished trials are kept, the others continue from "
                         "their last checkpoint (a trial without one starts again)")

@@ -13,10 +13,12 @@ import argparse
 from pathlib import Path
 
 from hingelab import paths
+from hingelab.arguments import check_processes, finite_float
 from hingelab.errors import ConfigError
 from hingelab.learners import registry
 from hingelab.paths import refuse_to_replace_shipped
 from hingelab.perception.encoder_config import EncoderConfig, TrainEncoderConfig
+from hingelab.seeds import seed_argument
 from hingelab.training.run_config import config_from_args, given_settings
 
 
@@ -90,6 +92,8 @@ def run_policy(args: argparse.Namespace) -> int:
             raise ConfigError(f"{out} is a run of --learner {recorded}, not {learner.name}: resume it with "
                               f"--learner {recorded}")
         config = resumed_config(out, config, given_settings(learner.config_class, args))
+    if getattr(config, "subprocess_envs", False):  # one process per env: a simulator each
+        check_processes(config.n_envs, "--envs", args.allow_oversubscribe)
     result = learner.train(config, out, resume=args.resume, progress=not args.no_progress, name=args.name)
     print(learner.summary(result, config, out))
     return 0
@@ -109,10 +113,11 @@ def add_encoder_parser(learners) -> None:
                    help="a cloud dataset folder (hingelab generate clouds); not with --recalibrate-curve")
     p.add_argument("--epochs", type=int, default=d.epochs, help=f"training epochs (default {d.epochs})")
     p.add_argument("--batch-size", type=int, default=d.batch_size, help=f"clouds per step (default {d.batch_size})")
-    p.add_argument("--lr", type=float, default=d.learning_rate, help=f"Adam learning rate (default {d.learning_rate})")
-    p.add_argument("--beta", type=float, default=EncoderConfig().beta,
+    p.add_argument("--lr", type=finite_float, default=d.learning_rate,
+                   help=f"Adam learning rate (default {d.learning_rate})")
+    p.add_argument("--beta", type=finite_float, default=EncoderConfig().beta,
                    help=f"KL weight of the VAE loss (default {EncoderConfig().beta})")
-    p.add_argument("--seed", type=int, default=d.seed, help=f"seed of weights and batches (default {d.seed})")
+    p.add_argument("--seed", type=seed_argument, default=d.seed, help=f"seed of weights and batches (default {d.seed})")
     p.add_argument("--threads", type=int, default=d.threads,
                    help=f"torch CPU threads (default {d.threads}; 1 to train two encoders side by side)")
     p.add_argument("--out", type=Path, default=None,

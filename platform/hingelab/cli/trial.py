@@ -7,9 +7,10 @@ import argparse
 import sys
 from pathlib import Path
 
+from hingelab.arguments import finite_float
 from hingelab.cli.names import ROBOTS
 from hingelab.cli.options import add_object_perception
-from hingelab.seeds import STRIDE, TRIALS_BASE
+from hingelab.seeds import STRIDE, TRIALS_BASE, seed_argument
 
 
 def add_parser(subparsers) -> None:
@@ -29,11 +30,11 @@ def add_parser(subparsers) -> None:
     p.add_argument("--object", default="sphere",
                    help="object: sphere, cube, cylinder, tetrahedron, mesh:PATH or family:NAME[:SEED] (a new "
                         "object each trial from a procedural family: hingelab.sim.object_families) (default sphere)")
-    p.add_argument("--size", type=float, default=0.02,
+    p.add_argument("--size", type=finite_float, default=0.02,
                    help="object size in m; a family's size cap, 0.008 to 0.03 (default 0.02)")
     p.add_argument("--trials", type=int, default=12, help="trials (default 12, the paper's per shape)")
     p.add_argument("--out", type=Path, required=True, help="dataset folder to write (must be new or empty)")
-    p.add_argument("--seed", type=int, default=0,
+    p.add_argument("--seed", type=seed_argument, default=0,
                    help=f"seed of the trials (default 0): trial k resets the stand-in with {TRIALS_BASE} + seed * "
                         f"{STRIDE} + k (hingelab.seeds)")
     p.add_argument("--policy", type=Path, default=None,

@@ -17,6 +17,7 @@ from dataclasses import asdict, dataclass
 
 from hingelab.envs.reward_config import HIGH_LEVEL_REWARD_MODES, LEGACY_MODE, HighLevelRewardConfig
 from hingelab.errors import ConfigError
+from hingelab.seeds import seed_argument
 from hingelab.training.run_config import RunConfig, option
 
 DEMO_ACTIONS = ("auto", "reached", "recorded")
@@ -27,7 +28,7 @@ _REWARD = HighLevelRewardConfig()
 
 @dataclass(frozen=True)
 class RunSettings(RunConfig):
-    seed: int = option(0, "run seed: weights, episodes, batches")
+    seed: int = option(0, "run seed: weights, episodes, batches; in [0, 2**32)", parse=seed_argument)
     torch_threads: int = option(1, "torch threads", flag="--threads")
     env_kwargs: dict = option(None, "more arguments of the env, as a JSON object", default_factory=dict)
     on_corrupt: str = option("stop", "episode files of the --from datasets that cannot be read (corrupt, cut off): "
