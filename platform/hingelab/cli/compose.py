@@ -10,6 +10,7 @@ import argparse
 from pathlib import Path
 
 from hingelab.errors import ConfigError
+from hingelab.out_dir import check_out_file
 from hingelab.paths import refuse_to_replace_shipped
 
 
@@ -55,6 +56,7 @@ def run_low(args: argparse.Namespace) -> int:
         write_experts,
     )
 
+    check_out_file(args.out)
     refuse_to_replace_shipped(args.out, args.force)
     experts = [parse_expert(text) for text in args.expert]
     if any(bound is None for _, bound in experts[:-1]) or experts[-1][1] is not None:

@@ -9,6 +9,7 @@ from pathlib import Path
 from hingelab.cli.names import EXPORT_FORMATS
 from hingelab.cli.options import add_on_corrupt
 from hingelab.errors import ConfigError
+from hingelab.out_dir import check_out, check_out_file
 from hingelab.paths import DATASETS_DIR
 
 
@@ -159,6 +160,8 @@ def run_recover(args: argparse.Namespace) -> int:
         recover_folder,
     )
 
+    if args.out is not None:
+        check_out_file(args.out)
     if args.file.is_dir():
         if args.out is not None:
             raise ConfigError("--out names one recovered file; a dataset folder's .partial files are recovered "
@@ -181,6 +184,7 @@ def run_export(args: argparse.Namespace) -> int:
     from hingelab.episodes.export import EXPORTERS, export_dataset  # on run: the parser stays light (hingelab.cli)
     from hingelab.ros2 import bag_export  # noqa: F401  (registers the ros2 export format)
 
+    check_out(args.out)
     if args.format not in EXPORTERS:
         raise ConfigError(f"--format {args.format}: not an export format; choose one of {', '.join(EXPORTERS)}")
     dataset = _open(args.dir)
@@ -197,6 +201,7 @@ def run_import_ros2(args: argparse.Namespace) -> int:
     from hingelab.ros2.bag_import import import_bags  # on run: the parser stays light (hingelab.cli)
     from hingelab.ros2.topics import topic_names
 
+    check_out(args.out)
     topic_names(args.topic)  # a malformed --topic is refused before anything is read
     summaries = import_bags(args.bags, args.out, topics=args.topic, progress=not args.no_progress)
     for summary in summaries:

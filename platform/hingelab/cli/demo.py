@@ -11,6 +11,7 @@ import json
 import time
 from pathlib import Path
 
+from hingelab.out_dir import check_out_file
 from hingelab.seeds import seed_argument
 
 
@@ -42,6 +43,8 @@ def add_parser(subparsers) -> None:
 def run(args: argparse.Namespace) -> int:
     from hingelab.cli.demo_steps import STEPS  # on run: the parser stays light (hingelab.cli)
 
+    if args.out:
+        check_out_file(args.out)
     results = {}
     started = time.perf_counter()
     for index, (title, step) in enumerate(STEPS, 1):

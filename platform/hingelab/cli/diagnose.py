@@ -14,6 +14,7 @@ from pathlib import Path
 
 from hingelab.arguments import finite_float
 from hingelab.cli.names import BIAS_LEVELS, NOISE_LEVELS
+from hingelab.out_dir import check_out
 from hingelab.provenance import code_version, require_clean_for
 from hingelab.seeds import seed_argument
 from hingelab.tasks import HIGH_LEVEL_ACTION_NAMES
@@ -117,6 +118,7 @@ def _command(args, verb: str, options: list[str]) -> str:
 def run_reward(args: argparse.Namespace) -> int:
     from hingelab.rollouts import reward_diagnostic  # on run: the parser stays light (hingelab.cli)
 
+    check_out(args.out)
     require_clean_for(args.out, args.allow_dirty, "hingelab diagnose reward")
     rows = reward_diagnostic.diagnose(args.episodes, args.seed, args.gamma, args.object, args.size,
                                       progress=not args.no_progress)
@@ -135,6 +137,7 @@ def run_reward(args: argparse.Namespace) -> int:
 def run_residual(args: argparse.Namespace) -> int:
     from hingelab.rollouts import residual_diagnostic  # on run: the parser stays light (hingelab.cli)
 
+    check_out(args.out)
     require_clean_for(args.out, args.allow_dirty, "hingelab diagnose residual")
     rows, gamma = residual_diagnostic.diagnose(args.checkpoint, args.object, args.size, args.episodes, args.seed,
                                                args.gamma, progress=not args.no_progress)
@@ -152,6 +155,7 @@ def run_residual(args: argparse.Namespace) -> int:
 def run_bias(args: argparse.Namespace) -> int:
     from hingelab.rollouts import bias_tolerance  # on run: the parser stays light (hingelab.cli)
 
+    check_out(args.out)
     require_clean_for(args.out, args.allow_dirty, "hingelab diagnose bias")
     rows = bias_tolerance.measure(args.checkpoint, args.episodes, args.levels, args.dimensions, args.seed,
                                   args.object, args.size, progress=not args.no_progress)
@@ -169,6 +173,7 @@ def run_bias(args: argparse.Namespace) -> int:
 def run_noise(args: argparse.Namespace) -> int:
     from hingelab.rollouts import noise_tolerance  # on run: the parser stays light (hingelab.cli)
 
+    check_out(args.out)
     require_clean_for(args.out, args.allow_dirty, "hingelab diagnose noise")
     rows = noise_tolerance.measure(args.episodes, args.levels, args.seed, args.object, args.size,
                                    progress=not args.no_progress)
@@ -184,6 +189,7 @@ def run_noise(args: argparse.Namespace) -> int:
 def run_object_estimate(args: argparse.Namespace) -> int:
     from hingelab.rollouts import object_estimate_errors  # on run: the parser stays light (hingelab.cli)
 
+    check_out(args.out)
     require_clean_for(args.out, args.allow_dirty, "hingelab diagnose object-estimate")
     rows, picture = object_estimate_errors.measure(args.placements, args.frames, args.seed,
                                                    progress=not args.no_progress)

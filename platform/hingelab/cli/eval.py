@@ -26,6 +26,7 @@ from hingelab.cli import eval_perception
 from hingelab.cli.names import BASELINES
 from hingelab.cli.options import add_object_perception, add_ray_argument
 from hingelab.errors import ConfigError
+from hingelab.out_dir import check_out
 from hingelab.seeds import seed_argument
 
 
@@ -117,6 +118,7 @@ def check_baseline(name: str | None, level: str) -> None:
 def run_low(args: argparse.Namespace) -> int:
     from hingelab.rollouts.evaluation import evaluate_low  # on run: the parser stays light (hingelab.cli)
 
+    check_out(args.out)
     check_baseline(args.baseline, "low")
     result = evaluate_low(args.checkpoint, out=args.out, baseline=args.baseline, episodes=args.episodes,
                           seed=args.seed, randomize=not args.no_randomize, perception=args.perception,
@@ -129,6 +131,7 @@ def run_low(args: argparse.Namespace) -> int:
 def run_high(args: argparse.Namespace) -> int:
     from hingelab.rollouts.evaluation import evaluate_high  # on run: the parser stays light (hingelab.cli)
 
+    check_out(args.out)
     check_baseline(args.baseline, "high")
     result = evaluate_high(args.checkpoint, out=args.out, baseline=args.baseline, object=args.object,
                            size=args.size, episodes=args.episodes, seed=args.seed, low_level=args.low_level,

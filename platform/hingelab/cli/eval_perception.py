@@ -15,6 +15,7 @@ from pathlib import Path
 import numpy as np
 
 from hingelab.errors import ConfigError
+from hingelab.out_dir import check_out
 from hingelab.provenance import code_version, require_clean_for
 from hingelab.seeds import seed_argument
 
@@ -45,6 +46,7 @@ def run(args: argparse.Namespace) -> int:
     )
     from hingelab.perception.clouds import CloudRealism, CloudSynthesizer
 
+    check_out(args.out)
     if args.episodes < 1 or args.steps <= GapConfig.warmup_steps:
         raise ConfigError(f"--episodes must be >= 1 and --steps > {GapConfig.warmup_steps}")
     require_clean_for(args.out, args.allow_dirty, "hingelab eval perception")

@@ -15,6 +15,7 @@ import time
 from pathlib import Path
 
 from hingelab.arguments import finite_float
+from hingelab.out_dir import check_out
 from hingelab.paths import DATASETS_DIR
 from hingelab.perception.cloud_dataset_config import CloudDatasetConfig
 from hingelab.seeds import seed_argument
@@ -75,6 +76,7 @@ def run_clouds(args: argparse.Namespace) -> int:
         generate_cloud_dataset,  # on run: the parser stays light (hingelab.cli)
     )
 
+    check_out(args.out)
     config = CloudDatasetConfig(n_clouds=args.n, clouds_per_episode=args.per_episode, seed=args.seed,
                                 noise_std_m=args.noise, noise_std_max_m=args.noise_max,
                                 removal_fraction=args.removal)

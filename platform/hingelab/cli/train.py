@@ -16,6 +16,7 @@ from hingelab import paths
 from hingelab.arguments import check_processes, finite_float
 from hingelab.errors import ConfigError
 from hingelab.learners import registry
+from hingelab.out_dir import check_out, check_out_file
 from hingelab.paths import refuse_to_replace_shipped
 from hingelab.perception.encoder_config import EncoderConfig, TrainEncoderConfig
 from hingelab.seeds import seed_argument
@@ -83,6 +84,7 @@ def run_policy(args: argparse.Namespace) -> int:
         out = paths.REPO_ROOT / default
     else:
         out = args.out
+    check_out(out)
     refuse_to_replace_shipped(out, args.force)
     if args.resume:
         from hingelab.training.run_folder import resumed_config  # on run: the parser stays light (hingelab.cli)
@@ -147,6 +149,8 @@ def run_encoder(args: argparse.Namespace) -> int:
         train_encoder,
     )
 
+    if args.out is not None:
+        check_out_file(args.out)
     if args.recalibrate or args.recalibrate_curve:
         if args.out is None:
             raise ConfigError("--recalibrate and --recalibrate-curve rewrite a checkpoint: name it with --out CKPT")

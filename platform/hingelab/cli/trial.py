@@ -10,6 +10,7 @@ from pathlib import Path
 from hingelab.arguments import finite_float
 from hingelab.cli.names import ROBOTS
 from hingelab.cli.options import add_object_perception
+from hingelab.out_dir import check_out
 from hingelab.seeds import STRIDE, TRIALS_BASE, seed_argument
 
 
@@ -57,6 +58,7 @@ def add_parser(subparsers) -> None:
 def run(args: argparse.Namespace) -> int:
     from hingelab.robot.trial import TrialConfig, run_trial_session  # on run: the parser stays light (hingelab.cli)
 
+    check_out(args.out)
     config = TrialConfig(object=args.object, size=args.size, trials=args.trials, seed=args.seed,
                          max_steps=args.max_steps, depth_every=args.depth_every, operator=args.operator,
                          object_perception=args.object_perception)
