@@ -7,6 +7,7 @@ import pytest
 
 from hingelab.cli.main import main
 from hingelab.errors import ConfigError
+from hingelab.rollouts import grasp_observability as O
 from hingelab.rollouts import grasp_offsets as G
 
 
@@ -61,3 +62,28 @@ def test_diagnose_grasp_reads_an_eval_dataset_and_refuses_a_thin_reference(tmp_p
                  "--allow-dirty"])
     err = capsys.readouterr().err.strip()
     assert code != 0 and "at least 5" in err and len(err.splitlines()) == 1
+    code = main(["diagnose", "grasp-observability", str(out), "--out", str(tmp_path / "seen"), "--allow-dirty"])
+    err = capsys.readouterr().err.strip()
+    assert code != 0 and "at least 30" in err and len(err.splitlines()) == 1
+    inputs, offsets = O.samples([out])  # below the floor for a verdict, but the inputs line up
+    assert 1 <= len(offsets) <= 2 and offsets.shape[1] == 3  # the scripted lifts hold the object between the tips
+    widths = {name: inputs[name].shape for name in O.INPUTS}
+    assert widths == {"observation": (len(offsets), 14), "true tool pose": (len(offsets), 15),
+                      "true tool pose and object": (len(offsets), 15)}
+
+
+def test_observability_tells_a_seen_offset_from_a_hidden_one():
+    rng = np.random.default_rng(0)
+    truth = rng.normal(size=(300, 3))
+    seen = truth + 0.1 * rng.normal(size=(300, 3))  # the offset in the input, with a little noise
+    hidden = rng.normal(size=(300, 3))  # nothing of it
+    assert O.held_out_r2(seen, truth[:, 0], seed=0) > 0.9
+    assert O.held_out_r2(hidden, truth[:, 0], seed=0) < 0.1
+    rows = [{"input": name, "episodes": 300, **{f"r2_{a}": r for a in G.AXES}, **{f"offset_{a}_sd_mm": 1.0
+                                                                                for a in G.AXES}}
+            for name, r in zip(O.INPUTS, (0.2, 0.9, 1.0))]
+    assert "the tool-pose estimate is what the policy cannot see past" in O.verdict(rows, "z")
+    rows[0]["r2_z"] = 0.8
+    assert "the information is there" in O.verdict(rows, "z")
+    rows[0]["r2_z"], rows[1]["r2_z"] = 0.2, 0.3
+    assert "does not recover it" in O.verdict(rows, "z")

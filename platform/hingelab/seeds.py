@@ -20,6 +20,10 @@ object draws           a generator from object_draw_entropy(s,      ToolPick-v0 
                        SEED): s the episode's reset seed            objects (sim.object_families)
 =====================  ===========================================  =================================
 
+A ``--seed`` is in [0, 2**32) (``SEED_BOUND``; ``seed_argument`` is every command's door): the run seed seeds
+NumPy's legacy generator (32 bits), and within it every stream's episode seed keeps below 2**63, so a dataset's
+index (int64) holds it.
+
 Within the user-facing domain (``S`` below ``SEED_LIMIT``, ``k`` below ``EPISODE_LIMIT``) the demos,
 trials, high-level evaluation, prior and low-level held-out streams are disjoint (``tests/test_seeds.py``).
 The training rollouts' stream keeps below the trials, the evaluations and the held-out goals for run seeds
@@ -35,12 +39,13 @@ numbers with the env's own generator (seeded with ``s`` alone) nor with the stre
 
 from __future__ import annotations
 
+import argparse
 import random
 from contextlib import contextmanager
 
 import numpy as np
-import torch
 
+SEED_BOUND = 2**32  # a --seed is below this (and not negative)
 STRIDE = 100_003  # episodes per block (a prime: blocks of neighbouring seeds do not line up)
 SEED_LIMIT = 1_000  # the --seed values the plan keeps apart ...
 EPISODE_LIMIT = 10_000  # ... for this many episodes per command
@@ -57,6 +62,17 @@ SAMPLED_STRIDE = 10_007
 MEMBER_STRIDE = 1_000_003
 OBJECT_DRAW_KEY = 0x4F424A454354  # "OBJECT": the first word of every object draw's entropy (above 2**32)
 NO_FAMILY_SEED = 2**32 - 1  # the family SEED word of family:NAME without one (a SEED is below 2**31)
+
+
+def seed_argument(text: str) -> int:
+    """The argparse ``type`` of every ``--seed``: an integer in [0, ``SEED_BOUND``)."""
+    try:
+        value = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r} is not an integer") from None
+    if not 0 <= value < SEED_BOUND:
+        raise argparse.ArgumentTypeError(f"{value} is out of range: a seed is in [0, 2**32)")
+    return value
 
 
 def demo_seed(seed: int, index: int) -> int:
@@ -101,6 +117,8 @@ def preserved_global_rngs():
     builds networks (whose initial weights are drawn, then overwritten) and stable-baselines3 reseeds the
     generators when it sets a model up, and a run that loads one after seeding must train what its seed
     says, whether or not the process loaded it before."""
+    import torch  # only the callers that load torch models come here; the seed plan itself is light
+
     states = random.getstate(), np.random.get_state(), torch.random.get_rng_state()
     try:
         yield
@@ -124,7 +142,8 @@ def ensemble_member_seed(seed: int, member: int) -> int:
     return int(seed) + int(member) * MEMBER_STRIDE
 
 
-__all__ = ["STRIDE", "SEED_LIMIT", "EPISODE_LIMIT", "TRAINING_SEED_LIMIT", "TRAINING_EPISODE_LIMIT", "TRIALS_BASE",
+__all__ = ["SEED_BOUND", "seed_argument",
+           "STRIDE", "SEED_LIMIT", "EPISODE_LIMIT", "TRAINING_SEED_LIMIT", "TRAINING_EPISODE_LIMIT", "TRIALS_BASE",
            "EVAL_HIGH_BASE", "PRIOR_BASE", "TRAINING_EVALUATION_SEED", "HELD_OUT_BASE", "demo_seed", "trial_seed",
            "eval_high_seed", "prior_block", "training_episode_seed", "held_out_goal_seed", "sampled_goal_seed",
            "ensemble_member_seed", "OBJECT_DRAW_KEY", "object_draw_entropy"]

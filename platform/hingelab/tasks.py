@@ -22,6 +22,7 @@ Z_SCALE = 3.0
 MAX_SPEED = 0.08  # m/s
 OBSERVED_OBJECT = slice(8, 11)  # the observed object centre (hand frame, m) in ToolPick-v0's observation
 HIGH_LEVEL_ACTION_SHAPE = (5,)
+HIGH_LEVEL_ACTION_NAMES = ("z_goal_0", "z_goal_1", "velocity_x", "velocity_y", "velocity_z")
 LOW_LEVEL_ACTION_SHAPE = (9,)
 LOW_LEVEL_OBSERVATION_DIM = 26  # hand q and q-dot (18), tool v and omega (6), z (2); the goal z apart
 

@@ -24,7 +24,6 @@ ToolShape-v0), or for episodes written before schema 2, what their task recorded
 from __future__ import annotations
 
 import datetime as _dt
-import json
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -50,6 +49,7 @@ from hingelab.analysis.success_tables import (
     overall_success,
     success_rates,
 )
+from hingelab.json_text import strict_dumps
 from hingelab.provenance import code_version
 
 
@@ -226,7 +226,7 @@ def build_report(datasets, out, runs=(), title: str | None = None, attempts_k=(1
         "created": _dt.datetime.now(_dt.timezone.utc).isoformat(timespec="seconds"),
         **code_version(),
     }
-    (out / "report.json").write_text(json.dumps(provenance, indent=2) + "\n")
+    (out / "report.json").write_text(strict_dumps(provenance, out / "report.json", indent=2) + "\n")
     files.append(out / "report.json")
     return Report(out=out, episodes=episodes, tables=tables, files=files)
 

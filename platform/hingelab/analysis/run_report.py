@@ -9,7 +9,6 @@ plots, report.md, report.html and report.json (runs, code version).
 from __future__ import annotations
 
 import datetime as _dt
-import json
 from pathlib import Path
 
 import pandas as pd
@@ -26,6 +25,7 @@ from hingelab.analysis.learning_curves import (
     seed_summary,
 )
 from hingelab.analysis.report import FINAL_SUCCESS_SECTION, Report
+from hingelab.json_text import strict_dumps
 from hingelab.provenance import code_version
 
 
@@ -62,7 +62,7 @@ def build_run_report(runs, out, title: str | None = None, command: str | None = 
     files += list(write_documents(out, title or "hingelab report: training runs", intro, sections))
     provenance = {"runs": [str(r) for r in runs], "given": [str(r) for r in given],
                   "created": _dt.datetime.now(_dt.timezone.utc).isoformat(timespec="seconds"), **code_version()}
-    (out / "report.json").write_text(json.dumps(provenance, indent=2) + "\n")
+    (out / "report.json").write_text(strict_dumps(provenance, out / "report.json", indent=2) + "\n")
     files.append(out / "report.json")
     return Report(out=out, episodes=pd.DataFrame(), tables=tables, files=files)
 

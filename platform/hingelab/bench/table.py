@@ -3,10 +3,10 @@
 from __future__ import annotations
 
 import datetime as _dt
-import json
 from dataclasses import dataclass, field
 from pathlib import Path
 
+from hingelab.json_text import strict_dumps
 from hingelab.paths import ANALYSIS_DIR
 from hingelab.provenance import code_version, machine
 
@@ -60,5 +60,5 @@ class BenchTable:
             "machine": machine(),
             "created": _dt.datetime.now(_dt.timezone.utc).isoformat(timespec="seconds"),
         }
-        json_path.write_text(json.dumps(payload, indent=2) + "\n")
+        json_path.write_text(strict_dumps(payload, json_path, indent=2) + "\n")
         return md_path, json_path

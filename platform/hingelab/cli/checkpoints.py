@@ -7,10 +7,6 @@ from pathlib import Path
 
 from hingelab.errors import ConfigError
 from hingelab.folder_lock import folder_lock
-from hingelab.perception.encoder import SHIPPED_CHECKPOINT, convert_checkpoint
-from hingelab.policies.phase_clone import PhaseClone, is_phase_clone
-from hingelab.policies.sb3_zip import read_plain_data
-from hingelab.training.checkpoints import convert_pickled
 
 
 def add_parser(subparsers) -> None:
@@ -34,6 +30,13 @@ def add_parser(subparsers) -> None:
 
 
 def run_convert(args: argparse.Namespace) -> int:
+    from hingelab.perception.encoder import (  # on run: the parser stays light (hingelab.cli)
+        SHIPPED_CHECKPOINT,
+        convert_checkpoint,
+    )
+    from hingelab.policies.phase_clone import PhaseClone, is_phase_clone
+    from hingelab.policies.sb3_zip import read_plain_data
+    from hingelab.training.checkpoints import convert_pickled
 
     for path in args.files or [SHIPPED_CHECKPOINT]:
         if path.is_dir():

@@ -10,8 +10,8 @@ import argparse
 from pathlib import Path
 
 from hingelab.errors import ConfigError
+from hingelab.out_dir import check_out_file
 from hingelab.paths import refuse_to_replace_shipped
-from hingelab.policies.goal_experts import load_experts, write_experts
 
 
 def add_parser(subparsers) -> None:
@@ -51,7 +51,12 @@ def parse_expert(text: str) -> tuple[Path, float | None]:
 
 
 def run_low(args: argparse.Namespace) -> int:
+    from hingelab.policies.goal_experts import (  # on run: the parser stays light (hingelab.cli)
+        load_experts,
+        write_experts,
+    )
 
+    check_out_file(args.out)
     refuse_to_replace_shipped(args.out, args.force)
     experts = [parse_expert(text) for text in args.expert]
     if any(bound is None for _, bound in experts[:-1]) or experts[-1][1] is not None:

@@ -6,18 +6,12 @@ import argparse
 import sys
 from pathlib import Path
 
+from hingelab.cli.names import EXPORT_FORMATS
 from hingelab.cli.options import add_on_corrupt
-from hingelab.episodes.dataset import open_dataset
-from hingelab.episodes.errors import DatasetError
-from hingelab.episodes.export import EXPORTERS, export_dataset
-from hingelab.episodes.recover import recover_episode, recover_folder
-from hingelab.episodes.verify import verify_dataset
 from hingelab.errors import ConfigError
 from hingelab.folder_lock import folder_lock
+from hingelab.out_dir import check_out, check_out_file
 from hingelab.paths import DATASETS_DIR
-from hingelab.ros2 import bag_export  # noqa: F401  (registers the ros2 export format)
-from hingelab.ros2.bag_import import import_bags
-from hingelab.ros2.topics import KINDS, topic_names
 
 
 def add_parser(subparsers) -> None:
@@ -75,7 +69,8 @@ def add_parser(subparsers) -> None:
             "and renames it into place at the end."),
     )
     export.add_argument("dir", type=Path, help="dataset folder")
-    export.add_argument("--format", choices=tuple(EXPORTERS), required=True, help="target layout")
+    export.add_argument("--format", required=True, metavar="FORMAT",
+                        help=f"target layout: {', '.join(EXPORT_FORMATS)} (or a plug-in's format)")
     export.add_argument("--out", type=Path, required=True,
                         help="minari: the datasets root (MINARI_DATASETS_PATH); lerobot: the new dataset folder; "
                              "ros2: the new folder of bags")
@@ -84,6 +79,8 @@ def add_parser(subparsers) -> None:
                              "must not exist under --out")
     add_on_corrupt(export)
     export.set_defaults(func=run_export)
+
+    from hingelab.ros2.topics import KINDS  # the topics' table: only for this subcommand's description
 
     kinds = "\n".join(f"  {k.kind}={k.default}  ({k.msgtype}{'' if k.required else ', optional'}): {k.meaning}"
                       for k in KINDS.values())
@@ -110,6 +107,7 @@ def add_parser(subparsers) -> None:
 
 
 def _open(root: Path):
+    from hingelab.episodes.dataset import open_dataset  # on run: the parser stays light (hingelab.cli)
 
     return open_dataset(root)
 
@@ -142,6 +140,8 @@ def run_index(args: argparse.Namespace) -> int:
 
 
 def run_verify(args: argparse.Namespace) -> int:
+    from hingelab.episodes.errors import DatasetError  # on run: the parser stays light (hingelab.cli)
+    from hingelab.episodes.verify import verify_dataset
 
     _open(args.dir)
     good, problems = verify_dataset(args.dir, progress=True)
@@ -156,7 +156,13 @@ def run_verify(args: argparse.Namespace) -> int:
 
 
 def run_recover(args: argparse.Namespace) -> int:
+    from hingelab.episodes.recover import (  # on run: the parser stays light (hingelab.cli)
+        recover_episode,
+        recover_folder,
+    )
 
+    if args.out is not None:
+        check_out_file(args.out)
     if args.file.is_dir():
         if args.out is not None:
             raise ConfigError("--out names one recovered file; a dataset folder's .partial files are recovered "
@@ -177,7 +183,12 @@ def run_recover(args: argparse.Namespace) -> int:
 
 
 def run_export(args: argparse.Namespace) -> int:
+    from hingelab.episodes.export import EXPORTERS, export_dataset  # on run: the parser stays light (hingelab.cli)
+    from hingelab.ros2 import bag_export  # noqa: F401  (registers the ros2 export format)
 
+    check_out(args.out)
+    if args.format not in EXPORTERS:
+        raise ConfigError(f"--format {args.format}: not an export format; choose one of {', '.join(EXPORTERS)}")
     dataset = _open(args.dir)
     result = export_dataset(dataset, args.format, args.out, dataset_id=args.dataset_id, progress=True)
     skipped = "".join(f"; skipped {len(files)} ({reason}): {', '.join(files[:3])}{' ...' if len(files) > 3 else ''}"
@@ -189,7 +200,10 @@ def run_export(args: argparse.Namespace) -> int:
 
 
 def run_import_ros2(args: argparse.Namespace) -> int:
+    from hingelab.ros2.bag_import import import_bags  # on run: the parser stays light (hingelab.cli)
+    from hingelab.ros2.topics import topic_names
 
+    check_out(args.out)
     topic_names(args.topic)  # a malformed --topic is refused before anything is read
     with folder_lock(args.out, args.argv):
         summaries = import_bags(args.bags, args.out, topics=args.topic, progress=not args.no_progress)

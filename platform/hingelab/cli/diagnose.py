@@ -6,7 +6,8 @@ tolerates before the scripted demonstrator fails (``hingelab.rollouts.noise_tole
 each estimator of the object's position from the depth camera lands from the truth
 (``hingelab.rollouts.object_estimate_errors``). ``object-noise-fit``: a model of those errors fitted on its frames
 (``hingelab.rollouts.object_noise_fit``). ``grasp``: whether where the tips hold the object at the lift
-explains a policy's failed picks (``hingelab.rollouts.grasp_offsets``)."""
+explains a policy's failed picks (``hingelab.rollouts.grasp_offsets``). ``grasp-observability``: whether the
+policy's observation can see that grasp offset (``hingelab.rollouts.grasp_observability``)."""
 
 from __future__ import annotations
 
@@ -14,16 +15,12 @@ import argparse
 import shlex
 from pathlib import Path
 
+from hingelab.arguments import finite_float
+from hingelab.cli.names import BIAS_LEVELS, NOISE_LEVELS
+from hingelab.out_dir import check_out
 from hingelab.provenance import code_version, require_clean_for
-from hingelab.rollouts import (
-    bias_tolerance,
-    grasp_offsets,
-    noise_tolerance,
-    object_estimate_errors,
-    object_noise_fit,
-    residual_diagnostic,
-    reward_diagnostic,
-)
+from hingelab.seeds import seed_argument
+from hingelab.tasks import HIGH_LEVEL_ACTION_NAMES
 
 
 def add_parser(subparsers) -> None:
@@ -45,8 +42,10 @@ def add_parser(subparsers) -> None:
                     "one, the value a critic learns at the decision point (the object first within 2 cm of the "
                     "target). Writes reward_diagnostic.md, summary.csv and episodes.csv into --out.")
     reward.add_argument("--episodes", type=int, default=10, help="starts (pairs of episodes; default 10)")
-    reward.add_argument("--seed", type=int, default=9100, help="seed of the starts, eval high's stream (default 9100)")
-    reward.add_argument("--gamma", type=float, default=0.98, help="the critic's discount (default 0.98, SAC's here)")
+    reward.add_argument("--seed", type=seed_argument, default=9100,
+                        help="seed of the starts, eval high's stream (default 9100)")
+    reward.add_argument("--gamma", type=finite_float, default=0.98,
+                        help="the critic's discount (default 0.98, SAC's here)")
     reward.set_defaults(func=run_reward)
     noise = what.add_parser(
         "noise", help="exploration noise each action dimension tolerates (the scripted demonstrator)",
@@ -55,10 +54,11 @@ def add_parser(subparsers) -> None:
                     "from the same starts; a table of successes and tool drops and the tolerated level per "
                     "dimension. Writes noise_tolerance.md and noise_tolerance.csv into --out.")
     noise.add_argument("--episodes", type=int, default=20, help="episodes per level (default 20)")
-    noise.add_argument("--levels", type=float, nargs="+", default=list(noise_tolerance.DEFAULT_LEVELS),
+    noise.add_argument("--levels", type=finite_float, nargs="+", default=list(NOISE_LEVELS),
                        metavar="STD", help="noise stds in action units (default "
-                                           f"{' '.join(map(str, noise_tolerance.DEFAULT_LEVELS))})")
-    noise.add_argument("--seed", type=int, default=9200, help="seed of the starts, eval high's stream (default 9200)")
+                                           f"{' '.join(map(str, NOISE_LEVELS))})")
+    noise.add_argument("--seed", type=seed_argument, default=9200,
+                       help="seed of the starts, eval high's stream (default 9200)")
     noise.set_defaults(func=run_noise)
     residual = what.add_parser(
         "residual", help="why a fine-tuned residual picks less than its base: the reward or the learner",
@@ -71,9 +71,9 @@ def add_parser(subparsers) -> None:
     residual.add_argument("checkpoint", type=Path,
                           help="a residual policy (RUNDIR/model.zip) or a run's checkpoint RUNDIR/checkpoints/step_N")
     residual.add_argument("--episodes", type=int, default=30, help="starts per arm (default 30)")
-    residual.add_argument("--seed", type=int, default=100,
+    residual.add_argument("--seed", type=seed_argument, default=100,
                           help="seed of the starts, eval high's stream (default 100; not the run's own)")
-    residual.add_argument("--gamma", type=float, default=None, help="discount (default: the run's)")
+    residual.add_argument("--gamma", type=finite_float, default=None, help="discount (default: the run's)")
     residual.set_defaults(func=run_residual)
     bias = what.add_parser(
         "bias", help="the consistent offset each action dimension of a policy tolerates (a residual's reach)",
@@ -85,17 +85,18 @@ def add_parser(subparsers) -> None:
     bias.add_argument("checkpoint", type=Path, nargs="?", default=None,
                       help="a high-level policy (default: the shipped assets/checkpoints/high_level.zip)")
     bias.add_argument("--episodes", type=int, default=30, help="episodes per offset (default 30)")
-    bias.add_argument("--levels", type=float, nargs="+", default=list(bias_tolerance.DEFAULT_LEVELS), metavar="L",
+    bias.add_argument("--levels", type=finite_float, nargs="+", default=list(BIAS_LEVELS), metavar="L",
                       help="offset sizes in action units, each tried with both signs (default "
-                           f"{' '.join(map(str, bias_tolerance.DEFAULT_LEVELS))})")
-    bias.add_argument("--dimensions", nargs="+", default=list(noise_tolerance.DIMENSIONS),
-                      choices=noise_tolerance.DIMENSIONS, metavar="DIM",
-                      help=f"action dimensions to offset (default all: {' '.join(noise_tolerance.DIMENSIONS)})")
-    bias.add_argument("--seed", type=int, default=100, help="seed of the starts, eval high's stream (default 100)")
+                           f"{' '.join(map(str, BIAS_LEVELS))})")
+    bias.add_argument("--dimensions", nargs="+", default=list(HIGH_LEVEL_ACTION_NAMES),
+                      choices=HIGH_LEVEL_ACTION_NAMES, metavar="DIM",
+                      help=f"action dimensions to offset (default all: {' '.join(HIGH_LEVEL_ACTION_NAMES)})")
+    bias.add_argument("--seed", type=seed_argument, default=100,
+                      help="seed of the starts, eval high's stream (default 100)")
     bias.set_defaults(func=run_bias)
     for sub in (reward, noise, residual, bias):
         sub.add_argument("--object", default="sphere", help="object shape (default sphere, the training object)")
-        sub.add_argument("--size", type=float, default=0.02, help="object width in m (default 0.02)")
+        sub.add_argument("--size", type=finite_float, default=0.02, help="object width in m (default 0.02)")
     objects = what.add_parser(
         "object-estimate", help="the object's position from the depth camera: each estimator's error",
         description="The stand-in's scene with each test shape (sphere, cube, cylinder, tetrahedron) and size "
@@ -105,7 +106,8 @@ def add_parser(subparsers) -> None:
                     "object_estimate.md, summary.csv, frames.csv and frame.png into --out.")
     objects.add_argument("--placements", type=int, default=20, help="spots per shape and size (default 20)")
     objects.add_argument("--frames", type=int, default=5, help="frames per spot (default 5)")
-    objects.add_argument("--seed", type=int, default=0, help="seed of the spots, noise and mask errors (default 0)")
+    objects.add_argument("--seed", type=seed_argument, default=0,
+                         help="seed of the spots, noise and mask errors (default 0)")
     objects.set_defaults(func=run_object_estimate)
     grasp = what.add_parser(
         "grasp", help="where the tips hold the object at the lift, against the demonstrator's picks",
@@ -118,6 +120,18 @@ def add_parser(subparsers) -> None:
     grasp.add_argument("--reference", type=Path, required=True,
                        help="the demonstrator's eval high dataset whose first-attempt picks set the ranges")
     grasp.set_defaults(func=run_grasp)
+    seeing = what.add_parser(
+        "grasp-observability", help="how much of the grasp offset the policy's observation can see",
+        description="At each episode's first lift command, the true grasp offset (the tips' midpoint minus the "
+                    "object's centre, hand_base frame, mm) regressed by least squares on the policy's observation, "
+                    "on the observation with the true tool pose, and with the true object too; held-out R^2 per "
+                    "axis: whether a policy on the observation can see the offset that fails its grasps. Reads "
+                    "ToolPick-v0 datasets with /sim/privileged (a training run's RUNDIR/dataset, eval high). Writes "
+                    "observability.md and observability.csv into --out.")
+    seeing.add_argument("datasets", type=Path, nargs="+", metavar="DATASET",
+                        help="ToolPick-v0 dataset folders (together at least 30 episodes that lift)")
+    seeing.add_argument("--seed", type=seed_argument, default=0, help="seed of the held-out split (default 0)")
+    seeing.set_defaults(func=run_grasp_observability)
     fitted = what.add_parser(
         "object-noise-fit", help="a model of the camera's object estimate (bias, noise, dropout) for ToolPick-v0",
         description="Fits hingelab.perception.object_noise_model on object-estimate's frames.csv: per estimator, "
@@ -126,9 +140,9 @@ def add_parser(subparsers) -> None:
                     "object_noise_model.json, residuals.csv and residuals.md into --out.")
     fitted.add_argument("--frames", type=Path, default=Path("analysis/objects/frames.csv"),
                         help="frames.csv of hingelab diagnose object-estimate (default analysis/objects/frames.csv)")
-    fitted.add_argument("--seed", type=int, default=0, help="seed of the residuals' sampling (default 0)")
+    fitted.add_argument("--seed", type=seed_argument, default=0, help="seed of the residuals' sampling (default 0)")
     fitted.set_defaults(func=run_object_noise_fit)
-    for sub in (reward, noise, residual, bias, objects, fitted, grasp):
+    for sub in (reward, noise, residual, bias, objects, fitted, grasp, seeing):
         sub.add_argument("--out", type=Path, required=True, help="report folder, e.g. analysis/high-level/reward")
         sub.add_argument("--allow-dirty", action="store_true",
                          help="write under analysis/ from uncommitted code (the report then says so)")
@@ -141,6 +155,9 @@ def _command(args, verb: str, options: list[str]) -> str:
 
 
 def run_reward(args: argparse.Namespace) -> int:
+    from hingelab.rollouts import reward_diagnostic  # on run: the parser stays light (hingelab.cli)
+
+    check_out(args.out)
     require_clean_for(args.out, args.allow_dirty, "hingelab diagnose reward")
     rows = reward_diagnostic.diagnose(args.episodes, args.seed, args.gamma, args.object, args.size,
                                       progress=not args.no_progress)
@@ -157,6 +174,9 @@ def run_reward(args: argparse.Namespace) -> int:
 
 
 def run_residual(args: argparse.Namespace) -> int:
+    from hingelab.rollouts import residual_diagnostic  # on run: the parser stays light (hingelab.cli)
+
+    check_out(args.out)
     require_clean_for(args.out, args.allow_dirty, "hingelab diagnose residual")
     rows, gamma = residual_diagnostic.diagnose(args.checkpoint, args.object, args.size, args.episodes, args.seed,
                                                args.gamma, progress=not args.no_progress)
@@ -172,6 +192,9 @@ def run_residual(args: argparse.Namespace) -> int:
 
 
 def run_bias(args: argparse.Namespace) -> int:
+    from hingelab.rollouts import bias_tolerance  # on run: the parser stays light (hingelab.cli)
+
+    check_out(args.out)
     require_clean_for(args.out, args.allow_dirty, "hingelab diagnose bias")
     rows = bias_tolerance.measure(args.checkpoint, args.episodes, args.levels, args.dimensions, args.seed,
                                   args.object, args.size, progress=not args.no_progress)
@@ -187,6 +210,9 @@ def run_bias(args: argparse.Namespace) -> int:
 
 
 def run_noise(args: argparse.Namespace) -> int:
+    from hingelab.rollouts import noise_tolerance  # on run: the parser stays light (hingelab.cli)
+
+    check_out(args.out)
     require_clean_for(args.out, args.allow_dirty, "hingelab diagnose noise")
     rows = noise_tolerance.measure(args.episodes, args.levels, args.seed, args.object, args.size,
                                    progress=not args.no_progress)
@@ -200,6 +226,9 @@ def run_noise(args: argparse.Namespace) -> int:
 
 
 def run_object_estimate(args: argparse.Namespace) -> int:
+    from hingelab.rollouts import object_estimate_errors  # on run: the parser stays light (hingelab.cli)
+
+    check_out(args.out)
     require_clean_for(args.out, args.allow_dirty, "hingelab diagnose object-estimate")
     rows, picture = object_estimate_errors.measure(args.placements, args.frames, args.seed,
                                                    progress=not args.no_progress)
@@ -217,6 +246,9 @@ def run_object_estimate(args: argparse.Namespace) -> int:
 
 
 def run_grasp(args: argparse.Namespace) -> int:
+    from hingelab.rollouts import grasp_offsets  # on run: the parser stays light (hingelab.cli)
+
+    check_out(args.out)
     require_clean_for(args.out, args.allow_dirty, "hingelab diagnose grasp")
     ranges = grasp_offsets.reference_ranges(grasp_offsets.episode_rows(args.reference))
     rows = [row for root in args.datasets for row in grasp_offsets.episode_rows(root)]
@@ -230,6 +262,9 @@ def run_grasp(args: argparse.Namespace) -> int:
 
 
 def run_object_noise_fit(args: argparse.Namespace) -> int:
+    from hingelab.rollouts import object_noise_fit  # on run: the parser stays light (hingelab.cli)
+
+    check_out(args.out)
     require_clean_for(args.out, args.allow_dirty, "hingelab diagnose object-noise-fit")
     options = ["--frames", str(args.frames), "--seed", str(args.seed)]
     path, model, table = object_noise_fit.fit_and_report(args.frames, args.out, args.seed,
@@ -238,5 +273,19 @@ def run_object_noise_fit(args: argparse.Namespace) -> int:
         if r["shape"] == "all":
             print(f"{r['estimator']}: 95th percentile {r['measured_p95_mm']:.1f} mm measured, {r['model_p95_mm']:.1f} "
                   f"mm by the model; ray bias {r['measured_ray_mm']:+.1f} / {r['model_ray_mm']:+.1f} mm")
+    print(f"wrote {path}")
+    return 0
+
+
+def run_grasp_observability(args: argparse.Namespace) -> int:
+    from hingelab.rollouts import grasp_observability  # on run: the parser stays light (hingelab.cli)
+
+    check_out(args.out)
+    require_clean_for(args.out, args.allow_dirty, "hingelab diagnose grasp-observability")
+    rows = grasp_observability.measure(args.datasets, args.seed)
+    options = [str(d) for d in args.datasets] + ["--seed", str(args.seed)]
+    path = grasp_observability.write_report(rows, args.out, _command(args, "grasp-observability", options))
+    for axis in ("x", "y", "z"):
+        print(grasp_observability.verdict(rows, axis))
     print(f"wrote {path}")
     return 0

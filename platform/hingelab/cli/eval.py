@@ -21,11 +21,14 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
+from hingelab.arguments import finite_float
 from hingelab.cli import eval_perception
+from hingelab.cli.names import BASELINES
 from hingelab.cli.options import add_max_mesh_mb, add_object_noise, add_object_perception, add_ray_argument
+from hingelab.errors import ConfigError
 from hingelab.folder_lock import folder_lock
-from hingelab.policies.loading import baseline_names
-from hingelab.rollouts.evaluation import evaluate_high, evaluate_low
+from hingelab.out_dir import check_out
+from hingelab.seeds import seed_argument
 
 
 def add_parser(subparsers) -> None:
@@ -44,8 +47,8 @@ def add_parser(subparsers) -> None:
                           "from hingelab compose low (default: the shipped low-level policy)")
     low.add_argument("--episodes", type=int, default=60, help="evaluation episodes (default 60)")
     low.add_argument("--out", type=Path, required=True, help="dataset folder to write (must be new or empty)")
-    low.add_argument("--seed", type=int, default=0, help="seed of the goals and episodes (default 0)")
-    low.add_argument("--baseline", choices=baseline_names("low"), default=None,
+    low.add_argument("--seed", type=seed_argument, default=0, help="seed of the goals and episodes (default 0)")
+    low.add_argument("--baseline", default=None, metavar="{" + ",".join(BASELINES["low"]) + "}",
                      help="evaluate a reference instead of a checkpoint: hold-still (zero finger changes) or "
                           "synergy (the scripted controller: z_goal -> calibrated opening -> grasp-synergy "
                           "finger targets)")
@@ -77,12 +80,12 @@ def add_parser(subparsers) -> None:
                            "object each episode from a procedural family: hingelab.sim.object_families) "
                            "(default sphere)")
     add_max_mesh_mb(high)
-    high.add_argument("--size", type=float, default=0.02,
+    high.add_argument("--size", type=finite_float, default=0.02,
                       help="object size in m; a family's size cap, 0.008 to 0.03 (default 0.02)")
     high.add_argument("--episodes", type=int, default=20, help="evaluation episodes (default 20)")
     high.add_argument("--out", type=Path, required=True, help="dataset folder to write (must be new or empty)")
-    high.add_argument("--seed", type=int, default=0, help="seed of the episodes (default 0)")
-    high.add_argument("--baseline", default=None, choices=baseline_names("high"),
+    high.add_argument("--seed", type=seed_argument, default=0, help="seed of the episodes (default 0)")
+    high.add_argument("--baseline", default=None, metavar="{" + ",".join(BASELINES["high"]) + "}",
                       help="evaluate a baseline instead of a checkpoint: heuristic (privileged, commands the "
                            "hinge), scripted (the heuristic's motion as latent goals over the low level), "
                            "scripted-observed (scripted, told the object's position by the policy's observation: "
@@ -106,7 +109,20 @@ def add_parser(subparsers) -> None:
     eval_perception.add_parser(what)
 
 
+def check_baseline(name: str | None, level: str) -> None:
+    """A ``--baseline`` that names no baseline of ``level`` is one line (the parser does not load the registry)."""
+    from hingelab.policies.loading import baseline_names  # the policies' registry (torch): on run
+
+    if name is not None and name not in baseline_names(level):
+        raise ConfigError(f"--baseline {name}: not a {level}-level baseline; choose one of "
+                          f"{', '.join(baseline_names(level))}")
+
+
 def run_low(args: argparse.Namespace) -> int:
+    from hingelab.rollouts.evaluation import evaluate_low  # on run: the parser stays light (hingelab.cli)
+
+    check_out(args.out)
+    check_baseline(args.baseline, "low")
     with folder_lock(args.out, args.argv):
         result = evaluate_low(args.checkpoint, out=args.out, baseline=args.baseline, episodes=args.episodes,
                               seed=args.seed, randomize=not args.no_randomize, perception=args.perception,
@@ -117,6 +133,10 @@ def run_low(args: argparse.Namespace) -> int:
 
 
 def run_high(args: argparse.Namespace) -> int:
+    from hingelab.rollouts.evaluation import evaluate_high  # on run: the parser stays light (hingelab.cli)
+
+    check_out(args.out)
+    check_baseline(args.baseline, "high")
     with folder_lock(args.out, args.argv):
         result = evaluate_high(args.checkpoint, out=args.out, baseline=args.baseline, object=args.object,
                                size=args.size, episodes=args.episodes, seed=args.seed, low_level=args.low_level,

@@ -15,9 +15,9 @@ from pathlib import Path
 import numpy as np
 
 from hingelab.errors import ConfigError
-from hingelab.perception.camera_gap import GapConfig, run_gap, summarize
-from hingelab.perception.clouds import CloudRealism, CloudSynthesizer
+from hingelab.out_dir import check_out
 from hingelab.provenance import code_version, require_clean_for
+from hingelab.seeds import seed_argument
 
 
 def add_parser(what) -> None:
@@ -29,7 +29,7 @@ def add_parser(what) -> None:
                     "tracking error against the simulator's truth for both, and draws one camera frame.")
     p.add_argument("--episodes", type=int, default=8, help="episodes (default 8)")
     p.add_argument("--steps", type=int, default=100, help="control steps per episode (default 100, 5 s)")
-    p.add_argument("--seed", type=int, default=0, help="seed of the episodes (default 0)")
+    p.add_argument("--seed", type=seed_argument, default=0, help="seed of the episodes (default 0)")
     p.add_argument("--out", type=Path, required=True,
                    help="folder for gap.csv, gap_steps.csv, gap.json, camera_frame.png")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
@@ -39,7 +39,14 @@ def add_parser(what) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    from hingelab.perception.camera_gap import (  # on run: the parser stays light (hingelab.cli)
+        GapConfig,
+        run_gap,
+        summarize,
+    )
+    from hingelab.perception.clouds import CloudRealism, CloudSynthesizer
 
+    check_out(args.out)
     if args.episodes < 1 or args.steps <= GapConfig.warmup_steps:
         raise ConfigError(f"--episodes must be >= 1 and --steps > {GapConfig.warmup_steps}")
     require_clean_for(args.out, args.allow_dirty, "hingelab eval perception")

@@ -14,9 +14,12 @@ import importlib
 import time
 from pathlib import Path
 
+from hingelab.arguments import finite_float
 from hingelab.folder_lock import folder_lock
+from hingelab.out_dir import check_out
 from hingelab.paths import DATASETS_DIR
-from hingelab.perception.synthetic_dataset import CloudDatasetConfig, generate_cloud_dataset
+from hingelab.perception.cloud_dataset_config import CloudDatasetConfig
+from hingelab.seeds import seed_argument
 
 # source name -> "module:function" adding its sub-subcommand to the ``generate`` subparsers
 SOURCES = {
@@ -52,24 +55,29 @@ def add_clouds_parser(sources) -> None:
     p.add_argument("--n", type=int, default=d.n_clouds, help=f"number of clouds (default {d.n_clouds})")
     p.add_argument("--out", type=Path, required=True,
                    help=f"dataset folder to create (for example {DATASETS_DIR / 'clouds'})")
-    p.add_argument("--seed", type=int, default=d.seed, help=f"base seed; episode k uses seed + k (default {d.seed})")
+    p.add_argument("--seed", type=seed_argument, default=d.seed,
+                   help=f"base seed; episode k uses seed + k (default {d.seed})")
     p.add_argument("--per-episode", type=int, default=d.clouds_per_episode,
                    help=f"clouds per episode file (default {d.clouds_per_episode})")
-    p.add_argument("--noise", type=float, default=d.noise_std_m,
+    p.add_argument("--noise", type=finite_float, default=d.noise_std_m,
                    help=f"per-point Gaussian noise, metres (default {d.noise_std_m}); with --noise-max, the "
                         "lowest noise level")
-    p.add_argument("--noise-max", type=float, default=d.noise_std_max_m,
+    p.add_argument("--noise-max", type=finite_float, default=d.noise_std_max_m,
                    help="draw each cloud's noise level uniformly from [--noise, --noise-max] metres, so the "
                         "encoder learns to read the opening at any noise level (the sim's clouds have 3 mm, "
                         f"the paper's encoder augmentation 5 mm; default {d.noise_std_max_m})")
-    p.add_argument("--removal", type=float, default=d.removal_fraction,
+    p.add_argument("--removal", type=finite_float, default=d.removal_fraction,
                    help=f"fraction of points removed (default {d.removal_fraction})")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
     p.set_defaults(func=run_clouds)
 
 
 def run_clouds(args: argparse.Namespace) -> int:
+    from hingelab.perception.synthetic_dataset import (
+        generate_cloud_dataset,  # on run: the parser stays light (hingelab.cli)
+    )
 
+    check_out(args.out)
     config = CloudDatasetConfig(n_clouds=args.n, clouds_per_episode=args.per_episode, seed=args.seed,
                                 noise_std_m=args.noise, noise_std_max_m=args.noise_max,
                                 removal_fraction=args.removal)

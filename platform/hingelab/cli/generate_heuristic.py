@@ -5,10 +5,13 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
+from hingelab.arguments import add_oversubscribe, check_processes, finite_float, positive_int
 from hingelab.cli.options import add_max_mesh_mb, add_object_noise, add_ray_argument
 from hingelab.folder_lock import folder_lock
+from hingelab.out_dir import check_out
 from hingelab.paths import DATASETS_DIR
-from hingelab.rollouts.heuristic_demos import HeuristicRunConfig, generate_heuristic_dataset, summarize, timed
+from hingelab.rollouts.heuristic_config import HeuristicRunConfig
+from hingelab.seeds import seed_argument
 
 
 def add_heuristic_parser(sources) -> None:
@@ -31,15 +34,17 @@ def add_heuristic_parser(sources) -> None:
                         "(a new object each episode from a procedural family, e.g. family:train or family:holdout; "
                         "each episode records its draw: hingelab.sim.object_families) (default sphere)")
     add_max_mesh_mb(p)
-    p.add_argument("--size", type=float, default=d.size,
+    p.add_argument("--size", type=finite_float, default=d.size,
                    help=f"object width in metres; a mesh's largest extent; a family's size cap, 0.008 to 0.03 "
                         f"(default {d.size})")
-    p.add_argument("--mass", type=float, default=d.mass,
+    p.add_argument("--mass", type=finite_float, default=d.mass,
                    help=f"object mass in kg; a family's masses come from a density (default {d.mass})")
     p.add_argument("--out", type=Path, required=True,
                    help=f"dataset folder to create (for example {DATASETS_DIR / 'heuristic_sphere'})")
-    p.add_argument("--workers", type=int, default=d.workers, help="parallel worker processes (default 1)")
-    p.add_argument("--seed", type=int, default=d.seed, help=f"base seed (default {d.seed})")
+    p.add_argument("--workers", type=positive_int, default=d.workers,
+                   help="parallel worker processes (default 1; at most the cores, and no more than --episodes)")
+    add_oversubscribe(p)
+    p.add_argument("--seed", type=seed_argument, default=d.seed, help=f"base seed (default {d.seed})")
     add_ray_argument(p)
     p.add_argument("--no-randomize", action="store_true", help="turn domain randomization off")
     add_object_noise(p)  # the demos observe the camera's error; the privileged heuristic acts on the truth
@@ -51,9 +56,17 @@ def add_heuristic_parser(sources) -> None:
 
 
 def run_heuristic(args: argparse.Namespace) -> int:
+    from hingelab.rollouts.heuristic_demos import (  # on run: the parser stays light (hingelab.cli)
+        generate_heuristic_dataset,
+        summarize,
+        timed,
+    )
 
+    check_out(args.out)
+    check_processes(args.workers, "--workers", args.allow_oversubscribe)
+    workers = max(1, min(args.workers, args.episodes))  # a worker without an episode would only load the simulator
     config = HeuristicRunConfig(episodes=args.episodes, object=args.object, size=args.size, mass=args.mass,
-                                seed=args.seed, workers=args.workers, randomize=not args.no_randomize,
+                                seed=args.seed, workers=workers, randomize=not args.no_randomize,
                                 object_noise=args.object_noise, object_noise_model=args.object_noise_model)
     with folder_lock(args.out, args.argv):
         summaries, seconds = timed(generate_heuristic_dataset, args.out, config, progress=not args.no_progress,

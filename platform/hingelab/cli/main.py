@@ -4,6 +4,11 @@ Each verb lives in its own module under ``hingelab.cli`` with two functions:
 ``add_parser(subparsers)`` registers the verb and its options, and the parser's
 ``func`` default runs it. Errors a user can fix are raised as ``HingelabError``
 and printed as one line; everything else propagates with its traceback.
+
+Building the parser imports no heavy library (torch, MuJoCo, stable-baselines3, Ray, pandas), so
+``hingelab --help`` and ``hingelab COMMAND --help`` answer at once: a verb module imports the library it
+runs inside its run functions, and what its flags need (defaults, choices) comes from light modules
+(``tests/test_fast_help.py``).
 """
 
 from __future__ import annotations
@@ -14,7 +19,6 @@ import inspect
 import os
 import sys
 
-from hingelab.episodes.dataset import corrupt_policy
 from hingelab.errors import HingelabError
 
 # Verb modules in the order ``hingelab --help`` lists them.
@@ -76,18 +80,19 @@ def mujoco_importable() -> str | None:
 
 
 def main(argv: list[str] | None = None) -> int:
-    problem = mujoco_importable()
-    if problem:
-        print(f"hingelab: error: {problem}", file=sys.stderr)
-        return 1
     parser = build_parser(argv)
-    args = parser.parse_args(argv)
+    args = parser.parse_args(argv)  # --help ends here, before anything heavy is imported
     args.argv = list(sys.argv[1:] if argv is None else argv)  # the command line (a resume hint repeats it)
     if not hasattr(args, "func"):
         parser.print_help()
         return 2
-    try:
+    problem = mujoco_importable()
+    if problem:
+        print(f"hingelab: error: {problem}", file=sys.stderr)
+        return 1
+    from hingelab.episodes.dataset import corrupt_policy  # with the library the command runs (pandas)
 
+    try:
         with corrupt_policy(getattr(args, "on_corrupt", "stop")):
             result = args.func(args)
     except HingelabError as exc:

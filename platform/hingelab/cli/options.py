@@ -5,9 +5,8 @@ from __future__ import annotations
 import argparse
 import os
 
+from hingelab.cli.names import OBJECT_NOISE_GAUSSIAN, OBJECT_NOISE_MODEL, OBJECT_PERCEPTIONS
 from hingelab.paths import REPO_ROOT
-from hingelab.perception.object_noise_model import DEFAULT_MODEL, GAUSSIAN
-from hingelab.perception.object_perception import OBJECT_PERCEPTIONS
 from hingelab.sim.mesh_objects import DEFAULT_MAX_MESH_MB, MAX_MESH_MB_ENV
 
 
@@ -40,14 +39,14 @@ def add_object_perception(p, needs: str) -> None:
 def add_object_noise(p) -> None:
     """``--object-noise gaussian|fitted:NAME`` and ``--object-noise-model PATH``: ToolPick-v0's ``object_noise``
     (checked by the library, so a bad value is one line)."""
-    p.add_argument("--object-noise", default=GAUSSIAN, metavar="MODE",
+    p.add_argument("--object-noise", default=OBJECT_NOISE_GAUSSIAN, metavar="MODE",
                    help="the error on the observed object: gaussian (default: the true centre and extent with 2 mm "
                         "noise) or fitted:NAME, the depth camera's error without rendering, drawn from the fitted "
                         "model of estimator NAME (centroid, ray_corrected, primitive_fit, or temporal_NAME: "
                         "hingelab.perception.object_noise_model), e.g. fitted:ray_corrected")
     p.add_argument("--object-noise-model", default=None, metavar="PATH",
                    help="the fitted model for --object-noise fitted:NAME (default "
-                        f"{DEFAULT_MODEL.relative_to(REPO_ROOT)}, made by hingelab diagnose object-noise-fit)")
+                        f"{OBJECT_NOISE_MODEL.relative_to(REPO_ROOT)}, made by hingelab diagnose object-noise-fit)")
 
 
 class _MaxMeshMb(argparse.Action):

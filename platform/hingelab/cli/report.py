@@ -8,14 +8,10 @@ import shlex
 import time
 from pathlib import Path
 
-import pandas as pd
-
-from hingelab.analysis import build_report
-from hingelab.analysis.pick_table import write_picks
-from hingelab.analysis.pooled import DEFAULT_BAND_EDGES, write_pooled
-from hingelab.analysis.run_report import build_run_report
+from hingelab.arguments import finite_float
 from hingelab.cli.options import add_on_corrupt
 from hingelab.errors import ConfigError
+from hingelab.out_dir import check_out
 from hingelab.provenance import require_clean_for
 
 
@@ -46,7 +42,7 @@ def add_parser(subparsers) -> None:
                         "episodes.csv files, or evaluation datasets; repeat --pool for several pools in one report")
     p.add_argument("--pool-name", action="append", default=[], metavar="NAME",
                    help="name of each --pool in order (default: from the folder names, e.g. experts_goals_seed3-5)")
-    p.add_argument("--bands", type=float, nargs="+", default=None, metavar="RAD",
+    p.add_argument("--bands", type=finite_float, nargs="+", default=None, metavar="RAD",
                    help="edges of the goal-opening bands of --pool (default 0.10 0.18 0.22: < 0.10, 0.10-0.18, "
                         "0.18-0.22, >= 0.22 rad)")
     p.add_argument("--picks", type=Path, nargs="+", default=[], metavar="DIR",
@@ -80,6 +76,9 @@ def pool_command(args: argparse.Namespace) -> str:
 
 
 def run_pool(args: argparse.Namespace) -> int:
+    import pandas as pd  # on run: the parser stays light (hingelab.cli)
+
+    from hingelab.analysis.pooled import DEFAULT_BAND_EDGES, write_pooled
 
     if args.datasets or args.runs:
         raise ConfigError("give DATASET... (with --runs) or --pool DIR..., not both")
@@ -107,6 +106,7 @@ def run_pool(args: argparse.Namespace) -> int:
 
 
 def run_picks(args: argparse.Namespace) -> int:
+    from hingelab.analysis.pick_table import write_picks  # on run: the parser stays light (hingelab.cli)
 
     if args.datasets or args.pool or args.runs:
         raise ConfigError("give --picks DIR... alone (not with DATASETs, --runs or --pool)")
@@ -125,6 +125,7 @@ def run_picks(args: argparse.Namespace) -> int:
 
 def run_runs(args: argparse.Namespace) -> int:
     """Training runs alone: curves grouped by run label (a sweep's condition), success at the end across seeds."""
+    from hingelab.analysis.run_report import build_run_report  # on run: the parser stays light (hingelab.cli)
 
     require_clean_for(args.out, args.allow_dirty, "hingelab report --runs")
     command = "hingelab report --runs " + " ".join(map(str, args.runs)) + f" --out {args.out}"
@@ -139,7 +140,9 @@ def run_runs(args: argparse.Namespace) -> int:
 
 
 def run(args: argparse.Namespace) -> int:
+    from hingelab.analysis import build_report  # on run: the parser stays light (hingelab.cli)
 
+    check_out(args.out)
     if args.picks:
         return run_picks(args)
     if args.pool:

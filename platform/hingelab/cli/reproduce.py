@@ -6,7 +6,7 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from hingelab.sweeps.reproduce import run_reproduction
+from hingelab.out_dir import check_out
 from hingelab.sweeps.reproduce_plan import SCALES, describe_plan, plan_stages
 
 
@@ -54,9 +54,12 @@ def add_parser(subparsers) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    check_out(args.out)
     if args.plan:
         print(describe_plan(plan_stages(args.out, args.scale or "shipped"), args.out.resolve()))
         return 0
+    from hingelab.sweeps.reproduce import run_reproduction  # on run: the parser stays light (hingelab.cli)
+
     try:
         result = run_reproduction(args.out, scale=args.scale, resume=args.resume, jobs=args.jobs,
                                   progress=not args.no_progress)

@@ -6,10 +6,10 @@ import argparse
 import time
 from pathlib import Path
 
+from hingelab.arguments import positive_int
 from hingelab.errors import ConfigError
 from hingelab.folder_lock import folder_lock
-from hingelab.sweeps.runner import run_sweep, summary
-from hingelab.sweeps.spec import load_sweep
+from hingelab.out_dir import check_out
 
 
 def add_parser(subparsers) -> None:
@@ -37,8 +37,8 @@ def add_parser(subparsers) -> None:
     p.add_argument("--address", default=None, metavar="ADDR",
                    help="join the Ray cluster at ADDR (host:port from `ray start --head`, or auto) instead of "
                         "starting a local one")
-    p.add_argument("--cpus", type=int, default=None,
-                   help="CPUs of the local Ray (default: every core of this machine); not with --address")
+    p.add_argument("--cpus", type=positive_int, default=None,
+                   help="CPUs of the local Ray, at least 1 (default: every core of this machine); not with --address")
     p.add_argument("--resume", action="store_true",
                    help="continue a stopped sweep in --out: finished trials are kept, the others continue from "
                         "their last checkpoint (a trial without one starts again)")
@@ -47,7 +47,10 @@ def add_parser(subparsers) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    from hingelab.sweeps.runner import run_sweep, summary  # on run: the parser stays light (hingelab.cli)
+    from hingelab.sweeps.spec import load_sweep
 
+    check_out(args.out)
     if args.address is not None and args.cpus is not None:
         raise ConfigError("--cpus sizes a local Ray; a cluster joined with --address has its own CPUs")
     spec = load_sweep(args.sweep_file)  # every trial's command line checked before anything starts

@@ -13,17 +13,17 @@ import argparse
 from pathlib import Path
 
 from hingelab import paths
+from hingelab.arguments import check_processes, finite_float
 from hingelab.bounded_reads import resolved_input
 from hingelab.cli.options import add_max_mesh_mb
 from hingelab.errors import ConfigError
 from hingelab.folder_lock import folder_lock
 from hingelab.learners import registry
+from hingelab.out_dir import check_out, check_out_file
 from hingelab.paths import refuse_to_replace_shipped
-from hingelab.perception.encoder import EncoderConfig
-from hingelab.perception.sim_calibration import recalibrate_curve
-from hingelab.perception.train_encoder import TrainEncoderConfig, recalibrate_encoder, train_encoder
+from hingelab.perception.encoder_config import EncoderConfig, TrainEncoderConfig
+from hingelab.seeds import seed_argument
 from hingelab.training.run_config import config_from_args, given_settings
-from hingelab.training.run_folder import resumed_config
 
 
 def add_parser(subparsers, argv: list[str] = ()) -> None:
@@ -88,13 +88,18 @@ def run_policy(args: argparse.Namespace) -> int:
         out = paths.REPO_ROOT / default
     else:
         out = args.out
+    check_out(out)
     refuse_to_replace_shipped(out, args.force)
     if args.resume:
+        from hingelab.training.run_folder import resumed_config  # on run: the parser stays light (hingelab.cli)
+
         recorded = registry.run_learner(out)
         if recorded is not None and recorded != learner.name:
             raise ConfigError(f"{out} is a run of --learner {recorded}, not {learner.name}: resume it with "
                               f"--learner {recorded}")
         config = resumed_config(out, config, given_settings(learner.config_class, args))
+    if getattr(config, "subprocess_envs", False):  # one process per env: a simulator each
+        check_processes(config.n_envs, "--envs", args.allow_oversubscribe)
     with folder_lock(out, args.argv):
         result = learner.train(config, out, resume=args.resume, progress=not args.no_progress, name=args.name)
     print(learner.summary(result, config, out))
@@ -115,10 +120,11 @@ def add_encoder_parser(learners) -> None:
                    help="a cloud dataset folder (hingelab generate clouds); not with --recalibrate-curve")
     p.add_argument("--epochs", type=int, default=d.epochs, help=f"training epochs (default {d.epochs})")
     p.add_argument("--batch-size", type=int, default=d.batch_size, help=f"clouds per step (default {d.batch_size})")
-    p.add_argument("--lr", type=float, default=d.learning_rate, help=f"Adam learning rate (default {d.learning_rate})")
-    p.add_argument("--beta", type=float, default=EncoderConfig().beta,
+    p.add_argument("--lr", type=finite_float, default=d.learning_rate,
+                   help=f"Adam learning rate (default {d.learning_rate})")
+    p.add_argument("--beta", type=finite_float, default=EncoderConfig().beta,
                    help=f"KL weight of the VAE loss (default {EncoderConfig().beta})")
-    p.add_argument("--seed", type=int, default=d.seed, help=f"seed of weights and batches (default {d.seed})")
+    p.add_argument("--seed", type=seed_argument, default=d.seed, help=f"seed of weights and batches (default {d.seed})")
     p.add_argument("--threads", type=int, default=d.threads,
                    help=f"torch CPU threads (default {d.threads}; 1 to train two encoders side by side)")
     p.add_argument("--out", type=Path, default=None,
@@ -143,7 +149,13 @@ def add_encoder_parser(learners) -> None:
 
 
 def run_encoder(args: argparse.Namespace) -> int:
+    from hingelab.perception.train_encoder import (  # on run: the parser stays light (hingelab.cli)
+        recalibrate_encoder,
+        train_encoder,
+    )
 
+    if args.out is not None:
+        check_out_file(args.out)
     if args.recalibrate or args.recalibrate_curve:
         if args.out is None:
             raise ConfigError("--recalibrate and --recalibrate-curve rewrite a checkpoint: name it with --out CKPT")
@@ -177,6 +189,7 @@ def run_encoder(args: argparse.Namespace) -> int:
 
 
 def run_curve_recalibration(args: argparse.Namespace) -> int:
+    from hingelab.perception.sim_calibration import recalibrate_curve  # on run: the parser stays light (hingelab.cli)
 
     encoder, m = recalibrate_curve(args.out, sweeps=args.sweeps, seed=args.seed, progress=not args.no_progress)
     before = ", ".join(f"{r['band_rad']} rad {r['offset']:.3f}" for r in m["offsets_before"])

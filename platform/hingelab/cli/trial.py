@@ -7,11 +7,12 @@ import argparse
 import sys
 from pathlib import Path
 
+from hingelab.arguments import finite_float
+from hingelab.cli.names import ROBOTS
 from hingelab.cli.options import add_max_mesh_mb, add_object_perception
 from hingelab.folder_lock import folder_lock
-from hingelab.robot.interface import ROBOTS
-from hingelab.robot.trial import TrialConfig, run_trial_session
-from hingelab.seeds import STRIDE, TRIALS_BASE
+from hingelab.out_dir import check_out
+from hingelab.seeds import STRIDE, TRIALS_BASE, seed_argument
 
 
 def add_parser(subparsers) -> None:
@@ -25,18 +26,18 @@ def add_parser(subparsers) -> None:
                     "--operator the simulation judges each trial (object within 1 cm of the target); with it you "
                     "are asked after each attempt. Writes trials.csv and a table with Wilson intervals "
                     "(table.csv); `hingelab report DIR` gives the paper's Fig. 7 layout.")
-    p.add_argument("--robot", choices=tuple(ROBOTS), default="sim",
-                   help="the robot (registered in hingelab.robot.interface): sim is the MuJoCo stand-in of the rig "
-                        "(the default)")
+    p.add_argument("--robot", default="sim",
+                   help=f"the robot (registered in hingelab.robot.interface: {', '.join(ROBOTS)}, or a plug-in's): "
+                        "sim is the MuJoCo stand-in of the rig (the default)")
     p.add_argument("--object", default="sphere",
                    help="object: sphere, cube, cylinder, tetrahedron, mesh:PATH or family:NAME[:SEED] (a new "
                         "object each trial from a procedural family: hingelab.sim.object_families) (default sphere)")
     add_max_mesh_mb(p)
-    p.add_argument("--size", type=float, default=0.02,
+    p.add_argument("--size", type=finite_float, default=0.02,
                    help="object size in m; a family's size cap, 0.008 to 0.03 (default 0.02)")
     p.add_argument("--trials", type=int, default=12, help="trials (default 12, the paper's per shape)")
     p.add_argument("--out", type=Path, required=True, help="dataset folder to write (must be new or empty)")
-    p.add_argument("--seed", type=int, default=0,
+    p.add_argument("--seed", type=seed_argument, default=0,
                    help=f"seed of the trials (default 0): trial k resets the stand-in with {TRIALS_BASE} + seed * "
                         f"{STRIDE} + k (hingelab.seeds)")
     p.add_argument("--policy", type=Path, default=None,
@@ -57,6 +58,9 @@ def add_parser(subparsers) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    from hingelab.robot.trial import TrialConfig, run_trial_session  # on run: the parser stays light (hingelab.cli)
+
+    check_out(args.out)
     config = TrialConfig(object=args.object, size=args.size, trials=args.trials, seed=args.seed,
                          max_steps=args.max_steps, depth_every=args.depth_every, operator=args.operator,
                          object_perception=args.object_perception)

@@ -9,8 +9,7 @@ from pathlib import Path
 
 from hingelab.cli.options import add_on_corrupt
 from hingelab.errors import ConfigError
-from hingelab.viewers import view
-from hingelab.viewers.web_server import bind_warning
+from hingelab.out_dir import check_out_file
 
 
 def add_parser(subparsers) -> None:
@@ -45,7 +44,11 @@ def add_parser(subparsers) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    from hingelab.viewers import view  # on run: the parser stays light (hingelab.cli)
+    from hingelab.viewers.web_server import bind_warning
 
+    if args.save is not None:
+        check_out_file(args.save, "--save")
     if args.cloud_every < 1:
         raise ConfigError(f"--cloud-every must be at least 1, not {args.cloud_every}")
 

@@ -18,6 +18,7 @@ from pathlib import Path
 
 from hingelab.episodes import schemas as S
 from hingelab.episodes.errors import DatasetError
+from hingelab.json_text import strict_dumps
 from hingelab.provenance import code_version
 
 CARD_FILE = "dataset.json"
@@ -45,7 +46,7 @@ class DatasetCard:
     schema_version: int = S.SCHEMA_VERSION
 
     def to_json(self) -> str:
-        return json.dumps(asdict(self), indent=2, sort_keys=False, default=str) + "\n"
+        return strict_dumps(asdict(self), "dataset.json", indent=2, sort_keys=False, default=str) + "\n"
 
 
 def atomic_write_bytes(path: Path, data: bytes) -> None:

@@ -60,6 +60,7 @@ from hingelab.episodes.export_source import (
     scan_schema,
     write_back,
 )
+from hingelab.json_text import strict_dumps
 from hingelab.safe_names import safe_relative_path
 
 CODEBASE_VERSION = "v3.0"
@@ -267,7 +268,7 @@ def export_lerobot(dataset, out, data_files_size_in_mb: float = DATA_FILE_SIZE_I
         pq.write_table(table, tmp / EPISODES_PATH.format(chunk_index=0, file_index=0))
         pd.DataFrame({"task_index": list(tasks.values())}, index=list(tasks)).to_parquet(meta / "tasks.parquet")
         stats = {name: _lists(_aggregate(parts)) for name, parts in all_stats.items() if parts}
-        (meta / "stats.json").write_text(json.dumps(stats, indent=4) + "\n")
+        (meta / "stats.json").write_text(strict_dumps(stats, meta / "stats.json", indent=4) + "\n")
         card = dataset.card
         info = {
             "codebase_version": CODEBASE_VERSION, "robot_type": ROBOT_TYPE, "total_episodes": len(rows),
@@ -278,7 +279,7 @@ def export_lerobot(dataset, out, data_files_size_in_mb: float = DATA_FILE_SIZE_I
             "hingelab": {"card": json.loads(card.to_json()), "env": env, "skipped": log.skipped,
                          "notes": log.notes(POINTS)},
         }
-        (meta / "info.json").write_text(json.dumps(info, indent=4) + "\n")
+        (meta / "info.json").write_text(strict_dumps(info, meta / "info.json", indent=4) + "\n")
     return ExportResult(format="lerobot", path=out, episodes=len(rows), frames=frames, skipped=log.skipped,
                         notes=log.notes(POINTS), load=f"LeRobotDataset(REPO_ID, root={str(out)!r})")
 

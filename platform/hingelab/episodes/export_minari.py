@@ -59,6 +59,7 @@ from hingelab.episodes.export_source import (
     scan_schema,
     write_back,
 )
+from hingelab.json_text import strict_dumps
 from hingelab.safe_names import safe_file_name
 
 MINARI_VERSION = "0.5.4"  # the Minari whose reader this layout is written (and tested) for
@@ -172,7 +173,7 @@ def export_minari(dataset, out, dataset_id: str | None = None, progress: bool = 
         if spec is not None:
             metadata["env_spec"] = spec
         metadata["dataset_size"] = round(sum(p.stat().st_size for p in data_dir.iterdir()) / 1e6, 1)
-        (data_dir / "metadata.json").write_text(json.dumps(metadata))
+        (data_dir / "metadata.json").write_text(strict_dumps(metadata, data_dir / "metadata.json"))
     namespace = DATASET_ID_RE.fullmatch(dataset_id).group("namespace")
     if namespace:  # every level, as minari.create_namespace does; an existing one is left alone
         for level in range(1, len(namespace.split("/")) + 1):

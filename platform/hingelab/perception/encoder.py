@@ -23,7 +23,7 @@ import functools
 import hashlib
 import json
 import pickle
-from dataclasses import asdict, dataclass, fields
+from dataclasses import asdict
 from pathlib import Path
 
 import numpy as np
@@ -36,37 +36,12 @@ from hingelab.paths import ASSETS_DIR
 from hingelab.perception import encoder_kernels
 from hingelab.perception.calibration import READER_FIELDS, OpeningCalibration
 from hingelab.perception.clouds import ToolGeometry
+from hingelab.perception.encoder_config import EncoderConfig
 from hingelab.seeds import preserved_global_rngs
 
 CHECKPOINT_FORMAT = "hingelab.tool_encoder"
 CHECKPOINT_VERSION = 1
 SHIPPED_CHECKPOINT = ASSETS_DIR / "checkpoints" / "encoder.pt"
-
-
-@dataclass(frozen=True)
-class EncoderConfig:
-    """Architecture and loss of the PointNet VAE (a checkpoint must match it exactly)."""
-
-    latent_dim: int = 2
-    widths: tuple[int, ...] = (64, 128, 256)  # shared per-point MLP
-    head_width: int = 128  # MLP after max pooling
-    decoder_widths: tuple[int, ...] = (128, 256)
-    decoder_points: int = 256
-    input_offset_m: tuple[float, float, float] = (0.06, 0.0, 0.0)  # middle of the tool, tool frame
-    scale_m: float = 0.05  # coordinates are divided by this
-    beta: float = 0.0001  # KL weight (Chamfer is in scaled units squared; 1e-3 collapses the latent)
-    target_points: int = 512  # clean surface points the reconstruction is compared with
-    initial_logvar: float = -6.0  # offset of the encoder's log-variance output
-
-    @classmethod
-    def from_dict(cls, raw: dict, source: str = "checkpoint") -> "EncoderConfig":
-        names = {f.name for f in fields(cls)}
-        unknown, missing = set(raw) - names, names - set(raw)
-        if unknown or missing:
-            raise ConfigError(f"{source}: encoder config does not match this hingelab version "
-                              f"(unknown {sorted(unknown)}, missing {sorted(missing)}); retrain with "
-                              "`hingelab train encoder`")
-        return cls(**{k: tuple(v) if isinstance(v, list) else v for k, v in raw.items()})
 
 
 def _mlp(widths: list[int]) -> nn.Sequential:

@@ -25,7 +25,7 @@ Every episode is seeded (``seed`` + episode number), so any file can be regenera
 from __future__ import annotations
 
 import functools
-from dataclasses import asdict, dataclass
+from dataclasses import asdict
 from pathlib import Path
 
 import numpy as np
@@ -36,44 +36,13 @@ from hingelab.episodes import EpisodeWriter, create_dataset
 from hingelab.episodes.dataset import Dataset, open_dataset
 from hingelab.episodes.schemas import TOPIC_PRIVILEGED
 from hingelab.errors import ConfigError
+from hingelab.perception.cloud_dataset_config import CloudDatasetConfig
 from hingelab.perception.clouds import CloudRealism, CloudSynthesizer, ToolGeometry, random_rotations
 from hingelab.sim.core import SimCore
 
 SOURCE = "synthetic_clouds"
 TASK = "tool_clouds"
 STEP_S = 0.05  # log-time spacing of the clouds in an episode
-
-
-@dataclass(frozen=True)
-class CloudDatasetConfig:
-    """What ``hingelab generate clouds`` makes (recorded in the dataset card)."""
-
-    n_clouds: int = 10_000  # clouds in the dataset
-    clouds_per_episode: int = 100  # clouds per episode file
-    seed: int = 0  # base seed; episode k uses seed + k
-    noise_std_m: float = 0.005  # per-point Gaussian noise, metres (paper: 5 mm for the encoder)
-    noise_std_max_m: float | None = None  # if set: noise per cloud uniform in [noise_std_m, this]
-    removal_fraction: float = 0.2  # occlusion: fraction of points removed
-    max_angle_deg: float = 30.0  # pose variation about the nominal in-hand pose, per Euler angle
-    max_offset_m: float = 0.02  # pose variation, per axis, metres
-
-    def __post_init__(self):
-        if self.n_clouds < 1 or self.clouds_per_episode < 1:
-            raise ConfigError(f"n_clouds and clouds_per_episode must be >= 1, got {self.n_clouds}, "
-                              f"{self.clouds_per_episode}")
-        CloudRealism(self.noise_std_m, self.removal_fraction)  # validates
-        if self.noise_std_max_m is not None and self.noise_std_max_m < self.noise_std_m:
-            raise ConfigError(f"noise_std_max_m ({self.noise_std_max_m}) must be >= noise_std_m "
-                              f"({self.noise_std_m})")
-
-    @property
-    def noise_range_m(self) -> tuple[float, float]:
-        """(lowest, highest) per-cloud noise level, metres."""
-        return self.noise_std_m, self.noise_std_m if self.noise_std_max_m is None else self.noise_std_max_m
-
-    @property
-    def n_episodes(self) -> int:
-        return -(-self.n_clouds // self.clouds_per_episode)
 
 
 @functools.cache

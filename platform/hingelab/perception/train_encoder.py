@@ -14,7 +14,7 @@ from __future__ import annotations
 
 import json
 import time
-from dataclasses import asdict, dataclass
+from dataclasses import asdict
 from pathlib import Path
 
 import numpy as np
@@ -35,25 +35,10 @@ from hingelab.perception.encoder import (
     save_checkpoint,
     vae_loss,
 )
+from hingelab.perception.encoder_config import TrainEncoderConfig
 from hingelab.perception.registration import CanonicalRegistration, RegistrationConfig
 from hingelab.perception.synthetic_dataset import load_cloud_dataset, nominal_tool_pose
 from hingelab.provenance import code_version
-
-
-@dataclass(frozen=True)
-class TrainEncoderConfig:
-    """Training settings (recorded in the checkpoint)."""
-
-    epochs: int = 18
-    batch_size: int = 64
-    kl_warmup_fraction: float = 0.3  # beta ramps up linearly over this fraction of the steps
-    augment_angle_deg: float = 0.0  # random turn of each input cloud per step, per Euler angle
-    augment_offset_m: float = 0.0  # random shift of each input cloud per step, per axis
-    learning_rate: float = 1e-3
-    seed: int = 0
-    val_fraction: float = 0.1  # the last episodes, held out
-    threads: int = 2  # torch CPU threads
-    register_batch: int = 250  # clouds registered at once
 
 
 def register_to_tool_frame(points_hand: np.ndarray, registration: CanonicalRegistration,

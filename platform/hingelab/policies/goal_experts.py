@@ -30,6 +30,7 @@ from pathlib import Path
 import numpy as np
 
 from hingelab.errors import ConfigError
+from hingelab.json_text import strict_dumps
 from hingelab.perception.encoder import shipped_encoder
 from hingelab.policies.loading import register_policy_format
 from hingelab.policies.low_level import load_sac_checkpoint
@@ -146,7 +147,7 @@ def write_experts(out: str | Path, experts: list[tuple[Path, float | None]], enc
     manifest = {"format": FORMAT, "format_version": FORMAT_VERSION, "experts": entries,
                 "created": time.strftime("%Y-%m-%dT%H:%M:%S%z"), **code_version()}
     tmp = out.with_name(out.name + ".tmp")
-    tmp.write_text(json.dumps(manifest, indent=2) + "\n")
+    tmp.write_text(strict_dumps(manifest, tmp, indent=2) + "\n")
     try:
         load_experts(tmp, encoder)  # refuse a manifest that would not load (bands, fingerprints, spaces)
     except Exception:

@@ -29,27 +29,12 @@ from hingelab.episodes.dataset import Dataset
 from hingelab.errors import ConfigError
 from hingelab.heuristic.controller import PrivilegedHeuristic
 from hingelab.provenance import differing_settings
+from hingelab.rollouts.heuristic_config import HeuristicRunConfig
 from hingelab.seeds import demo_seed
 from hingelab.sim.finger_synergy import FingerSynergy
 from hingelab.sim.mesh_objects import is_mesh, mesh_sha256, object_label
 from hingelab.workers.local_pool import map_unordered
 from hingelab.workers.ray_fan_out import fan_out
-
-
-@dataclass(frozen=True)
-class HeuristicRunConfig:
-    """What ``hingelab generate heuristic`` runs (saved in the dataset card)."""
-
-    episodes: int = 100
-    object: str = "sphere"  # a shape name or mesh:PATH (an STL, OBJ or PLY file)
-    size: float = 0.02  # m, the object's width (sphere: diameter)
-    mass: float = 0.01  # kg
-    seed: int = 0
-    workers: int = 1
-    randomize: bool = True
-    max_episode_steps: int = 200
-    object_noise: str = "gaussian"  # ToolPick-v0's: or "fitted:NAME", the camera's error on the observation
-    object_noise_model: str | None = None  # the fitted model's file (None: the default one)
 
 
 @dataclass

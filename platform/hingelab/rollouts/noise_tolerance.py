@@ -24,8 +24,9 @@ from hingelab.errors import ConfigError
 from hingelab.policies.baselines import ScriptedPolicy
 from hingelab.rollouts.reward_diagnostic import write_tables
 from hingelab.seeds import eval_high_seed
+from hingelab.tasks import HIGH_LEVEL_ACTION_NAMES
 
-DIMENSIONS = ("z_goal_0", "z_goal_1", "velocity_x", "velocity_y", "velocity_z")  # ToolPick-v0's action
+DIMENSIONS = HIGH_LEVEL_ACTION_NAMES  # ToolPick-v0's action
 DEFAULT_LEVELS = (0.02, 0.05, 0.1, 0.2, 0.3)
 MARGIN = 0.1  # success within this of the noise-free rate
 MAX_DROPS = 1  # tool drops among a level's episodes

@@ -8,7 +8,6 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-from hingelab.episodes import schemas as S
 from hingelab.errors import ConfigError
 from hingelab.sim.names import ARM_JOINTS, HAND_ACTUATORS
 
@@ -44,11 +43,13 @@ KINDS = {k.kind: k for k in (
 # platform's actuator names; the bare names (without "svh_") are accepted too.
 HAND_JOINTS = HAND_ACTUATORS
 ARM_JOINT_NAMES = ARM_JOINTS
-assert len(HAND_JOINTS) == len(S.SVH_JOINT_NAMES)
 
 
 def hand_joint_aliases() -> list[tuple[str, ...]]:
     """For each of the 9 hand channels, the JointState names that mean it."""
+    from hingelab.episodes import schemas as S  # the episodes' codecs (scipy): not for `hingelab --help`
+
+    assert len(HAND_JOINTS) == len(S.SVH_JOINT_NAMES)
     return [(platform, bare) for platform, bare in zip(HAND_JOINTS, S.SVH_JOINT_NAMES)]
 
 

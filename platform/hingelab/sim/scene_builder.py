@@ -22,6 +22,7 @@ import mujoco
 import numpy as np
 
 from hingelab.errors import ConfigError
+from hingelab.json_text import strict_dumps
 from hingelab.paths import ASSETS_DIR, SCENES_DIR, refuse_to_replace_shipped
 from hingelab.provenance import code_version
 from hingelab.sim import names
@@ -263,7 +264,7 @@ def build(out_dir: Path = SCENES_DIR) -> dict:
     summary["synergy_hinge_range"] = list(synergy.theta_range)
 
     payload = {**synergy.to_json(), "made_by": "python -m hingelab.sim.scene_builder", **code_version()}
-    (out_dir / "grasp_synergy.json").write_text(json.dumps(payload, indent=1) + "\n")
+    (out_dir / "grasp_synergy.json").write_text(strict_dumps(payload, out_dir / "grasp_synergy.json", indent=1) + "\n")
     return summary
 
 

@@ -33,6 +33,7 @@ import numpy as np
 
 from hingelab.errors import ConfigError, HingelabError
 from hingelab.folder_lock import is_empty, refuse_if_locked
+from hingelab.json_text import strict_dumps
 from hingelab.provenance import code_version
 from hingelab.sweeps.spec import SweepSpec
 from hingelab.sweeps.trial_task import run_trial
@@ -135,7 +136,7 @@ def _start_folder(spec: SweepSpec, out: Path, resume: bool, address: str | None)
         "trials": [t.name for t in spec.trials()], "sessions": []}
     doc["sessions"].append({**code_version(), "ray": address or LOCAL, "resume": resume,
                             "started": time.strftime("%Y-%m-%dT%H:%M:%S%z")})
-    (out / SWEEP_JSON).write_text(json.dumps(doc, indent=2) + "\n")
+    (out / SWEEP_JSON).write_text(strict_dumps(doc, out / SWEEP_JSON, indent=2) + "\n")
 
 
 def _plan(spec: SweepSpec, out: Path, resume: bool) -> tuple[list[TrialRecord], dict[str, list[str]]]:

@@ -15,18 +15,20 @@ from __future__ import annotations
 
 from dataclasses import asdict, dataclass
 
-from hingelab.envs.rewards import HIGH_LEVEL_REWARD_MODES, LEGACY_MODE, HighLevelRewardConfig
+from hingelab.envs.reward_config import HIGH_LEVEL_REWARD_MODES, LEGACY_MODE, HighLevelRewardConfig
 from hingelab.errors import ConfigError
-from hingelab.training.prior import PICK_SETS, PRIOR_OBJECTS, PRIOR_SOURCES
+from hingelab.seeds import seed_argument
 from hingelab.training.run_config import RunConfig, option
 
 DEMO_ACTIONS = ("auto", "reached", "recorded")
+PRIOR_SOURCES = ("scripted", "scripted-feedback", "heuristic")  # the demonstrators of a generated prior
+PRIOR_OBJECTS = ("run", "all")
 _REWARD = HighLevelRewardConfig()
 
 
 @dataclass(frozen=True)
 class RunSettings(RunConfig):
-    seed: int = option(0, "run seed: weights, episodes, batches")
+    seed: int = option(0, "run seed: weights, episodes, batches; in [0, 2**32)", parse=seed_argument)
     torch_threads: int = option(1, "torch threads", flag="--threads")
     env_kwargs: dict = option(None, "more arguments of the env, as a JSON object", default_factory=dict)
     on_corrupt: str = option("stop", "episode files of the --from datasets that cannot be read (corrupt, cut off): "
@@ -124,7 +126,12 @@ class PriorDemos(RunConfig):
                                     "paper's)")
 
     def prior_checks(self) -> dict[str, bool]:
-        return {"prior_episodes": self.prior_episodes >= (len(PICK_SETS) if self.prior_objects == "all" else 1),
+        least = 1
+        if self.prior_objects == "all":  # the pick table's sets (sim.objects loads MuJoCo): only for them
+            from hingelab.sim.objects import PICK_SETS
+
+            least = len(PICK_SETS)
+        return {"prior_episodes": self.prior_episodes >= least,
                 "prior_objects": self.prior_objects in PRIOR_OBJECTS, "demo_actions": self.demo_actions in DEMO_ACTIONS,
                 "prior_source": self.prior_source in PRIOR_SOURCES, "demo_lookahead": self.demo_lookahead >= 1,
                 "prior_action_noise": self.prior_action_noise >= 0}

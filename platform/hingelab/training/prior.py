@@ -45,9 +45,7 @@ from hingelab.rollouts.high_level import DemonstratorLabels, FailureReasonWrappe
 from hingelab.seeds import prior_block
 from hingelab.sim.mesh_objects import object_label
 from hingelab.sim.objects import PICK_SETS  # noqa: F401  (the pick table's sets: --prior-objects all)
-
-PRIOR_SOURCES = ("scripted", "scripted-feedback", "heuristic")
-PRIOR_OBJECTS = ("run", "all")
+from hingelab.training.config_parts import PRIOR_OBJECTS, PRIOR_SOURCES
 
 
 def prior_parts(config) -> list[tuple[str, object, float, int]]:

@@ -19,6 +19,7 @@ from dataclasses import MISSING, asdict, field, fields
 from pathlib import Path
 from typing import Any, Callable
 
+from hingelab.arguments import add_oversubscribe, finite_float
 from hingelab.errors import ConfigError
 
 
@@ -94,7 +95,7 @@ def add_config_arguments(parser: argparse.ArgumentParser, config_class, skip: tu
         elif isinstance(default, dict):
             kwargs["type"] = _json_object
         else:
-            kwargs["type"] = meta.get("parse") or type(default)
+            kwargs["type"] = meta.get("parse") or (finite_float if isinstance(default, float) else type(default))
         group.add_argument(flag_of(f), help=f"{help_text} (default {_default_text(default)})", **kwargs)
 
 
@@ -107,6 +108,7 @@ def add_run_arguments(p, default_out: str) -> None:
                    help="continue the run in --out from its last checkpoint (its saved config is kept; "
                         "--steps may raise the budget)")
     p.add_argument("--name", default=None, help="curve label in reports (default: the run folder's name)")
+    add_oversubscribe(p)
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
 
 

@@ -28,6 +28,7 @@ from hingelab.episodes import create_dataset
 from hingelab.episodes.card import EPISODES_DIR
 from hingelab.episodes.dataset import Dataset
 from hingelab.errors import ConfigError
+from hingelab.json_text import strict_dumps
 from hingelab.provenance import code_version
 from hingelab.seeds import training_episode_seed
 from hingelab.training.run_config import flag_of
@@ -169,7 +170,7 @@ class RunFolder:
         self.path.mkdir(parents=True, exist_ok=True)
         doc = {"config": self.config.to_dict(), "seed": self.config.seed, "env_id": self.config.env_id,
                **(extra or {}), **code_version(), "created": time.strftime("%Y-%m-%dT%H:%M:%S%z")}
-        (self.path / CONFIG_FILE).write_text(json.dumps(doc, indent=2))
+        (self.path / CONFIG_FILE).write_text(strict_dumps(doc, self.path / CONFIG_FILE, indent=2))
         (self.path / RUN_FILE).write_text(json.dumps({"name": self.name}))
 
     def record_run_fact(self, key: str, value) -> None:
@@ -179,7 +180,7 @@ class RunFolder:
         doc = json.loads(path.read_text())
         doc[key] = value
         tmp = path.with_name(path.name + ".tmp")
-        tmp.write_text(json.dumps(doc, indent=2))
+        tmp.write_text(strict_dumps(doc, tmp, indent=2))
         tmp.replace(path)
 
     def dataset(self, description: str) -> Path | None:

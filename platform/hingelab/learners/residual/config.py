@@ -14,9 +14,6 @@ from pathlib import Path
 
 from hingelab.errors import ConfigError
 from hingelab.learners.sac.config import SACTrainConfig
-from hingelab.policies.high_level import SHIPPED_HIGH_LEVEL, observes_extent
-from hingelab.policies.phase_clone import PhaseClone
-from hingelab.policies.residual import check_scale
 from hingelab.tasks import TOOL_PICK_ID
 from hingelab.training.config_parts import PickReward, PickTask, PriorDemos
 from hingelab.training.run_config import option
@@ -106,7 +103,7 @@ class ResidualSACConfig(PickTask, PickReward, PriorDemos, SACTrainConfig):
                     "clone_updates": self.clone_updates >= 1, "clone_batch_size": self.clone_batch_size >= 1,
                     "clone_learning_rate": self.clone_learning_rate > 0})
         self.check_prior()
-        check_scale(self.residual_scale)
+        _checked_scale(self.residual_scale)
         bound = tuple(float(b) for b in self.exploration_bound)
         if len(bound) != 5 or not all(b > 0 for b in bound):
             raise ConfigError(f"--exploration-bound takes 5 positive stds (latent goal 0 and 1, hand velocity x, y, "
@@ -116,6 +113,8 @@ class ResidualSACConfig(PickTask, PickReward, PriorDemos, SACTrainConfig):
             raise ConfigError(f"--exploration-floor takes 5 positive stds, each at most --exploration-bound's "
                               f"({list(bound)}), not {list(self.exploration_floor)}")
         if self.base != "fit" and "observe_extent" not in self.env_kwargs:  # observe as the base was trained to
+            from hingelab.policies.high_level import SHIPPED_HIGH_LEVEL  # torch: when a config is checked
+
             extent = base_observes_extent(SHIPPED_HIGH_LEVEL if self.base == "shipped" else Path(self.base))
             if extent is not None:
                 object.__setattr__(self, "env_kwargs", {**self.env_kwargs, "observe_extent": extent})
@@ -136,20 +135,31 @@ class ResidualSACConfig(PickTask, PickReward, PriorDemos, SACTrainConfig):
 
     def log_std_max(self) -> list[float]:
         """The actor's log-std cap per dimension: the bound's std of the executed action over the scale."""
-        scale = check_scale(self.residual_scale)
+        scale = _checked_scale(self.residual_scale)
         return [math.log(b / s) for b, s in zip(self.exploration_bound, scale)]
 
     def log_std_min(self) -> list[float] | None:
         """The actor's log-std floor per dimension (None: none), as ``log_std_max`` from ``exploration_floor``."""
         if not self.exploration_floor:
             return None
-        return [math.log(f / s) for f, s in zip(self.exploration_floor, check_scale(self.residual_scale))]
+        return [math.log(f / s) for f, s in zip(self.exploration_floor, _checked_scale(self.residual_scale))]
 
+
+
+def _checked_scale(scale):
+    """``hingelab.policies.residual.check_scale``, imported when a config is checked: the learner registers (and
+    its flags are built) without loading torch."""
+    from hingelab.policies.residual import check_scale
+
+    return check_scale(scale)
 
 
 def base_observes_extent(path: Path) -> bool | None:
     """Whether the phase clone at ``path`` was trained observing the object's extent (None: not readable here;
     the run then says what is wrong with it)."""
+    from hingelab.policies.high_level import observes_extent  # torch: when a config is checked
+    from hingelab.policies.phase_clone import PhaseClone
+
     try:
         return observes_extent(PhaseClone.load(path))
     except ConfigError:

@@ -22,7 +22,7 @@ from pathlib import Path
 
 import numpy as np
 import torch
-from stable_baselines3.common.logger import configure
+from stable_baselines3.common.logger import Logger
 
 from hingelab.errors import ConfigError
 from hingelab.learners.phase_clone.fit import PhaseDemos, fit_phase_clone_members
@@ -148,7 +148,7 @@ class ResidualRun(PickRun):
         """A new run with demos: ``--critic-pretrain`` critic-only updates on them before the first env step."""
         if not (new_run and self.demos is not None and self.config.critic_pretrain_updates):
             return
-        self.model.set_logger(configure(folder=None, format_strings=[]))
+        self.model.set_logger(Logger(folder=None, output_formats=[]))  # no SB3-<time> temp folder
         # SB3's own set-up of learn(): resets the envs once, which learn() then does not do again
         self.model._setup_learn(0, callback=None, reset_num_timesteps=False)
         self.model.pretrain_critic(self.config.critic_pretrain_updates, self.config.batch_size)

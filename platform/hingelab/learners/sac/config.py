@@ -11,6 +11,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
+from hingelab.arguments import positive_int
 from hingelab.errors import ConfigError
 from hingelab.training.config_parts import RunSettings
 from hingelab.training.run_config import option
@@ -24,7 +25,8 @@ class SACTrainConfig(RunSettings):
     steps: int = option(200_000, "environment steps (transitions) in total, over all envs")
     randomize: bool = option(True, "turn domain randomization off", flag="--no-randomize", negate=True)
     max_episode_steps: int = option(50, "steps per episode before truncation (20 Hz)")
-    n_envs: int = option(2, "parallel rollout envs", flag="--envs")
+    n_envs: int = option(2, "parallel rollout envs (processes unless --in-process: at most the cores)", flag="--envs",
+                         parse=positive_int)
     subprocess_envs: bool = option(True, "step the envs in this process, one after another (several runs side by "
                                          "side)", flag="--in-process", negate=True)
     overlap: bool = option(False, "run each env step's gradient updates while the env processes compute the next "

@@ -15,7 +15,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from stable_baselines3.common.logger import configure
+from stable_baselines3.common.logger import Logger
 
 from hingelab.envs.tool_pick_flat import FINGER_SCALE
 from hingelab.learners.sac.demo_sac import Demonstrations
@@ -110,7 +110,7 @@ class HighLevelRun(PickRun):
 
     def _warm_up_on_demos(self, updates: int) -> None:
         """SAC updates from the demos alone (the ring buffer is still empty, or holds only them)."""
-        self.model.set_logger(configure(folder=None, format_strings=[]))
+        self.model.set_logger(Logger(folder=None, output_formats=[]))  # no SB3-<time> temp folder
         # SB3's own set-up of learn(): resets the envs once, which learn() then does not do again
         self.model._setup_learn(0, callback=None, reset_num_timesteps=False)
         self.model.train(gradient_steps=updates, batch_size=self.config.batch_size)

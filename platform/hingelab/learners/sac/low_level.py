@@ -23,7 +23,7 @@ from pathlib import Path
 
 import torch
 from stable_baselines3 import HerReplayBuffer
-from stable_baselines3.common.logger import configure
+from stable_baselines3.common.logger import Logger
 from tqdm import tqdm
 
 from hingelab.envs.low_level import PolicyLowLevel
@@ -142,7 +142,7 @@ class LowLevelRun(SACRun):
     def _train_offline(self) -> dict:
 
         model, total = self.model, self.config.offline_updates
-        model.set_logger(configure(folder=None, format_strings=[]))
+        model.set_logger(Logger(folder=None, output_formats=[]))  # no SB3-<time> temp folder
         model._setup_learn(0, callback=None, reset_num_timesteps=False)
         done_updates = model._n_updates
         chunk = max(1, min(self.config.eval_every, 1000))

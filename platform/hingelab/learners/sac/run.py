@@ -21,6 +21,7 @@ from pathlib import Path
 
 import torch
 from stable_baselines3 import SAC
+from stable_baselines3.common.logger import Logger
 
 from hingelab.episodes.dataset import corrupt_policy
 from hingelab.errors import ConfigError
@@ -147,6 +148,8 @@ class SACRun:
             raise ConfigError(f"cannot resume: {self.run_dir} has no complete checkpoint yet; start it anew "
                               "(delete the folder or pass another --out)")
         self.model = self.build_model(self.env)
+        # a logger without outputs: learn() would otherwise configure one in a new SB3-<time> temp folder
+        self.model.set_logger(Logger(folder=None, output_formats=[]))
         if self.config.overlap:  # FastSAC's overlapped learn (hingelab.learners.sac.overlap)
             self.model.overlap = True
         if latest is not None:

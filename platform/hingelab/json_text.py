@@ -1,0 +1,42 @@
+"""JSON that every reader can parse: ``strict_dumps`` refuses NaN and infinity (``json.dumps`` writes them as
+``NaN``/``Infinity``, which is not JSON) with one line naming the file and the field."""
+
+from __future__ import annotations
+
+import json
+import math
+
+from hingelab.errors import ConfigError
+
+
+def _non_finite(value, path: str = "") -> str | None:
+    """The dotted path of the first NaN or infinity in ``value`` (None: there is none)."""
+    if isinstance(value, float) and not math.isfinite(value):
+        return path or "(the value)"
+    if isinstance(value, dict):
+        items = value.items()
+    elif isinstance(value, (list, tuple)):
+        items = enumerate(value)
+    else:
+        return None
+    for key, item in items:
+        found = _non_finite(item, f"{path}.{key}" if path else str(key))
+        if found:
+            return found
+    return None
+
+
+def strict_dumps(doc, where, **kwargs) -> str:
+    """``json.dumps(doc, allow_nan=False, **kwargs)``; a NaN or infinity is a ``ConfigError`` naming ``where``
+    (the file the text goes to) and the field that holds it."""
+    try:
+        return json.dumps(doc, allow_nan=False, **kwargs)
+    except ValueError as exc:
+        field = _non_finite(json.loads(json.dumps(doc, **kwargs)))
+        if field is None:
+            raise
+        raise ConfigError(f"{where}: {field} is not a finite number, and JSON has none; nothing was written "
+                          "(give finite values)") from exc
+
+
+__all__ = ["strict_dumps"]

@@ -1,0 +1,72 @@
+"""``hingelab --help`` and ``hingelab COMMAND --help`` import no heavy library: the parser is built from light
+modules (``hingelab.cli.main``), and ``main`` leaves the MuJoCo check to commands that run."""
+
+import json
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+PLATFORM = Path(__file__).resolve().parents[1] / "platform"
+HEAVY = ("torch", "mujoco", "stable_baselines3", "ray", "pandas")
+# every verb, the sub-commands with flags of their own, and train's levels (their flags come from the learners)
+HELP_LINES = [[], ["generate", "clouds"], ["generate", "heuristic"], ["train"], ["train", "encoder"], ["train", "low"],
+              ["train", "high"], ["train", "flat"], ["train", "high", "--learner", "phase-clone"], ["sweep"],
+              ["reproduce"], ["eval", "low"], ["eval", "high"], ["eval", "perception"], ["trial"],
+              ["diagnose", "bias"], ["compose", "low"], ["view"], ["report"], ["datasets", "export"],
+              ["datasets", "import-ros2"], ["checkpoints", "convert"], ["bench"], ["demo"]]
+
+PROBE = """
+import contextlib, io, json, sys
+from hingelab.cli.main import main
+for words in json.loads(sys.argv[1]):
+    with contextlib.redirect_stdout(io.StringIO()) as out:
+        try:
+            main([*words, "--help"])
+        except SystemExit as exc:
+            assert exc.code == 0, (words, exc.code)
+    assert "usage: hingelab" in out.getvalue(), words
+print(json.dumps(sorted(name for name in json.loads(sys.argv[2]) if name in sys.modules)))
+"""
+
+
+def test_help_imports_no_heavy_library():
+    """One fresh interpreter asks every command for its help; none of them loads torch, MuJoCo,
+    stable-baselines3, Ray or pandas (each costs a second or more, and MuJoCo with a bad MUJOCO_GL fails)."""
+    env = {**os.environ, "PYTHONPATH": str(PLATFORM), "MUJOCO_GL": "no-such-backend"}
+    done = subprocess.run([sys.executable, "-c", PROBE, json.dumps(HELP_LINES), json.dumps(HEAVY)],
+                          capture_output=True, text=True, env=env, timeout=300)
+    assert done.returncode == 0, done.stderr
+    assert json.loads(done.stdout.strip().splitlines()[-1]) == []
+
+
+def test_names_mirror_the_registries():
+    """The names ``--help`` lists without loading the library are the registries' own."""
+    from hingelab.cli import names
+    from hingelab.episodes.export import EXPORTERS
+    from hingelab.perception import object_noise_model
+    from hingelab.perception.object_perception import OBJECT_PERCEPTIONS
+    from hingelab.policies import baseline_names
+    from hingelab.robot import stand_in  # noqa: F401  (registers sim)
+    from hingelab.robot.interface import ROBOTS
+    from hingelab.rollouts import bias_tolerance, noise_tolerance
+    from hingelab.ros2 import bag_export  # noqa: F401  (registers ros2)
+
+    assert names.EXPORT_FORMATS == tuple(EXPORTERS)
+    assert names.OBJECT_PERCEPTIONS == OBJECT_PERCEPTIONS
+    assert (names.OBJECT_NOISE_GAUSSIAN, names.OBJECT_NOISE_MODEL) == (object_noise_model.GAUSSIAN,
+                                                                      object_noise_model.DEFAULT_MODEL)
+    assert names.BASELINES == {level: baseline_names(level) for level in ("low", "high")}
+    assert names.ROBOTS == tuple(ROBOTS)
+    assert names.NOISE_LEVELS == noise_tolerance.DEFAULT_LEVELS
+    assert names.BIAS_LEVELS == bias_tolerance.DEFAULT_LEVELS
+
+
+def test_eval_baseline_checked_in_one_line(tmp_path, capsys):
+    """--baseline is checked against the policies' registry when the command runs (not by argparse)."""
+    from hingelab.cli.main import main
+
+    assert main(["eval", "high", "--baseline", "no-such", "--out", str(tmp_path / "out"), "--episodes", "1"]) == 1
+    err = capsys.readouterr().err.strip()
+    assert err.count("\n") == 0 and "scripted-feedback" in err
+    assert not (tmp_path / "out").exists()
