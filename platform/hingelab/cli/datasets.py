@@ -60,7 +60,8 @@ def add_parser(subparsers) -> None:
             "Write a dataset in a layout its neighbours' own libraries load (details: datasets/README.md, Exports).\n\n"
             "--format minari: --out is a Minari datasets root (what MINARI_DATASETS_PATH names; it may hold other\n"
             "  datasets, e.g. ~/.minari/datasets). The export writes OUT/NAMESPACE/NAME-vN/data/{main_data.hdf5,\n"
-            "  metadata.json} with the id --dataset-id (default hingelab/<card name>-v0), and prints how to open it:\n"
+            "  metadata.json} with the id --dataset-id (default hingelab/<folder name>-v0), the env's observation and\n"
+            "  action spaces and requirements [\"hingelab>=VERSION\"], and prints how to open it:\n"
             "  MINARI_DATASETS_PATH=OUT, minari.load_dataset(ID). Episodes without a final observation\n"
             "  (recovered files) are skipped and counted: Minari needs T+1 observations.\n"
             "--format lerobot: --out is the new LeRobotDataset v3.0 folder (meta/info.json, stats.json,\n"
@@ -79,7 +80,7 @@ def add_parser(subparsers) -> None:
                         help="minari: the datasets root (MINARI_DATASETS_PATH); lerobot: the new dataset folder; "
                              "ros2: the new folder of bags")
     export.add_argument("--dataset-id", default=None, metavar="NAMESPACE/NAME-vN",
-                        help="minari only: the dataset id (default hingelab/<card name>-v0); "
+                        help="minari only: the dataset id (default hingelab/<dataset folder name>-v0); "
                              "must not exist under --out")
     add_on_corrupt(export)
     export.set_defaults(func=run_export)
