@@ -68,8 +68,9 @@ def add_parser(subparsers) -> None:
             "  tasks.parquet, meta/episodes/, data/chunk-000/file-000.parquet): LeRobotDataset(REPO_ID, root=OUT).\n"
             "--format ros2: --out is a new folder of rosbag2 folders (MCAP storage), one per episode: "
             "OUT/<episode_id>/\n"
-            "  with /joint_states, /tool/points (PointCloud2, hand_base), /tf, /trial/event, /hingelab/action,\n"
-            "  /object/pose; `ros2 bag info`, rosbags and `hingelab datasets import-ros2` read them.\n\n"
+            "  with every topic the episode has (joint states, tool cloud, /tf and /tf_static, depth images and\n"
+            "  camera_info, labelled actions, poses, /hingelab/episode metadata; docs/ros2.md); `ros2 bag info`,\n"
+            "  rosbags and `hingelab datasets import-ros2 OUT/<episode_id>` (no --topic needed) read them.\n\n"
             "Tool clouds are aligned to the observations by log time (Minari: infos/tool_points; LeRobot:\n"
             "observation.points). A failed export leaves nothing behind: it writes a hidden temporary folder\n"
             "and renames it into place at the end."),
