@@ -188,7 +188,8 @@ ENVS = {  # fixture: (env id, observation shapes, action shape)
 def expected_env_kwargs(name, root):
     config = Dataset(root).card.config
     if name == "heuristic":
-        return {k: config[k] for k in ("object", "size", "mass", "randomize")}, config["max_episode_steps"]
+        keys = ("object", "size", "mass", "randomize", "object_noise")  # what the config records and the env takes
+        return {k: config[k] for k in keys if k in config}, config["max_episode_steps"]
     if name == "low_eval":
         return {"randomize": False}, STEPS
     if name == "low_train":
@@ -203,7 +204,7 @@ def expected_env_kwargs(name, root):
 def test_minari_export_loads_in_minari_equal_to_the_source(name, request, tmp_path, monkeypatch):
     root = request.getfixturevalue(name)
     result = export_minari(Dataset(root), tmp_path / "minari")
-    dataset_id = f"hingelab/{Dataset(root).card.name}-v0"
+    dataset_id = f"hingelab/{root.name}-v0"  # the dataset folder's name
     assert result.path == tmp_path / "minari" / dataset_id and not result.skipped
     loaded = load_minari(tmp_path / "minari", dataset_id, monkeypatch)
     env_id, obs_shapes, action_shape = ENVS[name]
@@ -226,7 +227,7 @@ def test_minari_export_loads_in_minari_equal_to_the_source(name, request, tmp_pa
         for key in obs_shapes:
             got = data.observations[key] if len(obs_shapes) > 1 else data.observations
             np.testing.assert_array_equal(got, np.concatenate([step[key], original.final[key][None]]))
-        np.testing.assert_array_equal(data.actions, step["action"])
+        np.testing.assert_array_equal(data.actions, step["action"].astype(np.float32))  # the env's dtype
         np.testing.assert_array_equal(data.rewards, step["reward"])
         np.testing.assert_array_equal(data.terminations, step["terminated"])
         np.testing.assert_array_equal(data.truncations, step["truncated"])
@@ -399,7 +400,7 @@ def test_corrupt_episode_and_existing_out_are_one_line_errors(low_eval, tmp_path
         line = _one_line_error(capsys)
         assert "zz-cut.mcap" in line and "recover" in line
         assert not (tmp_path / fmt).exists()
-    for fmt, existing in (("minari", tmp_path / "m" / "hingelab" / "eval-low-v0"), ("lerobot", tmp_path / "l")):
+    for fmt, existing in (("minari", tmp_path / "m" / "hingelab" / "low_eval-v0"), ("lerobot", tmp_path / "l")):
         existing.mkdir(parents=True)
         out = tmp_path / fmt[0]
         assert main(["datasets", "export", str(low_eval), "--format", fmt, "--out", str(out)]) == 1

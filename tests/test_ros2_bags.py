@@ -130,8 +130,10 @@ def test_exported_episodes_are_ros2_bags_that_import_back_to_the_same_steps(rig,
     assert types == {"/joint_states": "sensor_msgs/msg/JointState", "/tool/points": "sensor_msgs/msg/PointCloud2",
                      "/tf": "tf2_msgs/msg/TFMessage", "/trial/event": "std_msgs/msg/String",
                      "/hingelab/action": "std_msgs/msg/Float64MultiArray",
-                     "/object/pose": "geometry_msgs/msg/PoseStamped"}
-    assert counts["/tool/points"] == counts["/joint_states"] == 25
+                     "/object/pose": "geometry_msgs/msg/PoseStamped", "/hingelab/episode": "std_msgs/msg/String",
+                     "/hingelab/step": "hingelab_msgs/msg/Step",
+                     "/hingelab/tool/latent": "hingelab_msgs/msg/ToolLatent"}
+    assert counts["/tool/points"] == 25 and counts["/joint_states"] == 50  # the hand's and the arm's messages
     back = root / "back"
     assert main(["datasets", "import-ros2", *map(str, bags), "--topic", "points=/tool/points", "--out", str(back),
                  "--no-progress"]) == 0

@@ -10,6 +10,8 @@ importing the env. ``register_envs`` registers the ids with Gymnasium by entry-p
 from __future__ import annotations
 
 import gymnasium as gym
+import numpy as np
+from gymnasium import spaces
 
 TOOL_SHAPE_ID = "hingelab/ToolShape-v0"
 TOOL_PICK_ID = "hingelab/ToolPick-v0"
@@ -32,6 +34,32 @@ def observation_dim(observe_extent: bool = False) -> int:
     return 17 if observe_extent else 14
 
 
+FLAT_FINGERS = 9  # ToolPickFlat-v0 moves the 9 SVH channels itself (no latent goal, no low level)
+
+
+def task_spaces(env_id: str, observe_extent: bool = False) -> tuple[gym.Space, gym.Space] | None:
+    """(observation_space, action_space) of the task ``env_id`` (what its env sets), None for another id.
+
+    Only ``observe_extent`` (ToolPick-v0, ToolPickFlat-v0) changes a space; the envs take their
+    spaces from here, so an export can state them without building an env.
+    """
+    box = spaces.Box
+    if env_id == TOOL_SHAPE_ID:
+        observation = spaces.Dict({
+            "observation": box(-np.inf, np.inf, (LOW_LEVEL_OBSERVATION_DIM,), np.float64),
+            "achieved_goal": box(-np.inf, np.inf, (2,), np.float64),
+            "desired_goal": box(-np.inf, np.inf, (2,), np.float64),
+        })
+        return observation, box(-1.0, 1.0, LOW_LEVEL_ACTION_SHAPE, np.float32)
+    if env_id == TOOL_PICK_ID:
+        return (box(-np.inf, np.inf, (observation_dim(observe_extent),), np.float64),
+                box(-1.0, 1.0, HIGH_LEVEL_ACTION_SHAPE, np.float32))
+    if env_id == TOOL_PICK_FLAT_ID:  # ToolPick-v0's observation and the fingers' q and q-dot; fingers and hand velocity
+        return (box(-np.inf, np.inf, (observation_dim(observe_extent) + 2 * FLAT_FINGERS,), np.float64),
+                box(-1.0, 1.0, (FLAT_FINGERS + 3,), np.float32))
+    return None
+
+
 def register_envs() -> None:
     if TOOL_SHAPE_ID not in gym.registry:
         gym.register(id=TOOL_SHAPE_ID, entry_point="hingelab.envs.tool_shape:ToolShapeEnv",
@@ -45,4 +73,5 @@ def register_envs() -> None:
 
 __all__ = ["TOOL_SHAPE_ID", "TOOL_PICK_ID", "TOOL_PICK_FLAT_ID", "TOOL_SHAPE_EPISODE_STEPS",
            "TOOL_SHAPE_SUCCESS_GAP_MM", "Z_SCALE", "MAX_SPEED", "OBSERVED_OBJECT", "HIGH_LEVEL_ACTION_SHAPE",
-           "LOW_LEVEL_ACTION_SHAPE", "LOW_LEVEL_OBSERVATION_DIM", "observation_dim", "register_envs"]
+           "LOW_LEVEL_ACTION_SHAPE", "LOW_LEVEL_OBSERVATION_DIM", "FLAT_FINGERS", "observation_dim", "register_envs",
+           "task_spaces"]

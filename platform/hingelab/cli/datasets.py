@@ -55,15 +55,17 @@ def add_parser(subparsers) -> None:
             "Write a dataset in a layout its neighbours' own libraries load (details: datasets/README.md, Exports).\n\n"
             "--format minari: --out is a Minari datasets root (what MINARI_DATASETS_PATH names; it may hold other\n"
             "  datasets, e.g. ~/.minari/datasets). The export writes OUT/NAMESPACE/NAME-vN/data/{main_data.hdf5,\n"
-            "  metadata.json} with the id --dataset-id (default hingelab/<card name>-v0), and prints how to open it:\n"
+            "  metadata.json} with the id --dataset-id (default hingelab/<folder name>-v0), the env's observation and\n"
+            "  action spaces and requirements [\"hingelab>=VERSION\"], and prints how to open it:\n"
             "  MINARI_DATASETS_PATH=OUT, minari.load_dataset(ID). Episodes without a final observation\n"
             "  (recovered files) are skipped and counted: Minari needs T+1 observations.\n"
             "--format lerobot: --out is the new LeRobotDataset v3.0 folder (meta/info.json, stats.json,\n"
             "  tasks.parquet, meta/episodes/, data/chunk-000/file-000.parquet): LeRobotDataset(REPO_ID, root=OUT).\n"
             "--format ros2: --out is a new folder of rosbag2 folders (MCAP storage), one per episode: "
             "OUT/<episode_id>/\n"
-            "  with /joint_states, /tool/points (PointCloud2, hand_base), /tf, /trial/event, /hingelab/action,\n"
-            "  /object/pose; `ros2 bag info`, rosbags and `hingelab datasets import-ros2` read them.\n\n"
+            "  with every topic the episode has (joint states, tool cloud, /tf and /tf_static, depth images and\n"
+            "  camera_info, labelled actions, poses, /hingelab/episode metadata; docs/ros2.md); `ros2 bag info`,\n"
+            "  rosbags and `hingelab datasets import-ros2 OUT/<episode_id>` (no --topic needed) read them.\n\n"
             "Tool clouds are aligned to the observations by log time (Minari: infos/tool_points; LeRobot:\n"
             "observation.points). A failed export leaves nothing behind: it writes a hidden temporary folder\n"
             "and renames it into place at the end."),
@@ -75,7 +77,7 @@ def add_parser(subparsers) -> None:
                         help="minari: the datasets root (MINARI_DATASETS_PATH); lerobot: the new dataset folder; "
                              "ros2: the new folder of bags")
     export.add_argument("--dataset-id", default=None, metavar="NAMESPACE/NAME-vN",
-                        help="minari only: the dataset id (default hingelab/<card name>-v0); "
+                        help="minari only: the dataset id (default hingelab/<dataset folder name>-v0); "
                              "must not exist under --out")
     add_on_corrupt(export)
     export.set_defaults(func=run_export)

@@ -75,7 +75,6 @@ from dataclasses import replace
 
 import gymnasium as gym
 import numpy as np
-from gymnasium import spaces
 
 from hingelab.envs.low_level import PolicyLowLevel, PrivilegedLowLevel
 from hingelab.envs.rendering import SimRenderMixin
@@ -94,7 +93,7 @@ from hingelab.sim.object_families import ObjectFamily, is_family
 from hingelab.sim.object_families import pick_set_weights as pick_set_weights_of
 from hingelab.sim.objects import ObjectSpec
 from hingelab.sim.randomization import RandomizationConfig
-from hingelab.tasks import MAX_SPEED, Z_SCALE, observation_dim
+from hingelab.tasks import MAX_SPEED, TOOL_PICK_ID, Z_SCALE, task_spaces
 
 TARGET_HEIGHT = 0.05  # m above the object's start
 OBJECT_NOISE_M = 0.002
@@ -148,9 +147,8 @@ class ToolPickEnv(SimRenderMixin, gym.Env):
         self.max_episode_steps = max_episode_steps
         self.terminate_on_drop = terminate_on_drop
         self.render_mode = render_mode
-        self.action_space = spaces.Box(-1.0, 1.0, (5,), np.float32)
         self.observe_extent = bool(observe_extent)
-        self.observation_space = spaces.Box(-np.inf, np.inf, (observation_dim(self.observe_extent),), np.float64)
+        self.observation_space, self.action_space = task_spaces(TOOL_PICK_ID, self.observe_extent)
         self._cache_object_geometry()
         self.delay = DelayLine(self.sim.control_dt, 0.150)
         self._privileged_command = None

@@ -56,13 +56,13 @@ v0: first version.
 from __future__ import annotations
 
 import numpy as np
-from gymnasium import spaces
 
 from hingelab.envs.tool_pick import MAX_SPEED, ToolPickEnv
 from hingelab.errors import ConfigError
+from hingelab.tasks import FLAT_FINGERS, TOOL_PICK_FLAT_ID, task_spaces
 
 FINGER_SCALE = 0.05  # rad per step: ToolShape-v0's default action_scale (and PolicyLowLevel's)
-N_FINGERS = 9
+N_FINGERS = FLAT_FINGERS
 
 
 class NoLowLevel:
@@ -86,9 +86,7 @@ class ToolPickFlatEnv(ToolPickEnv):
             raise ConfigError("ToolPickFlat-v0 has no low level (its action moves the fingers); drop low_level")
         super().__init__(low_level="privileged", **kwargs)
         self.low_level = NoLowLevel()
-        self.action_space = spaces.Box(-1.0, 1.0, (N_FINGERS + 3,), np.float32)
-        self.observation_space = spaces.Box(-np.inf, np.inf, (self.observation_space.shape[0] + 2 * N_FINGERS,),
-                                            np.float64)
+        self.observation_space, self.action_space = task_spaces(TOOL_PICK_FLAT_ID, self.observe_extent)
 
     def command_privileged(self, arm_velocity_world, hinge_target, hand_targets) -> None:
         raise ConfigError("ToolPickFlat-v0 takes no privileged commands (the heuristic runs on ToolPick-v0)")

@@ -91,7 +91,6 @@ import math
 
 import gymnasium as gym
 import numpy as np
-from gymnasium import spaces
 
 from hingelab.envs.rendering import SimRenderMixin
 from hingelab.envs.rewards import (
@@ -110,6 +109,7 @@ from hingelab.perception.tool_perception import ToolPerception, camera_for
 from hingelab.sim.core import SimCore
 from hingelab.sim.finger_synergy import FingerSynergy
 from hingelab.sim.randomization import RandomizationConfig
+from hingelab.tasks import TOOL_SHAPE_ID, task_spaces
 from hingelab.tasks import TOOL_SHAPE_SUCCESS_GAP_MM as SUCCESS_GAP_MM
 
 GOAL_SAMPLERS = ("normal", "reachable", "reachable_open", "reachable_closed")
@@ -164,12 +164,7 @@ class ToolShapeEnv(SimRenderMixin, gym.Env):
                                   else latent_distance_for_gap(self.calibration, SUCCESS_GAP_MM))
         self.canonical_points = ToolGeometry.default().canonical_cloud(CANONICAL_OPENING, 256)
         self.render_mode = render_mode
-        self.action_space = spaces.Box(-1.0, 1.0, (9,), np.float32)
-        self.observation_space = spaces.Dict({
-            "observation": spaces.Box(-np.inf, np.inf, (26,), np.float64),
-            "achieved_goal": spaces.Box(-np.inf, np.inf, (2,), np.float64),
-            "desired_goal": spaces.Box(-np.inf, np.inf, (2,), np.float64),
-        })
+        self.observation_space, self.action_space = task_spaces(TOOL_SHAPE_ID)
         self.goal = np.zeros(2)
         # the smoothed latents of the last SETTLE_STEPS steps (a ring; _settled_count since reset)
         self._settle_window = np.zeros((SETTLE_STEPS, 2))

@@ -7,21 +7,28 @@ hold other datasets, e.g. ``~/.minari/datasets``). The export writes
     ROOT/NAMESPACE/NAME-vN/data/main_data.hdf5    one group ``episode_<i>`` per episode
     ROOT/NAMESPACE/namespace_metadata.json        if absent (what ``minari.create_namespace`` writes)
 
-with the dataset id ``hingelab/<card name>-v0`` unless ``dataset_id`` names another; an existing
-``NAME-vN`` folder is an error (Minari ids are immutable: bump the version).
+with the dataset id ``hingelab/<dataset folder name>-v0`` unless ``dataset_id`` names another; an
+existing ``NAME-vN`` folder is an error (Minari ids are immutable: bump the version).
 
 ``metadata.json`` holds what Minari 0.5.4 reads (``minari/dataset/minari_storage.py``,
 ``minari_dataset.py``): ``dataset_id``, ``total_episodes``, ``total_steps``, ``data_format``
 ("hdf5"), ``observation_space`` and ``action_space`` serialized like ``minari.serialization``
 (Box: type, dtype, shape, low, high; Dict: subspaces), ``env_spec`` (gymnasium's
 ``EnvSpec.to_json()`` of the env the episodes were recorded with, see
-``export_source.recorded_env``; absent when unknown), ``minari_version``, ``dataset_size``, plus
+``export_source.recorded_env``; absent when unknown), ``requirements`` (``hingelab>=VERSION``: the
+package that registers the env, which ``recover_environment`` checks is installed),
+``minari_version``, ``dataset_size``, plus
 ``algorithm_name`` (the card's source), ``description``, ``code_permalink`` (the writing code's
 version and commit) and ``hingelab_card`` (the whole dataset card). Minari is not imported.
 
-Spaces describe the stored arrays: Box(-inf, inf) of the recorded shape and dtype (Dict of
-observation, achieved_goal, desired_goal for a goal env); the env's own spaces come with
-``dataset.recover_environment()``.
+Spaces are the env's (``hingelab.tasks.task_spaces``: bounds and dtype, e.g. ToolPick-v0's action
+``Box(-1, 1, (5,), float32)``), so offline RL code that scales by the dataset's bounds sees the
+env's, and ``dataset.recover_environment()`` gives an env with the same spaces (its
+``env_spec`` entry point imports hingelab, which registers the ids). Actions are stored in the
+action space's dtype; actions outside its bounds are kept as recorded and counted in the
+result's notes. Episodes of no hingelab task (another writer, mixed tasks) keep spaces that
+describe the stored arrays: Box(-inf, inf) of the recorded shape and dtype (Dict of
+observation, achieved_goal, desired_goal for a goal env), and no ``env_spec``.
 
 An episode group holds ``observations`` (T+1 rows, a group per key for a goal env), ``actions``,
 ``rewards``, ``terminations``, ``truncations`` (T rows) and ``infos``, which Minari aligns with
@@ -41,11 +48,12 @@ import json
 import re
 from pathlib import Path
 
+import gymnasium as gym
 import h5py
 import numpy as np
 
 from hingelab.episodes import schemas as S
-from hingelab.episodes.card import CARD_FILE, create_dataset
+from hingelab.episodes.card import create_dataset
 from hingelab.episodes.errors import DatasetError
 from hingelab.episodes.export_output import ExportResult, atomic_folder
 from hingelab.episodes.export_source import (
@@ -61,6 +69,7 @@ from hingelab.episodes.export_source import (
 )
 from hingelab.json_text import strict_dumps
 from hingelab.safe_names import safe_file_name
+from hingelab.tasks import task_spaces
 
 MINARI_VERSION = "0.5.4"  # the Minari whose reader this layout is written (and tested) for
 DEFAULT_NAMESPACE = "hingelab"
@@ -71,8 +80,9 @@ DATASET_ID_RE = re.compile(r"^(?:(?P<namespace>[-_\w][-_\w/]*[-_\w]+)/)?(?P<name
 POINTS_INFO = "tool_points"
 
 
-def default_dataset_id(card_name: str) -> str:
-    name = re.sub(r"[^-\w]+", "_", card_name)[:100].strip("_-") or "dataset"
+def default_dataset_id(folder_name: str) -> str:
+    """``hingelab/<folder name>-v0``, the name made a Minari name (letters, digits, - and _)."""
+    name = re.sub(r"[^-\w]+", "_", folder_name)[:100].strip("_-") or "dataset"
     return f"{DEFAULT_NAMESPACE}/{name}-v0"
 
 
@@ -83,19 +93,51 @@ def check_dataset_id(dataset_id: str) -> str:
     return dataset_id
 
 
-def _box(field: Field) -> dict:
-    bound = np.full(field.shape, np.inf).tolist()
-    return {"type": "Box", "dtype": field.name, "shape": list(field.shape),
-            "low": np.negative(np.full(field.shape, np.inf)).tolist(), "high": bound}
+def _array_box(field: Field) -> gym.spaces.Box:
+    return gym.spaces.Box(-np.inf, np.inf, field.shape, np.dtype(field.dtype).newbyteorder("="))
 
 
-def spaces(schema: ExportSchema) -> tuple[str, str]:
+def serialize_space(space: gym.Space) -> dict:
+    """A Box or a Dict of Boxes as ``minari.serialization.serialize_space(space, to_string=False)`` writes it."""
+    if isinstance(space, gym.spaces.Dict):
+        return {"type": "Dict", "subspaces": {k: serialize_space(s) for k, s in space.spaces.items()}}
+    return {"type": "Box", "dtype": str(space.dtype), "shape": list(space.shape), "low": space.low.tolist(),
+            "high": space.high.tolist()}
+
+
+def _shapes(space: gym.Space):
+    if isinstance(space, gym.spaces.Dict):
+        return {k: s.shape for k, s in space.spaces.items()}
+    return {"observation": space.shape}
+
+
+def dataset_spaces(schema: ExportSchema, env: dict | None) -> tuple[gym.Space, gym.Space, str | None]:
+    """(observation_space, action_space, why not the env's): the env's spaces when the episodes' task is a
+    hingelab task whose spaces have the recorded shapes, else boxes describing the stored arrays."""
+    task = task_spaces(env["id"], bool(env["kwargs"].get("observe_extent", False))) if env else None
+    if task is None:
+        observation = (gym.spaces.Dict({k: _array_box(f) for k, f in schema.obs.items()}) if schema.goal_env
+                       else _array_box(schema.obs["observation"]))
+        return observation, _array_box(schema.action), None if env is None else f"{env['id']} is no hingelab task"
+    observation, action = task
+    recorded = {k: f.shape for k, f in schema.obs.items()}
+    if _shapes(observation) != recorded or action.shape != schema.action.shape:
+        return (dataset_spaces(schema, None)[:2]
+                + (f"the episodes' observations {recorded} and actions {schema.action.shape} are not the shapes of "
+                   f"{env['id']}'s spaces",))
+    return observation, action, None
+
+
+def spaces(schema: ExportSchema, env: dict | None = None) -> tuple[str, str]:
     """(observation_space, action_space) serialized as ``minari.serialization.serialize_space`` does."""
-    if schema.goal_env:
-        observation = {"type": "Dict", "subspaces": {k: _box(f) for k, f in schema.obs.items()}}
-    else:
-        observation = _box(schema.obs["observation"])
-    return json.dumps(observation), json.dumps(_box(schema.action))
+    observation, action, _ = dataset_spaces(schema, env)
+    return json.dumps(serialize_space(observation)), json.dumps(serialize_space(action))
+
+
+def requirements(card) -> list[str]:
+    """Minari's pip-style requirements: the hingelab that wrote the dataset, or a later one."""
+    version = str(card.hingelab_version or "")
+    return [f"hingelab>={version}" if re.fullmatch(r"\d+(\.\d+)*", version) else "hingelab"]
 
 
 def _dataset(group, name: str, data: np.ndarray) -> None:
@@ -105,8 +147,8 @@ def _dataset(group, name: str, data: np.ndarray) -> None:
 
 def export_minari(dataset, out, dataset_id: str | None = None, progress: bool = False) -> ExportResult:
     """Write ``dataset`` as the Minari dataset ``dataset_id`` under the datasets root ``out``."""
-    source = "--dataset-id" if dataset_id else dataset.root / CARD_FILE
-    dataset_id = check_dataset_id(dataset_id or default_dataset_id(dataset.card.name))
+    source = "--dataset-id" if dataset_id else dataset.root
+    dataset_id = check_dataset_id(dataset_id or default_dataset_id(dataset.root.name))
     root = Path(out)
     if root.exists() and not root.is_dir():
         raise DatasetError(f"{root} is a file; --out names a Minari datasets folder (MINARI_DATASETS_PATH)")
@@ -118,9 +160,12 @@ def export_minari(dataset, out, dataset_id: str | None = None, progress: bool = 
                            f"or another --out")
     schema = scan_schema(dataset)
     env = recorded_env(dataset, schema)
-    observation_space, action_space = spaces(schema)
+    observation_space, action_space, not_env = dataset_spaces(schema, env)
+    if not_env is not None:
+        env = None  # recover_environment would give an env whose spaces are not the data's
+    action_dtype = action_space.dtype
     log = ExportLog()
-    episodes = steps = 0
+    episodes = steps = outside = 0
     with atomic_folder(final) as tmp:
         data_dir = tmp / "data"
         data_dir.mkdir()
@@ -144,7 +189,10 @@ def export_minari(dataset, out, dataset_id: str | None = None, progress: bool = 
                         _dataset(obs_group, key, value)
                 else:
                     _dataset(group, "observations", observations["observation"])
-                _dataset(group, "actions", episode.actions)
+                actions = episode.actions.astype(action_dtype, copy=False)
+                outside += int((~np.all((actions >= action_space.low) & (actions <= action_space.high),
+                                        axis=tuple(range(1, actions.ndim)))).sum())
+                _dataset(group, "actions", actions)
                 _dataset(group, "rewards", episode.rewards)
                 _dataset(group, "terminations", episode.terminated)
                 _dataset(group, "truncations", episode.truncated)
@@ -162,13 +210,19 @@ def export_minari(dataset, out, dataset_id: str | None = None, progress: bool = 
         card = dataset.card
         metadata = {
             "dataset_id": dataset_id, "total_episodes": episodes, "total_steps": steps, "data_format": "hdf5",
-            "jpeg_encoding": False, "observation_space": observation_space, "action_space": action_space,
+            "jpeg_encoding": False, "observation_space": json.dumps(serialize_space(observation_space)),
+            "action_space": json.dumps(serialize_space(action_space)), "requirements": requirements(card),
             "minari_version": MINARI_VERSION, "algorithm_name": card.source,
             "description": card.description or f"hingelab dataset {card.name!r} (source {card.source})",
             "code_permalink": f"hingelab {card.hingelab_version} at git commit {card.git_commit}",
             "hingelab_card": json.loads(card.to_json()),
-            "hingelab_export": {"skipped": log.skipped, "notes": log.notes(f"infos/{POINTS_INFO}")},
         }
+        notes = log.notes(f"infos/{POINTS_INFO}")
+        if outside:
+            notes.append(f"{outside} actions lie outside the action space's bounds (kept as recorded)")
+        if not_env:
+            notes.append(f"spaces describe the stored arrays and no env_spec is written: {not_env}")
+        metadata["hingelab_export"] = {"skipped": log.skipped, "notes": notes}
         spec = env_spec_json(env)
         if spec is not None:
             metadata["env_spec"] = spec
@@ -182,8 +236,8 @@ def export_minari(dataset, out, dataset_id: str | None = None, progress: bool = 
                 path.write_text("{}")
     return ExportResult(
         format="minari", path=final, episodes=episodes, frames=steps, skipped=log.skipped,
-        notes=log.notes(f"infos/{POINTS_INFO}") + ([] if spec else ["env_spec unknown (the episodes' task is not "
-                                                                   "one registered gymnasium env)"]),
+        notes=notes + ([] if spec or not_env else ["env_spec unknown (the episodes' task is not one registered "
+                                                   "gymnasium env)"]),
         load=f"MINARI_DATASETS_PATH={root} and minari.load_dataset({dataset_id!r})")
 
 
@@ -230,4 +284,5 @@ def import_minari(path, root, dataset_id: str | None = None) -> Path:
     return Path(root)
 
 
-__all__ = ["export_minari", "import_minari", "default_dataset_id", "check_dataset_id", "spaces", "MINARI_VERSION"]
+__all__ = ["export_minari", "import_minari", "default_dataset_id", "check_dataset_id", "dataset_spaces", "requirements",
+           "serialize_space", "spaces", "MINARI_VERSION"]

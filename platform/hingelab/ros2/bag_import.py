@@ -8,8 +8,11 @@ never a later one, and the sample's age t_k - stamp is recorded in the step's in
 usable camera cloud) has a sample are left out (the grid stays anchored at ``start``).
 
 The camera: a whole-scene PointCloud2 in the camera frame, or a 32FC1 depth image with its
-camera_info. Its topic is read in passes (``_Camera``): the stamps first, then only the frames some
-step takes; the other topics are small and read once into memory. Each frame is put into
+camera_info; or, in a bag hingelab exported (``bag_export``), its ``/tool/points``: the tool cloud
+already in ``hand_base``, taken as it is when it has the pipeline's 256 points (the import of an
+export gives back the clouds, tool poses and latents it exported). Its topic is read in passes
+(``_Camera``): the stamps first, then only the frames some step takes; the other topics are small
+and read once into memory. Each frame is put into
 ``hand_base`` with the camera's pose from the TF tree at the message's stamp, then through the
 platform's camera cloud pipeline (``perception.camera_cloud``: crop box, statistical outliers, 2 mm
 voxels, 256 points). A frame that gives no tool cloud is dropped (counted by its flag) and the step
@@ -17,14 +20,17 @@ takes the latest frame that did. The 256-point clouds go through ``ToolState`` (
 encoder, EMA) as in simulation: tool pose, latents z and z_bar.
 
 Each episode keeps the bag's name, path, topics and time range in its metadata (``ros2_*``
-keys); the summary of a bag (``BagSummary``) counts episodes, steps and the messages dropped
-and why. An import is idempotent: a trial the dataset holds already (``trial_key``: the bag's topic
-set and time range and the trial's own; not the bag's file name, so a renamed or copied bag is the
-same recording) is skipped, and the summary says so.
+keys); its seed is the trial's index in the bag, or, for a bag hingelab exported, the seed its
+``/hingelab/episode`` message records (with the object and the exported episode's id). The
+summary of a bag (``BagSummary``) counts episodes, steps and the messages dropped and why. An import
+is idempotent: a trial the dataset holds already (``trial_key``: the bag's topic set and time range
+and the trial's own; not the bag's file name, so a renamed or copied bag is the same recording) is
+skipped, and the summary says so.
 """
 
 from __future__ import annotations
 
+import json
 import shutil
 import time
 from dataclasses import dataclass, field
@@ -149,11 +155,14 @@ def _check_topics(bag: Bag, names: dict) -> str:
             raise missing(kind)
     if names["points"] in bag.topics:
         return "points"
+    if names["tool_points"] in bag.topics:
+        return "tool_points"
     if names["depth"] in bag.topics:
         if names["camera_info"] not in bag.topics:
             raise missing("camera_info", " for the depth image " + names["depth"])
         return "depth"
-    raise missing("points", f" nor a depth image {names['depth']} (--topic depth=NAME)")
+    raise missing("points", f" nor a tool cloud {names['tool_points']} nor a depth image {names['depth']} "
+                            "(--topic depth=NAME)")
 
 
 class _Camera:
@@ -221,7 +230,12 @@ class _Camera:
             return None
         rot, pos, tf_stamp = pose
         rng = np.random.default_rng(stamp)
-        if self.kind == "points":
+        if self.kind == "tool_points":
+            points = transform(M.cloud_xyz(msg, where), rot, pos).astype(np.float32)
+            if len(points) == self.config.n_points:  # a hingelab export's tool cloud: the pipeline's output already
+                return points, len(np.unique(points, axis=0)), tf_stamp
+            result = tool_cloud_from_points(points.astype(np.float64), self.config, rng)
+        elif self.kind == "points":
             scene = M.cloud_xyz(msg, where)
             points = near_crop_box(scene, rot, pos, self.config)
             # the scene's size counts as the frame's points: a frame of table alone is "too_few_points",
@@ -269,14 +283,22 @@ def near_crop_box(points: np.ndarray, rot: np.ndarray, pos: np.ndarray, cloud: T
 class _Joints:
     """The joint states, split by what each message holds: many rigs publish the arm's and the hand's on
     ``/joint_states`` from two drivers. The hand's 9 channels come from the messages that name all of
-    them, the arm's 6 joints from those that name all of those; a message with neither is dropped."""
+    them, the arm's 6 joints from those that name all of those; a message with neither is dropped.
+    Each part is sorted by stamp and keeps the later of two messages with one stamp, so the two drivers'
+    messages of one instant (or a hingelab export's arm and hand messages) are both kept."""
 
-    def __init__(self, bag: Bag, stream: Stream, summary: BagSummary):
-        self.topic = stream.topic
+    def __init__(self, bag: Bag, topic: str, messages: list, summary: BagSummary):
+        self.topic = topic
+        msgtype = bag.topics[topic]
+        stamps = np.array([message_stamp(payload, log, msgtype) for log, payload in messages], dtype=np.int64)
+        _, _, reordered = sort_stamps(stamps)
+        if reordered:
+            summary.notes.append(f"{reordered} messages on {topic} were stamped earlier than the one before them "
+                                 "(non-monotonic stamps); re-ordered by stamp")
         hand_rows, arm_rows, seen = [], [], set()
         aliases = hand_joint_aliases()
-        for stamp, payload in zip(stream.stamps, stream.payloads):
-            msg = bag.deserialize(payload, stream.msgtype)
+        for stamp, (_, payload) in zip(stamps, messages):
+            msg = bag.deserialize(payload, msgtype)
             index = {n: i for i, n in enumerate(msg.name)}
             seen.update(msg.name)
             position, velocity = np.asarray(msg.position, float), np.asarray(msg.velocity, float)
@@ -288,16 +310,22 @@ class _Joints:
             if None not in arm and len(position) == len(msg.name):
                 arm_rows.append((int(stamp), position[arm]))
             if None in hand and None in arm:
-                summary.drop(f"{stream.topic} messages with neither the hand's 9 channels nor arm_joint_1..6")
-        if not hand_rows and len(stream):
+                summary.drop(f"{topic} messages with neither the hand's 9 channels nor arm_joint_1..6")
+        hand_rows, arm_rows = _by_stamp(hand_rows), _by_stamp(arm_rows)
+        summary.drop(f"{topic} messages with a stamp already seen (the later kept)",
+                     len(hand_rows.dropped) + len(arm_rows.dropped))
+        if not hand_rows and len(messages):
             lost = [names[0] for names in aliases if not any(n in seen for n in names)]
-            raise DatasetError(f"{bag.path}: {stream.topic} has no message with the hand's joint(s) {', '.join(lost)}; "
+            raise DatasetError(f"{bag.path}: {topic} has no message with the hand's joint(s) {', '.join(lost)}; "
                                "the hand's 9 channels must carry the platform's names (hingelab.sim.names."
                                f"HAND_ACTUATORS); its messages name {', '.join(sorted(seen))}")
         self.hand_stamps = np.array([r[0] for r in hand_rows], np.int64)
         self.hand = [(r[1], r[2]) for r in hand_rows]
         self.arm_stamps = np.array([r[0] for r in arm_rows], np.int64)
         self.arm = [r[1] for r in arm_rows]
+
+    def __len__(self) -> int:
+        return len(self.hand_stamps)
 
     def hand_at(self, t_ns: int):
         """(q (9,), q-dot (9,), stamp) of the latest hand state at or before t_ns, or None."""
@@ -308,6 +336,19 @@ class _Joints:
         """(q (6,), stamp) of the latest arm state at or before t_ns, or (NaN, None)."""
         i = int(np.searchsorted(self.arm_stamps, t_ns, side="right")) - 1
         return (np.full(6, np.nan), None) if i < 0 else (self.arm[i], int(self.arm_stamps[i]))
+
+
+class _Rows(list):
+    """Rows sorted by stamp, one per stamp (the later received); ``dropped``: the earlier ones of a stamp."""
+
+    dropped: list
+
+
+def _by_stamp(rows: list) -> _Rows:
+    order, keep, _ = sort_stamps(np.array([r[0] for r in rows], np.int64))
+    out = _Rows(rows[i] for i in order[keep])
+    out.dropped = [rows[i] for i in order[~keep]]
+    return out
 
 
 def import_bag(path, out, names: dict, state, progress: bool = False,
@@ -324,12 +365,12 @@ def import_bag(path, out, names: dict, state, progress: bool = False,
     summary = BagSummary(bag.name)
     if bag.cut_off:  # what was read is counted; metadata.yaml's counts are only quoted in the note
         summary.notes.append(bag.cut_off)
-    small = [k for k in ("joints", "action", "object", "events", "tf", "tf_static")
+    small = [k for k in ("joints", "action", "object", "events", "tf", "tf_static", "episode")
              + (("camera_info",) if camera_kind == "depth" else ()) if names[k] in bag.topics]
     raw = bag.read({names[k] for k in small})
     summary.messages = sum(len(m) for m in raw.values())
     streams = {}
-    for kind in ("joints", "action", "object", "camera_info"):
+    for kind in ("action", "object", "camera_info"):  # the joints are sorted per part (_Joints)
         if kind in small:
             stream = streams[kind] = bag.stream(names[kind], raw[names[kind]])
             if stream.reordered:
@@ -361,20 +402,36 @@ def import_bag(path, out, names: dict, state, progress: bool = False,
              for _, trial, _ in todo]
     if grids:
         camera.prepare(np.concatenate(grids))
-    joints = _Joints(bag, streams["joints"], summary)
+    joints = _Joints(bag, names["joints"], raw[names["joints"]], summary)
     action = _ActionStream(bag, streams.get("action"), summary)
+    exported = [(t, _exported_metadata(bag, p, summary)) for t, p in raw.get(names["episode"], [])]
     bar = tqdm(total=sum(len(g) for g in grids), desc=f"import {bag.name}", unit="step", disable=not progress,
                leave=False)
     try:
         for index, trial, key in todo:
+            recorded = next((m for t, m in reversed(exported) if t <= trial.start_ns), {})
             written = _write_episode(bag, trial, index, out, names, joints, camera, action, streams.get("object"), tf,
-                                     state, summary, bar)
+                                     state, summary, bar, recorded)
             if written is not None:
                 summary.episodes.append(written)
                 imported[key] = Path(written).name
     finally:
         bar.close()
     return summary
+
+
+def _exported_metadata(bag: Bag, payload, summary: BagSummary) -> dict:
+    """The episode metadata a hingelab export recorded (``/hingelab/episode``); {} if it is not a JSON object."""
+    text = bag.deserialize(payload, "std_msgs/msg/String").data
+    try:
+        metadata = json.loads(text)
+    except ValueError:
+        metadata = None
+    if not isinstance(metadata, dict):
+        summary.notes.append("a /hingelab/episode message is not a JSON object; its trial keeps the trial index "
+                             "as its seed")
+        return {}
+    return metadata
 
 
 class _ActionStream:
@@ -421,7 +478,7 @@ def _age(t_ns: int, stamp) -> float:
 
 
 def _write_episode(bag, trial: Trial, index: int, out, names, joints: _Joints, camera: _Camera, action: _ActionStream,
-                   objects: Stream | None, tf: TfTree, state, summary: BagSummary, bar):
+                   objects: Stream | None, tf: TfTree, state, summary: BagSummary, bar, exported: dict):
     n_grid = (trial.end_ns - trial.start_ns) // STEP_NS + 1
     if n_grid < 1:
         summary.notes.append(f"trial {index} ends before it starts; skipped")
@@ -429,7 +486,11 @@ def _write_episode(bag, trial: Trial, index: int, out, names, joints: _Joints, c
     state.reset()
     action_dim = action.dim if action.stream is not None else 5
     has_action = action.stream is not None
-    writer = EpisodeWriter(out, source=SOURCE, task=TASK, object="", seed=index, attempt=trial.attempts,
+    seed = exported.get("seed")
+    seed = seed if isinstance(seed, int) and not isinstance(seed, bool) else index
+    kept = {"ros2_exported_episode_id": str(exported["episode_id"])} if exported.get("episode_id") else {}
+    writer = EpisodeWriter(out, source=SOURCE, task=TASK, object=str(exported.get("object") or ""), seed=seed,
+                           attempt=trial.attempts,
                            action_level="high" if action_dim == 5 else ("low" if action_dim == 9 else ""),
                            extra_metadata={
                                "ros2_bag": bag.name, "ros2_bag_path": str(bag.path.resolve()),
@@ -438,7 +499,7 @@ def _write_episode(bag, trial: Trial, index: int, out, names, joints: _Joints, c
                                "ros2_trial_start_ns": int(trial.start_ns), "ros2_trial_end_ns": int(trial.end_ns),
                                "ros2_trial_closed_by": trial.closed_by,
                                "ros2_topics_used": [f"{k}={v}" for k, v in sorted(names.items()) if v in bag.topics],
-                           })
+                               **kept})
     skipped = 0
     with writer:
         for k in range(n_grid):

@@ -1,7 +1,8 @@
 """The topics a ROS 2 bag import reads: kinds, default names, expected types, ``--topic KIND=NAME``.
 
-Each kind has a default topic name (what the rig's drivers publish) and one expected message
-type. ``--topic KIND=NAME`` renames a kind's topic; a kind's type is fixed.
+Each kind has a default topic name (what the rig's drivers publish, or what ``hingelab datasets
+export --format ros2`` writes: ``tool_points``, ``episode``) and one expected message type, so an
+export imports back without flags. ``--topic KIND=NAME`` renames a kind's topic; a kind's type is fixed.
 """
 
 from __future__ import annotations
@@ -37,6 +38,11 @@ KINDS = {k.kind: k for k in (
     TopicKind("action", "/hingelab/action", "std_msgs/msg/Float64MultiArray", False,
               "the high-level action (optional)"),
     TopicKind("object", "/object/pose", "geometry_msgs/msg/PoseStamped", False, "the object's pose (optional)"),
+    TopicKind("tool_points", "/tool/points", "sensor_msgs/msg/PointCloud2", False,
+              "a hingelab export's tool cloud, hand_base: read when the bag has no points topic; a cloud of the "
+              "pipeline's size (256) is taken as it is"),
+    TopicKind("episode", "/hingelab/episode", "std_msgs/msg/String", False,
+              "a hingelab export's episode metadata (JSON): its seed and object are kept"),
 )}
 
 # The hand's channels in the episode's /hand/joints order (schemas.SVH_JOINT_NAMES), by the
