@@ -21,6 +21,7 @@ TOOL_SHAPE_SUCCESS_GAP_MM = 2.0  # ToolShape-v0 succeeds within this tip gap of 
 Z_SCALE = 3.0
 MAX_SPEED = 0.08  # m/s
 OBSERVED_OBJECT = slice(8, 11)  # the observed object centre (hand frame, m) in ToolPick-v0's observation
+TARGET_HEIGHT = 0.05  # m: ToolPick-v0's target is this far above the object's start (world z)
 HIGH_LEVEL_ACTION_SHAPE = (5,)
 LOW_LEVEL_ACTION_SHAPE = (9,)
 LOW_LEVEL_OBSERVATION_DIM = 26  # hand q and q-dot (18), tool v and omega (6), z (2); the goal z apart
@@ -43,5 +44,6 @@ def register_envs() -> None:
 
 
 __all__ = ["TOOL_SHAPE_ID", "TOOL_PICK_ID", "TOOL_PICK_FLAT_ID", "TOOL_SHAPE_EPISODE_STEPS",
-           "TOOL_SHAPE_SUCCESS_GAP_MM", "Z_SCALE", "MAX_SPEED", "OBSERVED_OBJECT", "HIGH_LEVEL_ACTION_SHAPE",
-           "LOW_LEVEL_ACTION_SHAPE", "LOW_LEVEL_OBSERVATION_DIM", "observation_dim", "register_envs"]
+           "TOOL_SHAPE_SUCCESS_GAP_MM", "Z_SCALE", "MAX_SPEED", "OBSERVED_OBJECT", "TARGET_HEIGHT",
+           "HIGH_LEVEL_ACTION_SHAPE", "LOW_LEVEL_ACTION_SHAPE", "LOW_LEVEL_OBSERVATION_DIM", "observation_dim",
+           "register_envs"]
