@@ -9,7 +9,8 @@ from pathlib import Path
 PACKAGE = Path(__file__).resolve().parents[1] / "platform" / "hingelab"
 # bottom first; packages on one line (a tuple) do not import each other
 LAYERS = [
-    ("errors",), ("paths", "disk_full", "folder_lock", "camera", "tasks", "seeds", "safe_names", "bounded_reads"),
+    ("errors",), ("paths", "disk_full", "folder_lock", "camera", "tasks", "seeds", "safe_names", "bounded_reads",
+                  "arguments", "json_text", "out_dir"),
     ("__init__",), ("provenance",),
     ("sim",), ("episodes",), ("perception",), ("analysis", "viewers", "heuristic", "workers"), ("policies",),
     ("envs",), ("rollouts",), ("robot",), ("ros2",), ("training",), ("learners",), ("sweeps",), ("bench",), ("cli",),

@@ -23,6 +23,8 @@ TOOL_SHAPE_SUCCESS_GAP_MM = 2.0  # ToolShape-v0 succeeds within this tip gap of 
 Z_SCALE = 3.0
 MAX_SPEED = 0.08  # m/s
 OBSERVED_OBJECT = slice(8, 11)  # the observed object centre (hand frame, m) in ToolPick-v0's observation
+TARGET_HEIGHT = 0.05  # m: ToolPick-v0's target is this far above the object's start (world z)
+TOOL_STATE_ALPHA = 0.9  # the paper's smoothing of the tool state (perception's and the high level's)
 HIGH_LEVEL_ACTION_SHAPE = (5,)
 HIGH_LEVEL_ACTION_NAMES = ("z_goal_0", "z_goal_1", "velocity_x", "velocity_y", "velocity_z")
 LOW_LEVEL_ACTION_SHAPE = (9,)
@@ -72,6 +74,6 @@ def register_envs() -> None:
 
 
 __all__ = ["TOOL_SHAPE_ID", "TOOL_PICK_ID", "TOOL_PICK_FLAT_ID", "TOOL_SHAPE_EPISODE_STEPS",
-           "TOOL_SHAPE_SUCCESS_GAP_MM", "Z_SCALE", "MAX_SPEED", "OBSERVED_OBJECT", "HIGH_LEVEL_ACTION_SHAPE",
-           "LOW_LEVEL_ACTION_SHAPE", "LOW_LEVEL_OBSERVATION_DIM", "FLAT_FINGERS", "observation_dim", "register_envs",
-           "task_spaces"]
+           "TOOL_SHAPE_SUCCESS_GAP_MM", "Z_SCALE", "MAX_SPEED", "OBSERVED_OBJECT", "TARGET_HEIGHT", "TOOL_STATE_ALPHA",
+           "HIGH_LEVEL_ACTION_SHAPE", "LOW_LEVEL_ACTION_SHAPE", "LOW_LEVEL_OBSERVATION_DIM", "FLAT_FINGERS",
+           "observation_dim", "register_envs", "task_spaces"]

@@ -20,7 +20,10 @@ a window without a cloud (a missing cloud) leaves that row NaN and ``points_vali
 (never a stale cloud), and a cloud no window takes (an extra cloud) is left out and counted.
 Other topics (and any extra topic) are not exported; their message counts do not matter.
 
-Episodes without ``/step`` transitions are skipped and counted, never crashed on; the format
+A trial (``hingelab trial``, sources ``stand_in`` and ``real``) drives a robot, not an env, and
+records no ``/step``: its frames are rebuilt from its topics, one per high-level action
+(``export_trial``). Other episodes without ``/step`` transitions are skipped and counted, never
+crashed on; the format
 modules decide about episodes without a final observation (Minari skips them: it needs T+1
 observations; LeRobot keeps them: it has no slot for the final observation anyway).
 
@@ -45,6 +48,7 @@ from tqdm import tqdm
 
 from hingelab.episodes import schemas as S
 from hingelab.episodes.errors import DatasetError
+from hingelab.episodes.export_trial import is_trial, trial_fields, trial_step
 from hingelab.episodes.reader import EpisodeFile, read_episode
 from hingelab.episodes.writer import EpisodeWriter
 from hingelab.tasks import register_envs
@@ -105,6 +109,7 @@ class ExportEpisode:
     points: np.ndarray | None  # (T+1, N, 3) float32, NaN where no cloud; row T: the final observation's
     points_valid: np.ndarray | None  # (T+1,) bool
     unmatched_clouds: int = 0
+    log_time_ns: np.ndarray | None = None  # (T,) the log time of each transition's step
 
     @property
     def length(self) -> int:
@@ -120,6 +125,8 @@ class ExportLog:
     """What was skipped (reason -> file names) and what was noticed on the way."""
 
     skipped: dict[str, list[str]] = field(default_factory=dict)
+    filled: dict[str, list[str]] = field(default_factory=dict)  # what a rule filled -> episode file names
+    left_out: dict[str, str] = field(default_factory=dict)  # feature -> why the export left it out
     unmatched_clouds: int = 0
     observations_without_cloud: int = 0
 
@@ -148,11 +155,15 @@ def _file_fields(path: Path) -> tuple[dict, dict | None, int | None]:
     """(metadata, {step field: Field} or None if no transitions, points per cloud or None)."""
     with EpisodeFile(path) as episode_file:
         metadata = episode_file.metadata()
+        has_points = S.TOPIC_POINTS in episode_file.channels
+        if is_trial(episode_file.channels, metadata):
+            point_shapes = episode_file.channel_info(S.TOPIC_POINTS, S.CHANNEL_SHAPES_KEY) if has_points else None
+            fields = {name: Field(dtype, shape) for name, (dtype, shape) in trial_fields().items()}
+            return metadata, fields, (point_shapes["points"][0] if point_shapes else None)
         if S.TOPIC_STEP not in episode_file.channels:
             return metadata, None, None  # skipped in the data pass, where it is counted
         dtypes = episode_file.channel_info(S.TOPIC_STEP, S.CHANNEL_DTYPES_KEY)
         shapes = episode_file.channel_info(S.TOPIC_STEP, S.CHANNEL_SHAPES_KEY)
-        has_points = S.TOPIC_POINTS in episode_file.channels
         point_shapes = episode_file.channel_info(S.TOPIC_POINTS, S.CHANNEL_SHAPES_KEY) if has_points else None
     if dtypes and shapes and (not has_points or point_shapes):
         fields = {name: Field(dtype, tuple(shapes[name])) for name, dtype in dtypes.items() if name in shapes}
@@ -252,6 +263,8 @@ def _reset_time(episode, first_step_ns: int) -> int | None:
 def align_episode(episode, schema: ExportSchema) -> ExportEpisode | str:
     """The episode's export arrays, or the reason it is skipped."""
     step = episode.topics.get(S.TOPIC_STEP, {})
+    if not step and is_trial(episode.topics, episode.metadata):
+        step = trial_step(episode)
     n = len(step.get("reward", ()))
     if n == 0:
         return SKIP_NO_STEPS
@@ -285,7 +298,8 @@ def align_episode(episode, schema: ExportSchema) -> ExportEpisode | str:
         actions=arrays["action"], rewards=arrays["reward"],
         terminated=np.asarray(step.get("terminated", false), dtype=bool),
         truncated=np.asarray(step.get("truncated", false), dtype=bool),
-        infos=infos, points=points, points_valid=valid, unmatched_clouds=unmatched)
+        infos=infos, points=points, points_valid=valid, unmatched_clouds=unmatched,
+        log_time_ns=np.asarray(step["log_time_ns"], dtype=np.int64))
 
 
 def export_episodes(dataset, schema: ExportSchema, log: ExportLog, progress: bool = False,

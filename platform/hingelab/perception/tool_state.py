@@ -47,8 +47,9 @@ from hingelab.perception.registration import (
     rotvec_to_matrix,
     tracking_settings,
 )
+from hingelab.tasks import TOOL_STATE_ALPHA
 
-ALPHA = 0.9  # the paper's smoothing
+ALPHA = TOOL_STATE_ALPHA  # the paper's smoothing
 CONTROL_DT_S = 0.05  # 20 Hz
 
 
