@@ -93,10 +93,10 @@ from hingelab.sim.object_families import ObjectFamily, is_family
 from hingelab.sim.object_families import pick_set_weights as pick_set_weights_of
 from hingelab.sim.objects import ObjectSpec
 from hingelab.sim.randomization import RandomizationConfig
-from hingelab.tasks import MAX_SPEED, TARGET_HEIGHT, TOOL_PICK_ID, Z_SCALE, task_spaces
+from hingelab.tasks import MAX_SPEED, TARGET_HEIGHT, TOOL_PICK_ID, TOOL_STATE_ALPHA, Z_SCALE, task_spaces
 
 OBJECT_NOISE_M = 0.002
-ALPHA = 0.9  # smoothing of t and theta (the paper smooths the high-level tool state too)
+ALPHA = TOOL_STATE_ALPHA  # smoothing of t and theta (the paper smooths the high-level tool state too)
 
 
 class ToolPickEnv(SimRenderMixin, gym.Env):

@@ -55,9 +55,10 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 from hingelab.envs.rewards import HighLevelRewardConfig, high_level_terms
-from hingelab.envs.tool_pick import ALPHA, TARGET_HEIGHT
+from hingelab.envs.tool_pick import TARGET_HEIGHT
 from hingelab.episodes import schemas as S
 from hingelab.episodes.errors import DatasetError
+from hingelab.episodes.export_trial import smoothed_pose
 from hingelab.episodes.transitions import Transitions
 from hingelab.perception.clouds import ToolGeometry
 from hingelab.ros2.topics import ARM_JOINT_NAMES
@@ -140,15 +141,6 @@ def grip_points_world(tool_pos_hand, tool_rot_hand, z_bar, hand_rot, hand_pos, c
     return grip, a, b
 
 
-def _smoothed_pose(pose: np.ndarray) -> np.ndarray:
-    """The env's smoothing of the observed tool pose: s <- alpha x + (1 - alpha) s, from the first."""
-    out = np.empty_like(pose)
-    out[0] = pose[0]
-    for k in range(1, len(pose)):
-        out[k] = ALPHA * pose[k] + (1 - ALPHA) * out[k - 1]
-    return out
-
-
 def real_episode_transitions(episode, index: int, config: HighLevelRewardConfig, calibration, actions: str = "recorded",
                              observation_dim: int = OBSERVATION_DIM) -> Transitions:
     """One imported real episode -> ToolPick-v0 transitions with the env's reward (module docstring).
@@ -190,7 +182,7 @@ def real_episode_transitions(episode, index: int, config: HighLevelRewardConfig,
     m = int(hits[0]) if len(hits) else n - 1
     target_hand = np.einsum("tji,tj->ti", hand_rot, target - hand_pos)  # R^T (target - p)
     observation = np.array(obs, float, copy=True)
-    observation[:, :6] = _smoothed_pose(observation[:, :6])
+    observation[:, :6] = smoothed_pose(observation[:, :6])  # the env's smoothing, as the trials' export
     observation[:, 11:14] = target_hand
     recorded = np.asarray(step.get("action", np.full((n, ACTION_DIM), np.nan)), float)[:m]
     use_recorded = (actions == "recorded" and recorded.shape[1:] == (ACTION_DIM,) and np.isfinite(recorded).all()
