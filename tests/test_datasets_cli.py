@@ -97,8 +97,9 @@ def test_recover_and_export_commands(dataset, tmp_path, capsys):
     for fmt in ("minari", "lerobot"):
         assert main(["datasets", "export", str(dataset), "--format", fmt, "--out", str(tmp_path / fmt)]) == 0
         assert "Exported 2 episodes (20 steps)" in capsys.readouterr().out
-    assert (tmp_path / "minari" / "hingelab" / "cli-v0" / "data" / "main_data.hdf5").exists()  # --out: the root
-    assert (tmp_path / "minari" / "hingelab" / "cli-v0" / "data" / "metadata.json").exists()
+    # --out: the root; the id from the dataset's folder (ds), not its card's name (cli)
+    assert (tmp_path / "minari" / "hingelab" / "ds-v0" / "data" / "main_data.hdf5").exists()
+    assert (tmp_path / "minari" / "hingelab" / "ds-v0" / "data" / "metadata.json").exists()
     assert [p.name for p in (tmp_path / "lerobot" / "data" / "chunk-000").glob("*.parquet")] == ["file-000.parquet"]
     for fmt in ("minari", "lerobot"):
         assert main(["datasets", "export", str(dataset), "--format", fmt, "--out", str(tmp_path / fmt)]) == 1

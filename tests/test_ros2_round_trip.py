@@ -99,7 +99,7 @@ def test_import_export_import_gives_the_same_episodes_field_by_field(rig_round_t
 def test_the_export_labels_actions_and_keeps_the_episode_and_every_topic(rig_round_trip):
     root, bags = rig_round_trip
     original = _episodes(root / "real")[0]
-    bag = _bag(bags[0])
+    bag = _bag(root / "bags" / original.metadata["episode_id"])  # its own bag: the ids' order is not the seeds'
     for topic in ("/joint_states", "/tool/points", "/tf", "/trial/event", "/hingelab/action", "/object/pose",
                   "/hingelab/episode", "/hingelab/step", "/hingelab/tool/latent"):
         assert topic in bag, topic
