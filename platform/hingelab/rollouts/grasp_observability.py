@@ -26,9 +26,8 @@ from pathlib import Path
 
 import numpy as np
 
-from hingelab.episodes.dataset import open_dataset
 from hingelab.errors import ConfigError
-from hingelab.rollouts.grasp_offsets import AXES, TOPICS, lift_step
+from hingelab.rollouts.grasp_offsets import AXES, grasp_at, read_episodes
 from hingelab.rollouts.reward_diagnostic import write_tables
 from hingelab.tasks import OBSERVED_OBJECT
 
@@ -43,18 +42,11 @@ def samples(roots) -> tuple[dict[str, np.ndarray], np.ndarray]:
     rows = {name: [] for name in INPUTS}
     offsets = []
     for root in roots:
-        dataset = open_dataset(root)
-        for i, path in enumerate(dataset.paths()):
-            episode = dataset.read(i, topics=TOPICS)
-            if not {"/sim/privileged", "/step"} <= set(episode.topics):
-                raise ConfigError(f"{path}: no /sim/privileged or /step topic; diagnose grasp-observability reads "
-                                  "ToolPick-v0 episodes with the simulator's state (training rollouts, eval high)")
-            step, privileged = episode.topics["/step"], episode.topics["/sim/privileged"]
-            t = lift_step(step["action"])
+        for _, episode, t in read_episodes(root, "diagnose grasp-observability"):
             if t is None:
                 continue
-            a, b = np.asarray(privileged["tip_a"][t], float), np.asarray(privileged["tip_b"][t], float)
-            obj = np.asarray(privileged["object_position"][t], float)
+            step, privileged = episode.topics["/step"], episode.topics["/sim/privileged"]
+            a, b, obj = grasp_at(privileged, t)
             offset = (a + b) / 2 - obj
             if abs(offset[CLOSING]) > abs(a - b)[CLOSING] / 2:  # the object is not between the tips: no grasp
                 continue

@@ -43,18 +43,29 @@ def lift_step(actions: np.ndarray) -> int | None:
     return int(descending[0] + after[0]) if len(after) else None
 
 
-def episode_rows(root) -> list[dict]:
-    """One row per episode of the dataset ``root``: its set, outcome and the grasp offset at the lift."""
+def read_episodes(root, command: str):
+    """(index, episode, lift step or None) for each episode of the dataset ``root``; one line naming
+    ``command`` for an episode without the simulator's state."""
     dataset = open_dataset(root)
-    index = dataset.index
-    rows = []
     for i, path in enumerate(dataset.paths()):
         episode = dataset.read(i, topics=TOPICS)
         if not {"/sim/privileged", "/step"} <= set(episode.topics):
-            raise ConfigError(f"{path}: no /sim/privileged or /step topic; diagnose grasp reads the episodes "
-                              "hingelab eval high writes")
+            raise ConfigError(f"{path}: no /sim/privileged or /step topic; {command} reads ToolPick-v0 episodes "
+                              "with the simulator's state (eval high, training rollouts)")
+        yield i, episode, lift_step(episode.topics["/step"]["action"])
+
+
+def grasp_at(privileged: dict, t: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The tips and the object's centre at step ``t`` (hand_base frame, m)."""
+    return tuple(np.asarray(privileged[key][t], float) for key in ("tip_a", "tip_b", "object_position"))
+
+
+def episode_rows(root) -> list[dict]:
+    """One row per episode of the dataset ``root``: its set, outcome and the grasp offset at the lift."""
+    index = open_dataset(root).index
+    rows = []
+    for i, episode, t in read_episodes(root, "diagnose grasp"):
         meta, privileged = episode.metadata, episode.topics["/sim/privileged"]
-        t = lift_step(episode.topics["/step"]["action"])
         row = {"dataset": Path(root).name, "policy": meta.get("policy", ""), "object": meta.get("object", ""),
                "size_m": float(meta.get("object_size", "nan")), "episode": i, "seed": int(meta.get("seed", -1)),
                "first_attempt_success": str(meta.get("first_attempt_success")) == "True",
@@ -63,8 +74,8 @@ def episode_rows(root) -> list[dict]:
         if t is None:
             row.update({f"offset_{a}_mm": float("nan") for a in AXES} | {"closing_axis": "", "hinge_rad": float("nan")})
         else:
-            a, b = np.asarray(privileged["tip_a"][t], float), np.asarray(privileged["tip_b"][t], float)
-            offset = 1000 * ((a + b) / 2 - np.asarray(privileged["object_position"][t], float))
+            a, b, obj = grasp_at(privileged, t)
+            offset = 1000 * ((a + b) / 2 - obj)
             row.update({f"offset_{ax}_mm": float(v) for ax, v in zip(AXES, offset)})
             row["closing_axis"] = AXES[int(np.argmax(np.abs(a - b)))]
             row["hinge_rad"] = float(privileged["hinge_angle"][t])
