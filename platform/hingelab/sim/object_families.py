@@ -457,7 +457,7 @@ def drawn_object(mesh: FamilyMesh, density: float = TRAINING_DENSITY, label: str
     size = float(mesh.params["size"])
     record = {"family": label, "kind": mesh.kind, "params": mesh.params, "size_m": size,
               "density_kg_m3": float(density), "mass_kg": mass, "mesh_sha256": mesh.sha256}
-    pieces = tuple((np.asarray(p.vertices, float), float(mass * v / volumes.sum()))
+    pieces = tuple((np.array(p.vertices, float), float(mass * v / volumes.sum()))  # a copy: the build is cached
                    for p, v in zip(mesh.pieces, volumes))
     every = np.concatenate([v for v, _ in pieces])
     outline = trimesh.convex.convex_hull(every)
