@@ -100,6 +100,11 @@ def add_parser(subparsers) -> None:
                            "training) or the rendered depth camera through the camera cloud pipeline")
     add_object_perception(high, "; the estimators need --perception camera")
     add_object_noise(high)
+    high.add_argument("--tool-position", choices=("observed", "anchored"), default=None,
+                      help="the tool position the policy observes: observed (the tracked one, the paper's; it carries "
+                           "the clouds' per-episode calibration error) or anchored (the nominal in-hand position plus "
+                           "the tracked change since the episode's first frame); default: what the checkpoint was "
+                           "trained on")
     high.add_argument("--no-progress", action="store_true", help="no progress bar")
     high.add_argument("--resume", action="store_true",
                       help="continue a stopped evaluation (a full disk, a kill) in --out: its finished episodes are "
@@ -142,7 +147,7 @@ def run_high(args: argparse.Namespace) -> int:
                                size=args.size, episodes=args.episodes, seed=args.seed, low_level=args.low_level,
                                perception=args.perception, object_perception=args.object_perception, resume=args.resume,
                                ray=args.ray, object_noise=args.object_noise, object_noise_model=args.object_noise_model,
-                               progress=not args.no_progress, command=args.argv)
+                               tool_position=args.tool_position, progress=not args.no_progress, command=args.argv)
     print(result.table.to_string(index=False, float_format=lambda v: f"{v:.3f}"))
     print(result.summary)
     return 0

@@ -53,6 +53,10 @@ def add_parser(subparsers) -> None:
                         "~0.2 MB each)")
     p.add_argument("--max-steps", type=int, default=200, help="steps per trial (default 200, 10 s at 20 Hz)")
     add_object_perception(p, " (the stand-in, --robot sim: a real rig's estimate is its own)")
+    p.add_argument("--tool-position", choices=("observed", "anchored"), default=None,
+                   help="the tool position the high level observes: observed (the tracked one; it carries the "
+                        "camera's hand-eye error) or anchored (the nominal in-hand position plus the tracked change "
+                        "since the trial's first frame); default: what the policy was trained on")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
     p.set_defaults(func=run)
 
@@ -63,7 +67,7 @@ def run(args: argparse.Namespace) -> int:
     check_out(args.out)
     config = TrialConfig(object=args.object, size=args.size, trials=args.trials, seed=args.seed,
                          max_steps=args.max_steps, depth_every=args.depth_every, operator=args.operator,
-                         object_perception=args.object_perception)
+                         object_perception=args.object_perception, tool_position=args.tool_position)
     with folder_lock(args.out, args.argv):
         session = run_trial_session(args.robot, config, args.out, policy=args.policy, low_level=args.low_level,
                                     progress=not args.no_progress, warn=lambda text: print(text, file=sys.stderr))

@@ -60,13 +60,16 @@ path), ``randomize`` (True: object friction 1-5, finger friction, gains
 frame, dropouts keeping the last estimate, the extent from its extent fit; only with ``object_perception="truth"``),
 ``pick_set_weights`` (None: ``family:picksets`` draws its 12 sets uniformly; ``{"SHAPE:SIZE": weight}``, e.g.
 ``{"tetrahedron:0.015": 4}``, an unnamed set weighing 1: a curriculum toward the sets a policy misses;
-``hingelab.sim.object_families.pick_set_weights``).
+``hingelab.sim.object_families.pick_set_weights``), ``tool_position`` ("observed": the tracked tool position, the
+paper's; "anchored": the tracker's nominal in-hand position plus the tracked position's change since the episode's
+first frame; see ``TOOL_POSITIONS``).
 
 ## Version History
 v0: first version. Changed within v0: the observed object position is the centre, not the body
 origin (the same observation for the sphere, cube, cylinder and meshes); ``object`` may be a family.
 ``object_perception`` (default "truth": the observation as before). ``object_noise`` (default "gaussian": the
-observation as before). ``pick_set_weights`` (default None: the draws as before).
+observation as before). ``pick_set_weights`` (default None: the draws as before). ``tool_position`` (default
+"observed": the observation as before).
 """
 
 from __future__ import annotations
@@ -96,6 +99,12 @@ from hingelab.sim.randomization import RandomizationConfig
 from hingelab.tasks import MAX_SPEED, TARGET_HEIGHT, TOOL_PICK_ID, TOOL_STATE_ALPHA, Z_SCALE, task_spaces
 
 OBJECT_NOISE_M = 0.002
+# The observed tool position. The paper's synthesized clouds carry a per-episode pose error (up to 2 cm, 30 degrees:
+# a calibration error, fixed for the episode), the camera's a hand-eye error of about 1 cm; either moves the tracked
+# position by a constant. "anchored" keeps the tracked motion and drops that constant: the tracker's nominal in-hand
+# position plus the change since the episode's first frame (the true in-hand start, 1-2 mm from nominal, unseen).
+OBSERVED, ANCHORED = "observed", "anchored"
+TOOL_POSITIONS = (OBSERVED, ANCHORED)
 ALPHA = TOOL_STATE_ALPHA  # smoothing of t and theta (the paper smooths the high-level tool state too)
 
 
@@ -109,7 +118,11 @@ class ToolPickEnv(SimRenderMixin, gym.Env):
                  reward: HighLevelRewardConfig | None = None, render_mode: str | None = None,
                  terminate_on_drop: bool = True, observe_extent: bool = False, perception: str = "synthesized",
                  object_perception: str = TRUTH, object_noise: str = GAUSSIAN, object_noise_model: str | None = None,
-                 pick_set_weights: dict | None = None):
+                 pick_set_weights: dict | None = None, tool_position: str = OBSERVED):
+        if tool_position not in TOOL_POSITIONS:
+            raise ConfigError(f"{self.env_name} tool_position {tool_position!r} is unknown; choose one of "
+                              f"{', '.join(TOOL_POSITIONS)}")
+        self.tool_position = tool_position
         # a family draws a new object at each reset (the model is rebuilt for it); until then its seed-0 draw
         self.object_family = ObjectFamily.parse(object, size) if is_family(object) else None
         if pick_set_weights is not None:  # more of the sets a policy misses (its failures' share of training)
@@ -179,6 +192,7 @@ class ToolPickEnv(SimRenderMixin, gym.Env):
         self.sample = self.perception.observe(self.sim)
         self._observe_object()
         self._tool_pose = np.concatenate([self.sample.position[0], self.sample.euler_xyz[0]])
+        self._tool_anchor = self._tool_pose[:3].copy()  # the first frame's position ("anchored" subtracts it)
         self.z_goal = self.sample.z_smoothed[0].copy()
         self.delay.reset(self._fresh_observation())
         info = self._info(self._terms(), False)
@@ -307,12 +321,20 @@ class ToolPickEnv(SimRenderMixin, gym.Env):
         centre_noise = self.np_random.normal(0.0, OBJECT_NOISE_M, 3)
         estimate = self.object_camera if self.object_camera is not None else self.object_fitted
         centre = self.observed_object_centre() + centre_noise if estimate is None else estimate.centre
-        parts = [self._tool_pose, self.sample.z_smoothed[0], self._to_hand(centre), self._to_hand(self.target)]
+        parts = [self._observed_tool_pose(), self.sample.z_smoothed[0], self._to_hand(centre),
+                 self._to_hand(self.target)]
         if self.observe_extent:
             extent_noise = self.np_random.normal(0.0, OBJECT_NOISE_M, 3)
             box = None if estimate is None else estimate.box  # a model without an extent fit: the Gaussian
             parts.append(self.observed_object_extent() + extent_noise if box is None else box)
         return np.concatenate(parts)
+
+    def _observed_tool_pose(self) -> np.ndarray:
+        """The tool's position and Euler angles the policy observes (``tool_position``)."""
+        if self.tool_position == OBSERVED:
+            return self._tool_pose
+        nominal = np.asarray(self.perception.tool_state.prior[1], float)
+        return np.concatenate([nominal + self._tool_pose[:3] - self._tool_anchor, self._tool_pose[3:]])
 
     def _observe_object(self) -> None:
         """The camera's object estimate on this step's frame (``object_perception`` an estimator), or drawn from the

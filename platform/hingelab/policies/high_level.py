@@ -87,6 +87,13 @@ def observes_extent(model) -> bool:
     return bool(kwargs.get("observe_extent", False))
 
 
+def trained_tool_position(model) -> str:
+    """The tool position the checkpoint was trained observing (its ``env_kwargs``; ToolPick-v0's default
+    "observed" where it says none)."""
+    kwargs = (getattr(model, "hingelab_provenance", None) or {}).get("env_kwargs") or {}
+    return str(kwargs.get("tool_position", "observed"))
+
+
 def load_high_level_checkpoint(path, low_level: str | None = None):
     """A SAC zip trained on ToolPick-v0 (14-D observation, 17-D with ``observe_extent``; 5-D action), or a
     phase clone (``phase_clone.PhaseClone``, a policy with memory: drive it with ``state``, as

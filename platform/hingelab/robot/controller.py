@@ -27,13 +27,18 @@ from pathlib import Path
 import numpy as np
 
 from hingelab.envs.low_level import PolicyLowLevel
-from hingelab.envs.tool_pick import ALPHA, TARGET_HEIGHT
+from hingelab.envs.tool_pick import ALPHA, ANCHORED, TARGET_HEIGHT, TOOL_POSITIONS
 from hingelab.errors import ConfigError
 from hingelab.perception.camera_cloud import ToolCloudConfig, tool_cloud_from_frame
 from hingelab.perception.encoder import load_encoder
 from hingelab.perception.tool_state import ToolState
 from hingelab.policies.baselines import ScriptedPolicy
-from hingelab.policies.high_level import check_context, load_high_level_checkpoint, observes_extent
+from hingelab.policies.high_level import (
+    check_context,
+    load_high_level_checkpoint,
+    observes_extent,
+    trained_tool_position,
+)
 from hingelab.robot.interface import RobotReadings
 from hingelab.tasks import MAX_SPEED, Z_SCALE
 
@@ -70,6 +75,7 @@ class CheckpointHighLevel:
                               "which a real tweezer does not have); give --low-level policy or a checkpoint")
         check_context(self.model, path, self.low_level)
         self.observe_extent = observes_extent(self.model)
+        self.tool_position = trained_tool_position(self.model)
 
     def reset(self, seed: int) -> None:
         self.state = None  # a policy with memory (the phase clone) starts its episode afresh
@@ -104,7 +110,11 @@ class HierarchicalController:
     """A high level (``CheckpointHighLevel`` or ``ScriptedStandInHighLevel``) over a low-level policy,
     perceiving through the camera pipeline."""
 
-    def __init__(self, high_level, encoder=None, cloud_config: ToolCloudConfig = ToolCloudConfig()):
+    def __init__(self, high_level, encoder=None, cloud_config: ToolCloudConfig = ToolCloudConfig(),
+                 tool_position: str = "observed"):
+        if tool_position not in TOOL_POSITIONS:
+            raise ConfigError(f"tool position {tool_position!r} is unknown; choose one of {', '.join(TOOL_POSITIONS)}")
+        self.tool_position = tool_position  # as ToolPick-v0's: "anchored" drops the hand-eye error's constant
         self.encoder = encoder or load_encoder()
         self.high_level = high_level
         self.observe_extent = high_level.observe_extent
@@ -114,6 +124,7 @@ class HierarchicalController:
         self.cloud_config = cloud_config
         self.rng = np.random.default_rng()
         self._tool_pose = np.zeros(6)
+        self._tool_anchor = np.zeros(3)
         self.target_world = np.zeros(3)
         self._fresh = True
 
@@ -139,12 +150,18 @@ class HierarchicalController:
         sample = self.tool_state.update(cloud.points[None], n_distinct=cloud.n_distinct)
         pose = np.concatenate([sample.position[0], sample.euler_xyz[0]])
         self._tool_pose = pose if self._fresh else ALPHA * pose + (1 - ALPHA) * self._tool_pose
+        if self._fresh:
+            self._tool_anchor = pose[:3].copy()
         self._fresh = False
+        tool_pose = self._tool_pose
+        if self.tool_position == ANCHORED:
+            nominal = np.asarray(self.tool_state.prior[1], float)
+            tool_pose = np.concatenate([nominal + tool_pose[:3] - self._tool_anchor, tool_pose[3:]])
         z_bar = sample.z_smoothed[0]
         centre = (readings.object_centre if readings.object_centre is not None
                   else self.target_world - [0, 0, TARGET_HEIGHT])
         object_hand, target_hand = readings.to_hand(centre), readings.to_hand(self.target_world)
-        parts = [self._tool_pose, z_bar, object_hand, target_hand]
+        parts = [tool_pose, z_bar, object_hand, target_hand]
         if self.observe_extent:
             parts.append(np.zeros(3) if readings.object_extent is None else np.asarray(readings.object_extent, float))
         observation = np.concatenate(parts)

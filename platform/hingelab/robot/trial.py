@@ -73,9 +73,12 @@ class TrialConfig:
     depth_every: int = 4  # record the depth image every this many steps (5 Hz at 20 Hz control)
     operator: bool = False
     object_perception: str = TRUTH  # where the robot's object estimate comes from (the stand-in's choice)
+    tool_position: str | None = None  # "observed" or "anchored" (ToolPick-v0's); None: what the policy trained on
 
     def __post_init__(self):
         check_object_perception(self.object_perception)
+        if self.tool_position not in (None, "observed", "anchored"):
+            raise ConfigError(f"tool position {self.tool_position!r} is unknown; choose observed or anchored")
         if self.trials < 1 or self.max_steps < 1 or self.depth_every < 1:
             raise ConfigError(f"--trials, the step limit and --depth-every must be at least 1: {asdict(self)}")
 
@@ -258,18 +261,21 @@ def run_trial_session(robot_name: str, config: TrialConfig, out, policy=None, lo
     robot = make(config.object, config.size, config.max_steps, **options)  # a bad object: an error before files
     try:
         high = high_level_for(robot, policy, low_level, warn=warn)
+        tool_position = config.tool_position or getattr(high, "tool_position", "observed")
+        anchored = {"tool_position": tool_position} if tool_position != "observed" else {}
         card = {"robot": robot_name, "policy": high.label, "low_level": high.low_level, "object": config.object,
                 "size": config.size, "trials": config.trials, "max_steps": config.max_steps,
                 "operator": config.operator, "depth_every": config.depth_every,
                 "seeds": f"{TRIALS_BASE} + seed * {STRIDE} + trial",
-                **({"object_perception": config.object_perception} if options else {})}
+                **({"object_perception": config.object_perception} if options else {}), **anchored}
         create_dataset(out, name=f"trial-{config.object}-{config.size * 100:g}cm", source=robot.source,
                        config=card, seed=config.seed,
                        description=f"hingelab trial on the {robot_name} robot: {high.label} over {high.low_level}, "
                                    f"{config.object} {config.size * 100:g} cm")
         try:
-            rows = run_trials(robot, HierarchicalController(high), out, config, read=read, write=write,
-                              progress=progress, extra_metadata={"policy": high.label, "low_level": high.low_level})
+            controller = HierarchicalController(high, tool_position=tool_position)
+            rows = run_trials(robot, controller, out, config, read=read, write=write, progress=progress,
+                              extra_metadata={"policy": high.label, "low_level": high.low_level, **anchored})
         except KeyboardInterrupt:
             partial = sorted((out / "episodes").glob("*.partial"))
             where = f" ({partial[-1]})" if partial else ""

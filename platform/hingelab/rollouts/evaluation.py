@@ -36,7 +36,13 @@ from hingelab.episodes import create_dataset
 from hingelab.errors import ConfigError
 from hingelab.perception.object_perception import check_object_perception_with
 from hingelab.policies import ModelPolicy, load_policy
-from hingelab.policies.high_level import SHIPPED_HIGH_LEVEL, check_context, observes_extent, resolve_checkpoint
+from hingelab.policies.high_level import (
+    SHIPPED_HIGH_LEVEL,
+    check_context,
+    observes_extent,
+    resolve_checkpoint,
+    trained_tool_position,
+)
 from hingelab.policies.loading import baseline_names
 from hingelab.policies.low_level import SHIPPED_LOW_LEVEL
 from hingelab.rollouts import high_level as H
@@ -152,13 +158,15 @@ def evaluate_high(policy=None, *, out, baseline: str | None = None, object: str 
                   episodes: int = 10, seed: int = 0, low_level: str | None = None, perception: str = "synthesized",
                   object_perception: str = "truth", resume: bool = False, ray: str | None = None, progress: bool = True,
                   object_noise: str = "gaussian", object_noise_model: str | None = None,
-                  command: list[str] | None = None, name: str | None = None,
+                  tool_position: str | None = None, command: list[str] | None = None, name: str | None = None,
                   description: str | None = None) -> Evaluation:
     """``episodes`` episodes of ToolPick-v0 with one object for a high-level checkpoint (default: the shipped
     one) or a baseline (``heuristic``, ``scripted``, ...), over ``low_level`` (default: the one the checkpoint
     learned over; the privileged one for the heuristic), recorded into ``out``; ``object_perception``: the
     object's true centre with 2 mm noise (``truth``) or a camera object estimator (needs ``perception="camera"``);
-    ``object_noise``: ``"fitted:NAME"``, the camera's error drawn from the fitted model at ``object_noise_model``."""
+    ``object_noise``: ``"fitted:NAME"``, the camera's error drawn from the fitted model at ``object_noise_model``;
+    ``tool_position``: ToolPick-v0's "observed" or "anchored" tool position (default: what the checkpoint was
+    trained on; "observed" for a baseline)."""
     out = Path(out)
     _check_choice(policy, baseline, "high", episodes)
     if policy is None and not baseline:
@@ -176,10 +184,14 @@ def evaluate_high(policy=None, *, out, baseline: str | None = None, object: str 
         low_level = low_level or recorded.get("low_level", "policy")
         check_context(model, policy, low_level)
         acting, label, extent = ModelPolicy(model), str(policy), observes_extent(model)
+        tool_position = tool_position or trained_tool_position(model)
+    tool_position = tool_position or "observed"
     # a bad object or low level: an error before files
     check_object_perception_with(object_perception, perception)  # before building an env
     noise = {} if object_noise == "gaussian" and object_noise_model is None else {
         "object_noise": object_noise, "object_noise_model": object_noise_model}
+    if tool_position != "observed":  # recorded only when it differs, as the noise: older evaluations resume unchanged
+        noise["tool_position"] = tool_position
     H.make_eval_env(object, size, low_level, observe_extent=extent, perception=perception,
                     object_perception=object_perception, **noise).close()
     config = {"policy": label, "object": object, "size": size, "episodes": episodes, "low_level": low_level,
@@ -192,11 +204,13 @@ def evaluate_high(policy=None, *, out, baseline: str | None = None, object: str 
     if name is None:
         name = f"eval-high-{baseline or Path(policy).stem}" + (f"-{perception}" if perception != "synthesized" else "")
         name += f"-object-{object_perception}" if object_perception != "truth" else ""
-        name += f"-object-noise-{object_noise.replace(':', '-')}" if noise else ""
+        name += f"-object-noise-{object_noise.replace(':', '-')}" if "object_noise" in noise else ""
+        name += f"-tool-{tool_position}" if tool_position != "observed" else ""
     journal = _start(out, config, seed, resume, name, "high_level_evaluation",
                      description or f"hingelab eval high: {label} on ToolPick-v0, {object} {size * 100:g} cm")
     env_options = {"object": object, "size": size, "low_level": low_level, "observe_extent": extent,
-                   "extra_metadata": {"policy": label, "low_level": low_level, "perception": perception},
+                   "extra_metadata": {"policy": label, "low_level": low_level, "perception": perception,
+                                      **({"tool_position": tool_position} if tool_position != "observed" else {})},
                    "perception": perception,
                    **({"object_perception": object_perception} if object_perception != "truth" else {}), **noise}
     with stop_cleanly_on_a_full_disk(out, journal, episodes, command):
@@ -211,7 +225,8 @@ def evaluate_high(policy=None, *, out, baseline: str | None = None, object: str 
             finally:
                 env.close()
     table = H.success_table(rows, object, size)
-    noted = f" (object noise {object_noise})" if noise else ""
+    noted = f" (object noise {object_noise})" if "object_noise" in noise else ""
+    noted += f" ({tool_position} tool position)" if tool_position != "observed" else ""
     rows.to_csv(out / "episodes.csv", index=False)
     journal.finish()
     table.to_csv(out / "table.csv", index=False)

@@ -90,17 +90,19 @@ class FailureReasonWrapper(gym.Wrapper):
 def make_eval_env(object: str, size: float, low_level: str, record_dir: Path | None = None,
                   extra_metadata: dict | None = None, max_episode_steps: int = 200, observe_extent: bool = False,
                   perception: str = "synthesized", object_perception: str = "truth", object_noise: str = "gaussian",
-                  object_noise_model: str | None = None):
+                  object_noise_model: str | None = None, tool_position: str = "observed"):
     """ToolPick-v0 (randomized as in training), failure reasons refined, recorded into ``record_dir``;
     ``observe_extent`` as the policy was trained (its checkpoint's ``env_kwargs``); ``perception``:
     synthesized clouds or the depth camera; ``object_perception``: the object's true centre with 2 mm noise, or a
     camera object estimator (``hingelab.perception.object_perception``); ``object_noise``: ``"fitted:NAME"`` for the
-    camera's error drawn from a fitted model (``hingelab.perception.object_noise_model``)."""
+    camera's error drawn from a fitted model (``hingelab.perception.object_noise_model``); ``tool_position``:
+    ToolPick-v0's "observed" or "anchored" tool position."""
 
     env = FailureReasonWrapper(gym.make(TOOL_PICK_ID, object=object, size=size, low_level=low_level,
                                         max_episode_steps=max_episode_steps, observe_extent=observe_extent,
                                         perception=perception, object_perception=object_perception,
-                                        object_noise=object_noise, object_noise_model=object_noise_model))
+                                        object_noise=object_noise, object_noise_model=object_noise_model,
+                                        tool_position=tool_position))
     if record_dir is not None:
         env = RecordingWrapper(env, record_dir, source="high_level_evaluation", object_name=object_label(object),
                                action_level="high", extra_metadata={"object_size": size, **(extra_metadata or {})})
