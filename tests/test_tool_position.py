@@ -112,3 +112,51 @@ def test_the_controller_observes_the_nominal_position_first_and_then_the_tracked
         robot.close()
     with pytest.raises(ConfigError, match="tool position 'x' is unknown"):
         HierarchicalController(high, tool_position="x")
+
+
+def _rows(arms: dict[str, list[bool]]) -> list[dict]:
+    return [{"arm": arm, "seed": i, "first_attempt_success": ok, "success": ok, "failure_reason": "" if ok else "slip"}
+            for arm, picks in arms.items() for i, ok in enumerate(picks)]
+
+
+def test_the_tool_position_verdict_counts_paired_episodes_and_can_say_the_error_costs_nothing():
+    from hingelab.rollouts import tool_position_diagnostic as D
+
+    costly = D.summarize(_rows({D.OBSERVED: [1, 0, 0, 1, 1], D.NO_ERROR: [1, 1, 1, 0, 1], D.ANCHORED: [1, 1, 0, 1, 1]}))
+    assert [s["first_attempt"] for s in costly] == [3, 4, 4]
+    assert (costly[1]["won_vs_observed"], costly[1]["lost_vs_observed"]) == (2, 1)
+    text = D.verdict(costly)
+    assert text.startswith("The calibration error costs 1 of 5") and "wins back 1 net (1 won, 0 lost)" in text
+    free = D.summarize(_rows({D.OBSERVED: [1, 0, 1], D.NO_ERROR: [1, 0, 1], D.ANCHORED: [1, 1, 1]}))
+    assert D.verdict(free).startswith("The calibration error costs no first-attempt picks here (net +0 of 3")
+    assert "slip 1" in free[0]["misses"]
+
+
+def test_diagnose_tool_position_runs_the_three_arms_on_the_same_seeds(tmp_path, capsys, monkeypatch):
+    from hingelab.rollouts import tool_position_diagnostic as D
+
+    drawn = []
+    make = D._env
+
+    def watched(model, low_level, object, size, arm):  # each arm's env, and the error its clouds draw
+        env = make(model, low_level, object, size, arm)
+        reset = env.reset
+
+        def reset_and_look(**kwargs):
+            result = reset(**kwargs)
+            drawn.append((arm, float(np.abs(env.unwrapped.perception.synthesizer.perturbation[1]).max())))
+            return result
+        env.reset = reset_and_look
+        return env
+    monkeypatch.setattr(D, "_env", watched)
+    out = tmp_path / "tp"
+    assert main(["diagnose", "tool-position", "--object", "sphere", "--size", "0.02", "--episodes", "2",
+                 "--out", str(out), "--allow-dirty", "--no-progress"]) == 0
+    assert "wrote" in capsys.readouterr().out
+    import pandas as pd
+    episodes = pd.read_csv(out / "episodes.csv")
+    assert list(episodes["arm"]) == [a for a in D.ARMS for _ in range(2)]
+    assert len(set(episodes.groupby("arm")["seed"].apply(tuple))) == 1  # the same resets in every arm
+    errors = {arm: max(e for a, e in drawn if a == arm) for arm in D.ARMS}
+    assert errors[D.NO_ERROR] == 0.0 and errors[D.OBSERVED] > 1e-3 and errors[D.ANCHORED] > 1e-3
+    assert (out / "tool_position.md").read_text().count("| ") >= 3
