@@ -11,11 +11,13 @@ from hingelab.episodes import create_dataset
 from hingelab.errors import ConfigError
 
 
-def eval_folder(root, policy, obj, size, outcomes, low_level="policy", perception=None):
+def eval_folder(root, policy, obj, size, outcomes, low_level="policy", perception=None, tool_position=None):
     """An `eval high --out` folder: its card and episodes.csv (outcomes: (success, first, attempts, reason))."""
     config = {"policy": policy, "object": obj, "size": size, "low_level": low_level}
     if perception:  # as `eval high --perception camera` records it (synthesized: not recorded)
         config["perception"] = perception
+    if tool_position:  # as `eval high --tool-position anchored` records it (observed: not recorded)
+        config["tool_position"] = tool_position
     create_dataset(root, name=root.name, source="high_level_evaluation", seed=1000, config=config)
     pd.DataFrame([{"episode": i, "success": s, "first_attempt_success": f, "attempts": a, "failure_reason": r}
                   for i, (s, f, a, r) in enumerate(outcomes)]).to_csv(root / "episodes.csv", index=False)
@@ -51,6 +53,15 @@ def test_camera_perception_is_a_row_of_its_own(tmp_path):
     pooled = table[table.object == "all"].set_index("perception")
     assert pooled.loc["synthesized", "success_rate"] == 1.0 and pooled.loc["camera", "success_rate"] == 0.5
     assert pooled.loc["camera", "failures_no_camera_cloud"] == 2
+
+
+def test_the_anchored_tool_position_is_a_row_of_its_own(tmp_path):
+    observed = eval_folder(tmp_path / "o", "runs/x/model.zip", "sphere", 0.02, [(False, False, 1, "slip")] * 4)
+    anchored = eval_folder(tmp_path / "a", "runs/x/model.zip", "sphere", 0.02, [(True, True, 1, "")] * 4,
+                           tool_position="anchored")
+    pooled = pick_table([observed, anchored]).query("object == 'all'").set_index("perception")
+    assert pooled.loc["synthesized", "success_rate"] == 0.0
+    assert pooled.loc["synthesized, anchored tool position", "success_rate"] == 1.0
 
 
 def test_a_folder_that_is_not_an_eval_high_one_is_refused(tmp_path, capsys):

@@ -68,13 +68,21 @@ def read_folder(folder) -> tuple[dict, pd.DataFrame]:
     return config, frame
 
 
+def perception_label(config: dict) -> str:
+    """Where the tool clouds came from, and the tool position the policy observed where it was not the tracked one
+    (``eval high --tool-position anchored``): "synthesized", "camera, anchored tool position", ..."""
+    label = str(config.get("perception", "synthesized"))
+    position = config.get("tool_position", "observed")
+    return label if position == "observed" else f"{label}, {position} tool position"
+
+
 def pick_table(folders) -> pd.DataFrame:
     """One row per folder, then per (policy, low level, perception) a pooled row (``object`` = "all")."""
     rows, frames = [], []
     for folder in folders:
         config, frame = read_folder(folder)
         key = {"policy": policy_label(config), "low_level": str(config.get("low_level", "?")),
-               "perception": str(config.get("perception", "synthesized"))}
+               "perception": perception_label(config)}
         seed = json.loads((Path(folder) / "dataset.json").read_text()).get("seed")
         rows.append({**key, "object": str(config["object"]), "size_cm": round(100 * float(config["size"]), 3),
                      "episodes": len(frame), "seed": seed, **pick_rates(frame)})
@@ -109,7 +117,8 @@ def write_picks(folders, out, command: str) -> pd.DataFrame:
                       *[f"failures_{r}" for r in FAILURE_REASONS]]]
     version = code_version()
     (out / "picks.md").write_text(
-        "# Pick table\n\nPer policy (and the low level under it, and where its tool clouds came from), shape and size: "
+        "# Pick table\n\nPer policy (and the low level under it, and where its tool clouds came from, with the tool "
+        "position it observed where that was not the tracked one), shape and size: "
         "success at the first attempt and within the 200 steps (object within 1 cm of the target), Wilson 95% "
         "intervals; `all` pools the policy's sets.\n\n" + markdown_table(shown.round(3)) + "\n\n## Failure reasons\n\n"
         + markdown_table(failures) + f"\n\nMade by: `{command}` (hingelab {version['hingelab_version']}, "
