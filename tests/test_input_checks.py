@@ -114,3 +114,21 @@ def test_json_files_refuse_nan_naming_the_field(tmp_path):
     assert json.loads(strict_dumps({"a": [1.0, 2]}, tmp_path / "x.json")) == {"a": [1.0, 2]}
     with pytest.raises(ConfigError, match=r"x\.json: config\.noise_std_m is not a finite number"):
         strict_dumps({"config": {"noise_std_m": math.nan}}, tmp_path / "x.json")
+
+
+def test_journal_rows_and_reproduce_state_write_nan_as_null_so_any_json_reader_parses_them(tmp_path):
+    import numpy as np
+
+    from hingelab.rollouts.journal import EpisodeJournal
+    from hingelab.sweeps.reproduce import write_state
+
+    journal = EpisodeJournal(tmp_path / "eval")
+    (tmp_path / "eval").mkdir()
+    journal.append({"seed": 3, "distance": math.nan, "returns": [1.0, np.float32("inf")], "ok": True})
+    line = journal.path.read_text().strip()
+    assert "NaN" not in line and "Infinity" not in line
+    assert json.loads(line) == {"seed": 3, "distance": None, "returns": [1.0, None], "ok": True}
+    assert EpisodeJournal(tmp_path / "eval").load() == [json.loads(line)]
+    write_state(tmp_path, {"stages": {"encoder": {"r2": math.nan, "done": True}}})
+    text = (tmp_path / "reproduce.json").read_text()
+    assert json.loads(text)["stages"]["encoder"] == {"r2": None, "done": True} and "NaN" not in text

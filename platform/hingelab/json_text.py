@@ -26,6 +26,18 @@ def _non_finite(value, path: str = "") -> str | None:
     return None
 
 
+def finite_or_null(value):
+    """``value`` with every NaN and infinity (at any depth of dicts, lists and tuples) as None: JSON's null, for
+    records where a missing number is a fact (a journal row, a comparison that could not be made)."""
+    if isinstance(value, float) and not math.isfinite(value):
+        return None
+    if isinstance(value, dict):
+        return {k: finite_or_null(v) for k, v in value.items()}
+    if isinstance(value, (list, tuple)):
+        return [finite_or_null(v) for v in value]
+    return value
+
+
 def strict_dumps(doc, where, **kwargs) -> str:
     """``json.dumps(doc, allow_nan=False, **kwargs)``; a NaN or infinity is a ``ConfigError`` naming ``where``
     (the file the text goes to) and the field that holds it."""
@@ -39,4 +51,4 @@ def strict_dumps(doc, where, **kwargs) -> str:
                           "(give finite values)") from exc
 
 
-__all__ = ["strict_dumps"]
+__all__ = ["finite_or_null", "strict_dumps"]

@@ -17,6 +17,7 @@ from hingelab.episodes.card import load_card
 from hingelab.episodes.dataset import Dataset
 from hingelab.errors import ConfigError
 from hingelab.folder_lock import is_empty
+from hingelab.json_text import finite_or_null
 from hingelab.provenance import differing_settings
 
 JOURNAL_FILE = "episodes.partial.jsonl"
@@ -44,7 +45,9 @@ class EpisodeJournal:
 
     def append(self, row: dict) -> None:
         with open(self.path, "a") as stream:
-            stream.write(json.dumps(row, default=_plain) + "\n")
+            # NaN and infinity as null: JSON has neither, and a journal row must read anywhere
+            plain = json.loads(json.dumps(row, default=_plain))
+            stream.write(json.dumps(finite_or_null(plain), allow_nan=False) + "\n")
             stream.flush()
             os.fsync(stream.fileno())
         self.rows.append(row)

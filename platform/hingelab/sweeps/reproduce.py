@@ -44,6 +44,7 @@ from pathlib import Path
 
 from hingelab.errors import ConfigError, HingelabError
 from hingelab.folder_lock import folder_lock, is_empty
+from hingelab.json_text import finite_or_null
 from hingelab.provenance import code_version
 from hingelab.rollouts.journal import JOURNAL_FILE
 from hingelab.sweeps.reproduce_plan import (
@@ -97,7 +98,7 @@ def write_state(out: Path, doc: dict) -> None:
     path = Path(out) / STATE_FILE
     tmp = path.with_name(path.name + ".tmp")
     with open(tmp, "w") as f:
-        f.write(json.dumps(doc, indent=2) + "\n")
+        f.write(json.dumps(finite_or_null(doc), indent=2, allow_nan=False) + "\n")  # a NaN figure: null
         f.flush()
         os.fsync(f.fileno())
     tmp.replace(path)
