@@ -1,7 +1,8 @@
-"""``hingelab bench NAME``: run one benchmark, print its table, write it under analysis/bench/.
+"""``hingelab bench NAME``: run one benchmark, print its table, write it under analysis/bench/ (or the
+benchmark's own folder, ``hingelab.bench.table_dir``).
 
-``hingelab bench --stale``: say which committed tables under analysis/bench/ are stale, since which
-commit, and the command that regenerates each (a report: it exits 0 whether or not any is stale).
+``hingelab bench --stale``: say which committed tables are stale, since which commit, and the command
+that regenerates each (a report: it exits 0 whether or not any is stale).
 """
 
 from __future__ import annotations
@@ -11,9 +12,9 @@ import importlib
 import textwrap
 from pathlib import Path
 
-from hingelab.bench import BENCHMARKS
+from hingelab.bench import BENCHMARKS, table_dir
 from hingelab.bench.freshness import HistoryUnavailable, report
-from hingelab.errors import ConfigError
+from hingelab.errors import ConfigError, HingelabError
 from hingelab.paths import ANALYSIS_DIR, REPO_ROOT
 from hingelab.provenance import code_version, require_clean_for
 
@@ -74,12 +75,16 @@ def run(args: argparse.Namespace) -> int:
             raise ConfigError("--encoder is an option of `hingelab bench perception` only")
         options["encoder"] = args.encoder
     # before the run, not after: a long benchmark must not end in a refusal
-    require_clean_for(args.out or ANALYSIS_DIR / "bench", args.allow_dirty, f"hingelab bench {args.name}")
+    require_clean_for(args.out or table_dir(args.name), args.allow_dirty, f"hingelab bench {args.name}")
     code_version()  # the version as the run starts (cached)
     table = module.run(quick=args.quick, **options)
     print(table.markdown())
     md_path, json_path = table.write(args.out)
     print(f"wrote {md_path} and {json_path}")
+    verdict = getattr(module, "verdict", None)  # a benchmark that can fail says so, its table written
+    problem = verdict(table) if verdict is not None else None
+    if problem:
+        raise HingelabError(f"{problem}: {md_path}")
     return 0
 
 
@@ -94,7 +99,7 @@ def report_stale(args: argparse.Namespace) -> int:
         raise ConfigError(f"unknown benchmark {args.name!r}; choose one of: {', '.join(BENCHMARKS)}")
     names = [args.name] if args.name is not None else list(BENCHMARKS)
     try:
-        lines = report(REPO_ROOT, ANALYSIS_DIR / "bench", names)
+        lines = report(REPO_ROOT, ANALYSIS_DIR / "bench", names, table_dir=table_dir)
     except HistoryUnavailable as exc:
         raise ConfigError(f"cannot tell which benchmark tables are stale: {exc}") from None
     for line, _ in lines:
