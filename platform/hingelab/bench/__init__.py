@@ -2,7 +2,7 @@
 
 Each benchmark measures ours against a named baseline in one run and writes
 ``analysis/bench/NAME.md`` and ``.json`` through ``BenchTable.write``; a benchmark with a folder of
-its own in ``TABLE_FOLDERS`` writes there.
+its own in ``TABLE_FOLDERS`` (``reliability``: probes with outcomes, no baseline) writes there.
 
 Each benchmark's module also declares ``MEASURES``: the repository paths (files or folders)
 of the code and models its figures depend on. A committed table is stale once a commit after
@@ -27,10 +27,11 @@ BENCHMARKS = {
     "sac": "hingelab.bench.sac",
     "ensemble": "hingelab.bench.ensemble",
     "cluster": "hingelab.bench.cluster",
+    "reliability": "hingelab.bench.reliability",
 }
 
 # name -> its tables' folder under analysis/, where it is not bench/ (written there, and looked for by --stale)
-TABLE_FOLDERS: dict[str, str] = {}
+TABLE_FOLDERS = {"reliability": "reliability"}
 
 # measured by every benchmark: the locked package versions (torch, MuJoCo, numba, SB3, ...)
 COMMON_MEASURES = ("constraints.txt",)
