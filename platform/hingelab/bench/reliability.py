@@ -47,7 +47,7 @@ MEASURES = ("platform/hingelab/cli", "platform/hingelab/folder_lock.py", "platfo
             "platform/hingelab/rollouts/heuristic_demos.py", "platform/hingelab/sim/mesh_objects.py")
 
 BAG_TRIALS = 2
-RESUMED_EPISODES = 8
+RESUMED_EPISODES = 24  # about 30 s of generating: the --resume's start-up (seconds, loaded) ends well inside
 SYNTHETIC_EPISODES = 2
 # train low at toy scale: one env in-process, 10-step episodes, a checkpoint every 30 env steps, evaluations at
 # the start and the end only
@@ -98,10 +98,11 @@ def _resume_while_generating(s: ProbeRun) -> None:
     s.wait_until(lambda: not first.running or (episodes.is_dir() and any(episodes.glob("*.partial"))), 600)
     if not first.running:
         s.give_up("the generate ended before an episode was under way")
+    done = len(list(episodes.glob("*.mcap")))
     resume = s.hingelab(*_generate(RESUMED_EPISODES, "--resume"), expect=(1,))
     if not first.running and "being written" not in resume.last_error_line:
         s.give_up("the generate ended before --resume looked at the folder: the two did not meet")
-    s.note("--resume started while the generate wrote an episode (.partial)")
+    s.note(f"--resume started while the generate wrote episode {done + 1} of {RESUMED_EPISODES} (.partial)")
     s.wait(first)
     s.expect_episodes(s.out, expected=RESUMED_EPISODES)
 
