@@ -101,7 +101,7 @@ def test_each_broken_probe_is_counted_as_what_it_did(bench):
     assert traceback["outcome"] == "FAIL" and traceback["tracebacks"] == 1
     stray = rows["broken: a write beside --out"]
     assert stray["outcome"] == "FAIL" and stray["writes outside --out"] == 1
-    assert stray["outside_write_paths"] == ["decoy/stray.txt"]  # relative to the work folder
+    assert stray["outside_write_paths"] == ["PROBE/work/decoy/stray.txt"]
     duplicated = rows["broken: a duplicated episode"]
     assert duplicated["outcome"] == "FAIL" and (duplicated["episodes expected"], duplicated["episodes found"],
                                                duplicated["duplicated"], duplicated["lost"]) == (2, 2, 1, 1)

@@ -280,9 +280,8 @@ class ProbeRun:
         raise NotRun(reason)
 
     def shorten(self, text: str) -> str:
-        """``text`` with the probe's folders shortened, on one line, at most ``DETAIL_CHARS``."""
-        text = " ".join(text.replace(f"{self.work}/", "").replace(str(self.work), ".")
-                        .replace(str(self.root), "PROBE").replace(str(self.base), "TMP").split())
+        """``text`` on one line, at most ``DETAIL_CHARS``, the probe's folder as PROBE, the bench's root as TMP."""
+        text = " ".join(text.replace(str(self.root), "PROBE").replace(str(self.base), "TMP").split())
         return text if len(text) <= DETAIL_CHARS else text[:DETAIL_CHARS - 3] + "..."
 
     def finish(self, name: str, started: float, not_run: str | None = None) -> ProbeResult:
