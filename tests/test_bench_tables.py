@@ -17,7 +17,7 @@ from pathlib import Path
 
 import pytest
 
-from hingelab.bench import BENCHMARKS, measured_paths
+from hingelab.bench import BENCHMARKS, measured_paths, table_dir
 from hingelab.bench.freshness import HistoryUnavailable, report, require_history, stale_reason
 from hingelab.paths import ANALYSIS_DIR, REPO_ROOT
 
@@ -176,6 +176,18 @@ def test_the_report_has_one_line_per_table_current_stale_or_missing(repo):
     assert gone == "analysis/bench/gone.json: gone.md and gone.json missing; run `hingelab bench gone`"
 
 
+def test_a_benchmark_with_a_folder_of_its_own_is_looked_for_there(repo):
+    root, first = repo
+    own = root / "analysis" / "reliability"
+    own.mkdir(parents=True)
+    _table(root, first, "probes").rename(own / "probes.json")
+    (own / "probes.md").write_text("the table\n")
+    folders = {"probes": own, "gone": root / "analysis" / "bench"}
+    lines = report(root, root / "analysis" / "bench", ["probes", "gone"], lambda name: MEASURED, folders.__getitem__)
+    assert lines[0] == (f"analysis/reliability/probes.json (recorded at {first[:12]}): current", False)
+    assert lines[1][0].startswith("analysis/bench/gone.json: gone.md and gone.json missing")
+
+
 def test_the_report_says_when_the_history_cannot_be_read(tmp_path):
     with pytest.raises(HistoryUnavailable, match="not a git checkout"):
         report(tmp_path, tmp_path, ["old"], lambda name: MEASURED)
@@ -207,7 +219,7 @@ def test_bench_stale_reports_every_table_of_this_repository_and_exits_0_stale_or
     lines = result.stdout.splitlines()
     assert len(lines) == len(BENCHMARKS) + 1, result.stdout  # and a summary
     for name, line in zip(BENCHMARKS, lines):
-        assert line.startswith(f"analysis/bench/{name}.json"), line
+        assert line.startswith(f"{table_dir(name).relative_to(REPO_ROOT).as_posix()}/{name}.json"), line
         assert line.endswith(": current") or line.endswith(f"run `hingelab bench {name}`"), line
     assert lines[-1].startswith(("all ", f"{sum(not line.endswith(': current') for line in lines[:-1])} of "))
 
@@ -280,23 +292,26 @@ def test_each_benchmark_declares_what_it_measures_and_that_covers_what_it_import
 def test_every_table_under_analysis_bench_belongs_to_a_benchmark():
     orphans = [f"analysis/bench/{p.name}" for p in sorted(BENCH_DIR.iterdir())
                if p.is_file() and p.name not in NOT_TABLES and (p.suffix not in (".md", ".json")
-                                                                or p.stem not in BENCHMARKS)]
+                                                                or p.stem not in BENCHMARKS
+                                                                or table_dir(p.stem) != BENCH_DIR)]
     assert not orphans, (f"files under analysis/bench/ that no benchmark writes: {orphans}; a kept record "
                          "goes under analysis/bench/history/ with a first line saying what it is")
 
 
 @pytest.mark.parametrize("name", list(BENCHMARKS))
 def test_every_benchmark_has_its_two_tables_recording_the_code_version_they_were_made_with(name):
-    """The format, not the freshness: NAME.md and NAME.json, written together by one run, the json
-    naming the benchmark and the code version (whether that version is still current is
-    ``hingelab bench --stale``'s to say)."""
-    missing = [f"{name}{ext}" for ext in (".md", ".json") if not (BENCH_DIR / f"{name}{ext}").is_file()]
-    assert not missing, f"analysis/bench/: {' and '.join(missing)} missing; run `hingelab bench {name}`"
-    table = json.loads((BENCH_DIR / f"{name}.json").read_text())
+    """The format, not the freshness: NAME.md and NAME.json (in analysis/bench/, or the benchmark's own
+    folder), written together by one run, the json naming the benchmark and the code version (whether that
+    version is still current is ``hingelab bench --stale``'s to say)."""
+    folder = table_dir(name)
+    shown = f"{folder.relative_to(REPO_ROOT).as_posix()}/"
+    missing = [f"{name}{ext}" for ext in (".md", ".json") if not (folder / f"{name}{ext}").is_file()]
+    assert not missing, f"{shown}: {' and '.join(missing)} missing; run `hingelab bench {name}`"
+    table = json.loads((folder / f"{name}.json").read_text())
     assert table["name"] == name
     code = table.get("code")
     assert isinstance(code, dict) and code.get("hingelab_version") and code.get("git_commit"), (
-        f"analysis/bench/{name}.json records no code version ({code!r}); run `hingelab bench {name}`")
-    assert f"git_commit={code['git_commit']}," in (BENCH_DIR / f"{name}.md").read_text(), (
-        f"analysis/bench/{name}.md and .json record different code versions: not written by one run; "
+        f"{shown}{name}.json records no code version ({code!r}); run `hingelab bench {name}`")
+    assert f"git_commit={code['git_commit']}," in (folder / f"{name}.md").read_text(), (
+        f"{shown}{name}.md and .json record different code versions: not written by one run; "
         f"run `hingelab bench {name}`")

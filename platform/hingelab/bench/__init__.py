@@ -1,7 +1,8 @@
 """Benchmarks: ``hingelab bench NAME`` runs ``hingelab.bench.NAME.run()``.
 
 Each benchmark measures ours against a named baseline in one run and writes
-``analysis/bench/NAME.md`` and ``.json`` through ``write_bench``.
+``analysis/bench/NAME.md`` and ``.json`` through ``BenchTable.write``; a benchmark with a folder of
+its own in ``TABLE_FOLDERS`` (``reliability``: probes with outcomes, no baseline) writes there.
 
 Each benchmark's module also declares ``MEASURES``: the repository paths (files or folders)
 of the code and models its figures depend on. A committed table is stale once a commit after
@@ -14,7 +15,7 @@ from __future__ import annotations
 import importlib
 from pathlib import Path
 
-from hingelab.paths import REPO_ROOT
+from hingelab.paths import ANALYSIS_DIR, REPO_ROOT
 
 # name -> module; a benchmark's module exposes run(quick: bool) -> BenchTable and MEASURES
 BENCHMARKS = {
@@ -26,10 +27,19 @@ BENCHMARKS = {
     "sac": "hingelab.bench.sac",
     "ensemble": "hingelab.bench.ensemble",
     "cluster": "hingelab.bench.cluster",
+    "reliability": "hingelab.bench.reliability",
 }
+
+# name -> its tables' folder under analysis/, where it is not bench/ (written there, and looked for by --stale)
+TABLE_FOLDERS = {"reliability": "reliability"}
 
 # measured by every benchmark: the locked package versions (torch, MuJoCo, numba, SB3, ...)
 COMMON_MEASURES = ("constraints.txt",)
+
+
+def table_dir(name: str) -> Path:
+    """The folder of benchmark ``name``'s committed tables ``NAME.md`` and ``NAME.json``."""
+    return ANALYSIS_DIR / TABLE_FOLDERS.get(name, "bench")
 
 
 def measured_paths(name: str) -> tuple[str, ...]:

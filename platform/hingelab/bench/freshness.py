@@ -1,8 +1,9 @@
 """Is a committed benchmark table older than the code it measures?
 
-A table (``analysis/bench/NAME.json``) records the commit of the code that made it. It is
-current when that is a plain commit (not ``+dirty``) of this branch's history and no commit
-since has changed the paths the benchmark measures (``hingelab.bench.measured_paths``).
+A table (``analysis/bench/NAME.json``, or in the benchmark's own folder: ``hingelab.bench.table_dir``)
+records the commit of the code that made it. It is current when that is a plain commit (not
+``+dirty``) of this branch's history and no commit since has changed the paths the benchmark
+measures (``hingelab.bench.measured_paths``).
 Uncommitted changes do not count here: a table can only be made from committed code, so a
 change makes the table stale once it is committed.
 
@@ -102,8 +103,10 @@ def _changes_what_it_measures(repo: Path, commit: str, measured: tuple[str, ...]
 
 
 def report(repo: Path, bench_dir: Path, names: Iterable[str],
-           measured_paths: Callable[[str], tuple[str, ...]] | None = None) -> list[tuple[str, bool]]:
-    """One ``(line, stale)`` per benchmark in ``names``: its table under ``bench_dir``, current or why not.
+           measured_paths: Callable[[str], tuple[str, ...]] | None = None,
+           table_dir: Callable[[str], Path] | None = None) -> list[tuple[str, bool]]:
+    """One ``(line, stale)`` per benchmark in ``names``: its table under ``bench_dir`` (or the folder
+    ``table_dir(name)`` gives), current or why not.
 
     A stale line names the table, the commit it records, the commits since that changed what it
     measures and the command that regenerates it (``hingelab bench NAME``); a missing table is stale.
@@ -124,8 +127,9 @@ def report(repo: Path, bench_dir: Path, names: Iterable[str],
     lines = []
     for name in names:
         command = f"hingelab bench {name}"
-        json_path = bench_dir / f"{name}.json"
-        missing = [f"{name}{ext}" for ext in (".md", ".json") if not (bench_dir / f"{name}{ext}").is_file()]
+        folder = Path(table_dir(name)) if table_dir is not None else bench_dir
+        json_path = folder / f"{name}.json"
+        missing = [f"{name}{ext}" for ext in (".md", ".json") if not (folder / f"{name}{ext}").is_file()]
         if missing:
             lines.append((f"{shown(json_path)}: {' and '.join(missing)} missing; run `{command}`", True))
             continue

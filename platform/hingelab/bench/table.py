@@ -1,4 +1,4 @@
-"""A benchmark's result table, printed and written under ``analysis/bench/``."""
+"""A benchmark's result table, printed and written under its folder (``analysis/bench/``: ``table_dir``)."""
 
 from __future__ import annotations
 
@@ -6,14 +6,15 @@ import datetime as _dt
 from dataclasses import dataclass, field
 from pathlib import Path
 
+from hingelab.bench import table_dir
 from hingelab.json_text import strict_dumps
-from hingelab.paths import ANALYSIS_DIR
 from hingelab.provenance import code_version, machine
 
 
 @dataclass
 class BenchTable:
-    """Rows of measured figures; ``ratios`` are ours / baseline from the same run."""
+    """Rows of measured figures; ``ratios`` are ours / baseline from the same run; ``totals``, a benchmark's
+    sums over its rows (a line of its own under the table)."""
 
     name: str
     title: str
@@ -22,18 +23,21 @@ class BenchTable:
     ratios: dict[str, float] = field(default_factory=dict)
     notes: list[str] = field(default_factory=list)
     config: dict = field(default_factory=dict)
+    totals: dict = field(default_factory=dict)
 
     def markdown(self) -> str:
         def fmt(value) -> str:
             if isinstance(value, float):
                 return f"{value:,.4g}" if abs(value) < 1e4 else f"{value:,.0f}"
-            return str(value)
+            return " ".join(str(value).split()).replace("|", "\\|")  # one cell: no line breaks, no column breaks
 
         lines = [f"# {self.title}", ""]
         lines.append("| " + " | ".join(self.columns) + " |")
         lines.append("|" + "---|" * len(self.columns))
         for row in self.rows:
             lines.append("| " + " | ".join(fmt(row.get(c, "")) for c in self.columns) + " |")
+        if self.totals:
+            lines += ["", "Totals: " + ", ".join(f"{k} {fmt(v)}" for k, v in self.totals.items())]
         if self.ratios:
             lines += ["", "Ratios (measured in this one run):", ""]
             lines += [f"- {k}: {v:.3g}" for k, v in self.ratios.items()]
@@ -44,7 +48,7 @@ class BenchTable:
         return "\n".join(lines) + "\n"
 
     def write(self, out_dir: Path | None = None) -> tuple[Path, Path]:
-        out_dir = Path(out_dir or ANALYSIS_DIR / "bench")
+        out_dir = Path(out_dir or table_dir(self.name))
         out_dir.mkdir(parents=True, exist_ok=True)
         md_path = out_dir / f"{self.name}.md"
         json_path = out_dir / f"{self.name}.json"
@@ -54,6 +58,7 @@ class BenchTable:
             "title": self.title,
             "rows": self.rows,
             "ratios": self.ratios,
+            **({"totals": self.totals} if self.totals else {}),
             "notes": self.notes,
             "config": self.config,
             "code": code_version(),
