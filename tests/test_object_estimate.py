@@ -126,6 +126,26 @@ def test_an_object_off_the_platform_is_flagged(sphere):
         sphere.sim.reset(seed=0, object_xy=scripted.platform_center(sphere.sim.model))
 
 
+def test_without_a_mask_the_object_is_the_cluster_resting_on_the_platform():
+    """``object_cloud_from_scene`` on a made-up scene: a noisy platform top, a 2 cm sphere's upper half on it, a
+    blob floating 4 cm over it (a finger); the tool's points over the sphere hide it."""
+    rng = np.random.default_rng(0)
+    config = oe.ObjectCloudConfig(crop_low=(0.4, -0.1, 0.202), crop_high=(0.6, 0.1, 0.26))  # the platform's top at 0.2
+    x, y = np.meshgrid(np.arange(0.4, 0.6, 0.002), np.arange(-0.1, 0.1, 0.002))
+    surface = np.column_stack([x.ravel(), y.ravel(), 0.2005 + 0.0008 * rng.standard_normal(x.size)])
+    centre = np.array([0.5, 0.0, 0.21])
+    direction = rng.standard_normal((400, 3))
+    direction[:, 2] = np.abs(direction[:, 2])
+    sphere = centre + 0.01 * direction / np.linalg.norm(direction, axis=1, keepdims=True)
+    finger = np.array([0.45, 0.05, 0.25]) + 0.003 * rng.standard_normal((60, 3))
+    cloud = oe.object_cloud_from_scene(np.concatenate([surface, sphere, finger]), config)
+    assert cloud.flag is None and len(cloud.points) > 300
+    assert np.linalg.norm(cloud.points - centre, axis=1).max() < 0.011  # the sphere alone: no surface, no finger
+    assert oe.object_cloud_from_scene(np.concatenate([surface, finger]), config).flag == "no_object_points"
+    hidden = oe.object_cloud_from_scene(np.concatenate([surface, sphere, finger]), config, tool_points=sphere)
+    assert hidden.points is None and hidden.flag == "hidden_by_tool"
+
+
 def test_mask_errors_are_seeded_and_bounded():
     mask = np.zeros((60, 80), bool)
     mask[25:37, 30:44] = True

@@ -6,7 +6,7 @@ import argparse
 import sys
 from pathlib import Path
 
-from hingelab.cli.names import EXPORT_FORMATS
+from hingelab.cli.names import EXPORT_FORMATS, OBJECT_ESTIMATORS, OBJECT_FROM_CLOUD_DEFAULT
 from hingelab.cli.options import add_on_corrupt
 from hingelab.errors import ConfigError
 from hingelab.folder_lock import folder_lock
@@ -97,7 +97,9 @@ def add_parser(subparsers) -> None:
             "stream sampled at its latest message stamped at or before the step (the ages are recorded), the camera\n"
             "cloud put into hand_base by TF and through the camera cloud pipeline to the 256-point tool cloud, the\n"
             "tool pose and latents from the same perception as in simulation. The camera is a PointCloud2 (points)\n"
-            "or a 32FC1 depth image with its camera_info (depth, camera_info). Topics (KIND=default):\n" + kinds
+            "or a 32FC1 depth image with its camera_info (depth, camera_info). The object comes from the object\n"
+            "pose topic; a bag without one imports without an object (which train high needs) unless\n"
+            "--object-from-cloud estimates it from the camera frames. Topics (KIND=default):\n" + kinds
             + "\nA bag cut off mid-chunk imports what is whole; the summary says what was dropped and why."),
     )
     ros2.add_argument("bags", type=Path, nargs="+", metavar="BAG", help="rosbag2 folder or .mcap file")
@@ -105,6 +107,17 @@ def add_parser(subparsers) -> None:
     ros2.add_argument("--topic", action="append", default=[], metavar="KIND=NAME",
                       help="read KIND from the topic NAME instead of its default (repeatable), e.g. "
                            "--topic points=/k4a/points2")
+    ros2.add_argument("--object-from-cloud", nargs="?", const=OBJECT_FROM_CLOUD_DEFAULT, default=None,
+                      metavar="ESTIMATOR",
+                      help="estimate the object's position and extent from the bag's camera frames (depth image or "
+                           "scene PointCloud2) instead of an object pose topic, for a rig without motion capture: "
+                           "the object's points by the rig's mask (object_mask topic, with depth images) or else "
+                           "the points above the platform inside its footprint minus the tool's, then ESTIMATOR: "
+                           f"{', '.join(OBJECT_ESTIMATORS)} (default {OBJECT_FROM_CLOUD_DEFAULT}; "
+                           "hingelab.perception.object_estimate). Recorded on /object/estimate with the episode "
+                           "key object_perception; a step without an estimate is flagged and keeps the last one; "
+                           "a bag's object pose, if any, becomes the estimate's reference (true_position). Give "
+                           "it after the bags: right before one it takes the bag's path for ESTIMATOR")
     ros2.add_argument("--no-progress", action="store_true", help="no progress bar")
     ros2.set_defaults(func=run_import_ros2)
 
@@ -204,12 +217,16 @@ def run_export(args: argparse.Namespace) -> int:
 
 def run_import_ros2(args: argparse.Namespace) -> int:
     from hingelab.ros2.bag_import import import_bags  # on run: the parser stays light (hingelab.cli)
+    from hingelab.ros2.object_from_cloud import check_estimator
     from hingelab.ros2.topics import topic_names
 
     check_out(args.out)
     topic_names(args.topic)  # a malformed --topic is refused before anything is read
+    if args.object_from_cloud is not None:
+        check_estimator(args.object_from_cloud)
     with folder_lock(args.out, args.argv):
-        summaries = import_bags(args.bags, args.out, topics=args.topic, progress=not args.no_progress)
+        summaries = import_bags(args.bags, args.out, topics=args.topic, progress=not args.no_progress,
+                                object_from_cloud=args.object_from_cloud)
     for summary in summaries:
         print(summary.line())
     episodes = sum(len(s.episodes) for s in summaries)

@@ -13,6 +13,9 @@ from hingelab.paths import ANALYSIS_DIR
 EXPORT_FORMATS = ("minari", "lerobot", "ros2")
 # hingelab.perception.object_perception.OBJECT_PERCEPTIONS: truth, then the camera estimators
 OBJECT_PERCEPTIONS = ("truth", "centroid", "ray_corrected", "primitive_fit")
+# hingelab.perception.object_estimate.ESTIMATORS, and hingelab.ros2.object_from_cloud.DEFAULT_ESTIMATOR
+OBJECT_ESTIMATORS = ("centroid", "ray_corrected", "primitive_fit")
+OBJECT_FROM_CLOUD_DEFAULT = "ray_corrected"
 # hingelab.perception.object_noise_model.GAUSSIAN and DEFAULT_MODEL
 OBJECT_NOISE_GAUSSIAN = "gaussian"
 OBJECT_NOISE_MODEL = ANALYSIS_DIR / "objects" / "noise-model" / "object_noise_model.json"

@@ -11,7 +11,9 @@ can say which one it used:
    missed pixels, now and then a wrong blob near the object; seeded);
 2. ``object_cloud``: the masked pixels -> points (``camera_cloud.depth_to_points``), into the frame's
    parent frame (``camera_cloud.transform``), cropped to the platform's box (``camera_cloud.crop``),
-   statistical outliers removed (``camera_cloud.remove_statistical_outliers``);
+   statistical outliers removed (``camera_cloud.remove_statistical_outliers``); or, with no mask at all
+   (a rig that logged no segmentation), ``object_cloud_from_scene``: the scene's points in the box over
+   the platform (its footprint, from just above its top), minus those near the tool's points;
 3. the estimators on the visible points (``points``: (N, 3), m, in the frame's parent frame, e.g. the
    world; ``camera_position``: (3,), the optical centre in the same frame):
 
@@ -37,12 +39,19 @@ from dataclasses import asdict, dataclass, field
 import numpy as np
 from scipy import ndimage
 from scipy.optimize import least_squares
+from scipy.sparse import coo_matrix
+from scipy.sparse.csgraph import connected_components
+from scipy.spatial import cKDTree
 
 from hingelab.camera import CameraFrame
 from hingelab.errors import ConfigError
 from hingelab.perception.camera_cloud import crop, depth_to_points, remove_statistical_outliers, transform
 
 EXTENT_PERCENTILES = (2.0, 98.0)  # the depth extent along the ray, robust to a stray noisy point
+TOOL_CLEARANCE_M = 0.005  # object_cloud_from_scene: scene points this near a tool point are the tool's
+SURFACE_SIGMAS = 4.0  # object_cloud_from_scene: the object's points are this many noise sigmas over the surface
+CLUSTER_LINK_M = 0.005  # object_cloud_from_scene: points this near are one object (pixels are ~1.6 mm apart at 0.65 m)
+RESTING_M = 0.01  # object_cloud_from_scene: a cluster whose lowest point is this near the surface rests on it
 
 
 @dataclass(frozen=True)
@@ -126,7 +135,7 @@ class ObjectCloud:
 
     points: np.ndarray | None
     flag: str | None = None  # "no_depth", "no_object_pixels", "hidden_by_tool", "too_few_pixels",
-    #                          "off_platform", "too_few_points"
+    #                          "off_platform", "too_few_points"; from_scene: "no_object_points"
     counts: dict = field(default_factory=dict)  # pixels or points left after each step
 
 
@@ -169,6 +178,80 @@ def object_cloud(frame: CameraFrame, mask: np.ndarray, config: ObjectCloudConfig
     if len(points) < config.min_points:
         return ObjectCloud(None, "too_few_points", counts)
     return ObjectCloud(points, None, counts)
+
+
+def object_cloud_from_scene(points: np.ndarray, config: ObjectCloudConfig, tool_points: np.ndarray | None = None,
+                            tool_clearance_m: float = TOOL_CLEARANCE_M) -> ObjectCloud:
+    """Step 2 without a mask: the object's points segmented by geometry alone. ``points`` (N, 3): the scene's
+    points in the parent frame (z up; a whole depth image's, or a scene cloud's); ``config``'s crop box: the box
+    over the platform (its footprint, from just above its top). Kept:
+
+    1. the points inside the footprint, above the platform's surface as this frame sees it by more than its
+       noise (``platform_surface``: the floor is the higher of the box's and the surface + 4 noise sigmas; a
+       camera's noise and its calibration put the surface's own points a mm or two off the model's top) and
+       below the box's top: the platform, the table and the arm drop out;
+    2. minus those within ``tool_clearance_m`` of ``tool_points`` (M, 3), the frame's tool cloud in the same
+       frame where it is known (the tweezer's tips reach into the box when they grasp);
+    3. of what is left, grouped into clusters (points chained by steps of at most ``CLUSTER_LINK_M``), the
+       largest that rests on the platform (its lowest point within ``RESTING_M`` of the surface): one object on
+       the platform, as on the rig; the surface noise's stray points and parts of the hand or tool over the
+       object float;
+    4. the statistical outliers removed.
+
+    Flags: ``hidden_by_tool`` (the tool's points took at least ``min_points`` of the box's and left no resting
+    cluster of ``min_points``), else ``no_object_points`` (nothing rests on the platform: the object out of
+    view, lifted, or not there) or ``too_few_points`` (a resting cluster, of fewer than ``min_points``)."""
+    if config.crop_low is None:
+        raise ConfigError("object_cloud_from_scene needs the crop box over the platform (crop_low, crop_high)")
+    points = np.asarray(points, float)
+    counts = {"scene_points": len(points)}
+    low, high = np.array(config.crop_low, float), np.array(config.crop_high, float)
+    inside = (points[:, :2] >= low[:2]).all(axis=1) & (points[:, :2] <= high[:2]).all(axis=1)
+    surface, noise = platform_surface(points[inside, 2], low[2])
+    floor = low[2] if surface is None else max(low[2], surface + SURFACE_SIGMAS * noise)
+    points = points[inside & (points[:, 2] > floor) & (points[:, 2] <= high[2])]
+    counts["cropped"] = len(points)
+    if len(points) < config.min_points:
+        return ObjectCloud(None, "no_object_points", counts)
+    if tool_points is not None and len(tool_points):
+        distance, _ = cKDTree(np.asarray(tool_points, float)).query(points, distance_upper_bound=tool_clearance_m)
+        points = points[~np.isfinite(distance)]  # inf: no tool point within the clearance
+        counts["off_tool"] = len(points)
+    labels = cluster_labels(points, CLUSTER_LINK_M)
+    resting = [c for c in np.unique(labels) if points[labels == c, 2].min() <= floor + RESTING_M]
+    sizes = [int(np.count_nonzero(labels == c)) for c in resting]
+    points = points[labels == resting[int(np.argmax(sizes))]] if resting else points[:0]
+    counts["cluster"] = len(points)
+    if len(points) >= config.min_points:
+        points = remove_statistical_outliers(points, config.outlier_neighbours, config.outlier_std_ratio)
+        counts["inliers"] = len(points)
+    if len(points) < config.min_points:
+        hidden = counts["cropped"] - counts.get("off_tool", counts["cropped"]) >= config.min_points
+        flag = "hidden_by_tool" if hidden else ("too_few_points" if resting else "no_object_points")
+        return ObjectCloud(None, flag, counts)
+    return ObjectCloud(points, None, counts)
+
+
+def platform_surface(heights: np.ndarray, floor: float, band_m: float = 0.01,
+                     min_points: int = 50) -> tuple[float | None, float]:
+    """(height, noise sigma) m of the platform's surface from the heights (N,) of the points over its footprint:
+    the median and 1.4826 x the median absolute deviation of those within ``band_m`` of the crop's ``floor`` (most
+    are the surface's own; the object's few do not move a median); (None, 0) with fewer than ``min_points``
+    (the camera does not see the platform)."""
+    band = heights[np.abs(heights - floor) <= band_m]
+    if len(band) < min_points:
+        return None, 0.0
+    middle = float(np.median(band))
+    return middle, 1.4826 * float(np.median(np.abs(band - middle)))
+
+
+def cluster_labels(points: np.ndarray, link_m: float) -> np.ndarray:
+    """(N,) int: the points' (N, 3) groups, members chained by steps of at most ``link_m``."""
+    if len(points) < 2:
+        return np.zeros(len(points), int)
+    pairs = cKDTree(points).query_pairs(link_m, output_type="ndarray")
+    graph = coo_matrix((np.ones(len(pairs)), (pairs[:, 0], pairs[:, 1])), shape=(len(points), len(points)))
+    return connected_components(graph, directed=False)[1]
 
 
 def _tool_hides(frame: CameraFrame, mask: np.ndarray, prior: np.ndarray | None, window_px: int = 3) -> bool:
@@ -258,9 +341,17 @@ def estimate_object(frame: CameraFrame, mask: np.ndarray, estimator: str = "cent
     if estimator not in ESTIMATORS:
         raise ConfigError(f"unknown object estimator {estimator!r}; choose one of {', '.join(ESTIMATORS)}")
     cloud = cloud if cloud is not None else object_cloud(frame, mask, config, prior)
+    return estimate_from_cloud(cloud, estimator, frame.camera_position)
+
+
+def estimate_from_cloud(cloud: ObjectCloud, estimator: str, camera_position: np.ndarray) -> ObjectEstimate:
+    """One named estimator on an ``ObjectCloud`` (either way of step 2); ``camera_position`` (3,): the optical
+    centre in the cloud's frame."""
+    if estimator not in ESTIMATORS:
+        raise ConfigError(f"unknown object estimator {estimator!r}; choose one of {', '.join(ESTIMATORS)}")
     if cloud.points is None:
         return ObjectEstimate(None, None, estimator, cloud.flag, 0, cloud.counts)
-    estimate = ESTIMATORS[estimator](cloud.points, np.asarray(frame.camera_position, float))
+    estimate = ESTIMATORS[estimator](cloud.points, np.asarray(camera_position, float))
     return ObjectEstimate(np.asarray(estimate, float), visible_extent(cloud.points), estimator, None,
                           len(cloud.points), cloud.counts)
 

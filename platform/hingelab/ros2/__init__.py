@@ -7,6 +7,8 @@
 - ``tf_tree.py``: the camera's pose in ``hand_base`` from ``/tf`` and ``/tf_static`` at a time;
 - ``trials.py``: ``/trial/event`` -> trials (start..end) and their outcomes;
 - ``bag_import.py``: a bag -> episodes (20 Hz steps, latest-at-or-before sampling, ages);
+- ``object_from_cloud.py``: the object's position and extent from the camera frames of a bag without an
+  object pose (``--object-from-cloud``), through the stand-in's object estimators;
 - ``bag_export.py``: episodes -> rosbag2 folders with MCAP storage.
 
 Everything goes through ``rosbags`` (pure Python, no ROS install): it reads and writes

@@ -19,6 +19,14 @@ voxels, 256 points). A frame that gives no tool cloud is dropped (counted by its
 takes the latest frame that did. The 256-point clouds go through ``ToolState`` (registration,
 encoder, EMA) as in simulation: tool pose, latents z and z_bar.
 
+The object: ``/object/position`` from the bag's object pose (``_object_position``); or, with
+``object_from_cloud`` (``--object-from-cloud ESTIMATOR``), estimated from the same camera frames
+(``object_from_cloud.py``: the rig's mask topic or the points over the platform, then the stand-in's
+estimator), recorded on ``/object/estimate`` (and ``/object/points``) with the metadata key
+``object_perception``, as the stand-in's trials record theirs; a bag's object pose, if it has one, is then
+the estimate's ``true_position``. Without the flag, a bag with a scene camera but no object pose imports
+without an object (the summary says so, and ``train high`` refuses its episodes naming the flag).
+
 Each episode keeps the bag's name, path, topics and time range in its metadata (``ros2_*``
 keys); its seed is the trial's index in the bag, or, for a bag hingelab exported, the seed its
 ``/hingelab/episode`` message records (with the object and the exported episode's id). The
@@ -44,7 +52,7 @@ from hingelab.episodes.card import EPISODES_DIR, create_dataset
 from hingelab.episodes.errors import DatasetError
 from hingelab.episodes.metadata import format_value
 from hingelab.episodes.reader import EpisodeFile
-from hingelab.episodes.schemas import METADATA_EPISODE
+from hingelab.episodes.schemas import KEY_OBJECT_PERCEPTION, METADATA_EPISODE
 from hingelab.episodes.writer import EpisodeWriter
 from hingelab.folder_lock import LOCK_FILE, entries, is_empty
 from hingelab.perception.camera_cloud import ToolCloudConfig, tool_cloud_from_frame, tool_cloud_from_points, transform
@@ -52,6 +60,7 @@ from hingelab.perception.encoder import load_encoder
 from hingelab.perception.tool_state import ToolState
 from hingelab.ros2 import ros_messages as M
 from hingelab.ros2.bag_source import Bag, Stream, message_stamp, open_bag, sort_stamps
+from hingelab.ros2.object_from_cloud import FrameObject, ObjectFromCloud, ObjectTrack
 from hingelab.ros2.tf_tree import TfTree
 from hingelab.ros2.topics import ARM_JOINT_NAMES, KINDS, hand_joint_aliases, topic_names
 from hingelab.ros2.trials import Trial, split_trials
@@ -61,6 +70,7 @@ SOURCE = "real"
 TASK = "real_trial"
 AGE_STREAMS = ("joints", "arm_joints", "cloud", "tf", "action", "object")
 NAN3 = np.full(3, np.nan)
+_MASK_MISSING = b""  # _Camera: a frame whose mask the bag does not hold
 
 
 @dataclass
@@ -85,9 +95,13 @@ class BagSummary:
                 f"dropped: {dropped}.{notes}")
 
 
-def import_config(names: dict, cloud: ToolCloudConfig) -> dict:
-    """The dataset card's config: the topics and the cloud pipeline's settings."""
-    return {"importer": "ros2", "topics": dict(sorted(names.items())), "tool_cloud": cloud.to_json()}
+def import_config(names: dict, cloud: ToolCloudConfig, object_from_cloud: str | None = None) -> dict:
+    """The dataset card's config: the topics and the cloud pipeline's settings, and the object estimator with
+    ``object_from_cloud``. The mask topic is named only then, so a dataset imported before the kind existed
+    (or without the flag) reopens with the same config."""
+    topics = {k: v for k, v in sorted(names.items()) if k != "object_mask" or object_from_cloud}
+    config = {"importer": "ros2", "topics": topics, "tool_cloud": cloud.to_json()}
+    return {**config, "object_from_cloud": object_from_cloud} if object_from_cloud else config
 
 
 def trial_key(bag_topics, bag_start_ns: int, bag_end_ns: int, trial_start_ns: int, trial_end_ns: int) -> tuple:
@@ -117,16 +131,20 @@ def imported_trials(out) -> dict[tuple, str]:
 
 
 def import_bags(bags, out, topics=(), progress: bool = False, encoder=None,
-                cloud: ToolCloudConfig = ToolCloudConfig()) -> list[BagSummary]:
+                cloud: ToolCloudConfig = ToolCloudConfig(), object_from_cloud: str | None = None) -> list[BagSummary]:
     """Import every bag of ``bags`` into the dataset folder ``out`` (created, or reopened with the same topics);
-    trials ``out`` holds already (by ``trial_key``) are skipped."""
+    trials ``out`` holds already (by ``trial_key``) are skipped. ``object_from_cloud``: an object estimator
+    (``hingelab.perception.object_estimate.ESTIMATORS``) that gives the object from the camera frames, whether
+    or not a bag has an object pose (module docstring); None: the object pose, where a bag has one."""
     names = topic_names(topics)
     out = Path(out)
+    objects = None if object_from_cloud is None else ObjectFromCloud(object_from_cloud)
     state = ToolState(encoder=encoder or load_encoder(), n_tools=1, dt=STEP_NS / 1e9)  # reset per episode
     created = is_empty(out)  # new, or holding only the command's lock file
     imported = imported_trials(out)
     try:
-        return [import_bag(bag, out, names, state, progress=progress, cloud=cloud, imported=imported) for bag in bags]
+        return [import_bag(bag, out, names, state, progress=progress, cloud=cloud, imported=imported,
+                           objects=objects) for bag in bags]
     except BaseException:
         if created and out.is_dir() and not any((out / EPISODES_DIR).glob("*.mcap")):
             for entry in entries(out):  # a bag refused midway (a malformed message): no empty dataset
@@ -173,14 +191,22 @@ class _Camera:
     gives no tool cloud, on earlier ones until one does), one more pass over the topic each time;
     only the 256-point results are kept. The pipeline's random draw is seeded by the frame's stamp,
     so a frame gives the same cloud whichever steps or bags ask for it.
+
+    With ``objects`` each of those frames also gives the object (``object_at``; ``object_from_cloud.py``),
+    from the arm's joints at the frame's stamp (``joints``) and, with ``mask_topic``, the mask stamped as the
+    frame, read in the same passes (a frame waits for its mask, a mask for its frame, each only as long as
+    the other is still to come).
     """
 
     def __init__(self, bag: Bag, topic: str, kind: str, info: Stream | None, tf: TfTree, cloud: ToolCloudConfig,
-                 summary: BagSummary, progress: bool = False):
+                 summary: BagSummary, progress: bool = False, objects: ObjectFromCloud | None = None,
+                 joints=None, mask_topic: str | None = None):
         self.bag, self.topic, self.msgtype, self.kind = bag, topic, bag.topics[topic], kind
         self.info, self.tf, self.config, self.summary, self.progress = info, tf, cloud, summary, progress
-        raw = np.array([message_stamp(payload[:12], t, self.msgtype) for _, t, payload in self._pass("stamps")],
-                       dtype=np.int64)
+        self.objects, self.joints, self.mask_topic = objects, joints, mask_topic
+        self._object: dict[int, FrameObject] = {}  # sorted position -> the frame's object (with ``objects``)
+        raw = np.array([message_stamp(payload[:12], t, self.msgtype)
+                        for _, t, payload in self._pass("stamps", [self.topic])], dtype=np.int64)
         order, keep, reordered = sort_stamps(raw)
         self.stamps, self.ordinals = raw[order][keep], order[keep]  # sorted position -> position in the bag
         self.messages = len(raw)
@@ -190,21 +216,48 @@ class _Camera:
         summary.drop(f"{topic} messages with a stamp already seen (the later kept)", int(len(raw) - keep.sum()))
         self._result: dict[int, tuple | None] = {}  # sorted position -> (cloud, n_distinct, tf stamp) or None
 
-    def _pass(self, what: str):
+    def _pass(self, what: str, topics):
         """One pass over the camera topic (with a progress bar: a rig's camera topic is most of a bag)."""
-        return tqdm(self.bag.messages([self.topic]), total=self.bag.counts.get(self.topic),
+        return tqdm(self.bag.messages(topics), total=sum(self.bag.counts.get(t, 0) for t in topics),
                     desc=f"{self.bag.name} {self.topic}: {what}", unit="msg", disable=not self.progress, leave=False)
 
     def _run(self, positions) -> None:
         todo = {int(self.ordinals[p]): p for p in positions if p not in self._result}
         if not todo:
             return
-        for ordinal, (_, _, payload) in enumerate(self._pass("tool clouds")):
-            if ordinal in todo:
-                started = time.perf_counter()
-                self._result[todo[ordinal]] = self._process(bytes(payload), int(self.stamps[todo[ordinal]]))
-                self.summary.camera_s += time.perf_counter() - started
-                self.summary.camera_frames += 1
+        wanted = {int(self.stamps[p]) for p in todo.values()} if self.mask_topic else set()
+        waiting, masks = {}, {}  # stamp -> (position, frame payload) without its mask yet; stamp -> mask payload
+        ordinal = -1
+        topics = [self.topic, self.mask_topic] if wanted else [self.topic]
+        for topic, t, payload in self._pass("tool clouds", topics):
+            if topic != self.topic:  # a mask: kept only while the frame of its stamp is still to come
+                stamp = message_stamp(bytes(payload[:12]), t, self.bag.topics[topic])
+                if stamp in waiting:
+                    self._timed(*waiting.pop(stamp), bytes(payload))
+                elif stamp in wanted:
+                    masks[stamp] = bytes(payload)
+                continue
+            ordinal += 1
+            if ordinal not in todo:
+                continue
+            p = todo[ordinal]
+            stamp = int(self.stamps[p])
+            if not wanted:
+                self._timed(p, bytes(payload), None)
+            elif stamp in masks:
+                self._timed(p, bytes(payload), masks.pop(stamp))
+            else:
+                waiting[stamp] = (p, bytes(payload))
+        for p, payload in waiting.values():
+            self._timed(p, payload, _MASK_MISSING)
+
+    def _timed(self, p: int, payload: bytes, mask: bytes | None) -> None:
+        started = time.perf_counter()
+        self._result[p], frame_object = self._process(payload, int(self.stamps[p]), mask)
+        if self.objects is not None:
+            self._object[p] = frame_object
+        self.summary.camera_s += time.perf_counter() - started
+        self.summary.camera_frames += 1
 
     def prepare(self, times_ns: np.ndarray) -> None:
         """Process the frames the steps at ``times_ns`` take (see the class docstring)."""
@@ -221,19 +274,23 @@ class _Camera:
                 return
             self._run(want)
 
-    def _process(self, payload: bytes, stamp: int):
+    def _process(self, payload: bytes, stamp: int, mask: bytes | None):
+        """(tool result or None, the frame's object or None): ``mask`` the mask's payload (None: no mask topic;
+        ``_MASK_MISSING``: none for this frame)."""
         msg = self.bag.deserialize(payload, self.msgtype)
         where = f"{self.bag.path}: {self.topic} at {stamp / 1e9:.3f} s"
         pose = self.tf.lookup("hand_base", msg.header.frame_id, stamp)
         if isinstance(pose, str):
             self.summary.drop(f"camera frames without the camera's pose in hand_base ({pose})")
-            return None
+            return None, FrameObject(stamp, flag="no_camera_pose")
         rot, pos, tf_stamp = pose
         rng = np.random.default_rng(stamp)
+        arm_q = None if self.objects is None else self.joints.arm_at(stamp)[0]
+        frame_object = None
         if self.kind == "tool_points":
             points = transform(M.cloud_xyz(msg, where), rot, pos).astype(np.float32)
             if len(points) == self.config.n_points:  # a hingelab export's tool cloud: the pipeline's output already
-                return points, len(np.unique(points, axis=0)), tf_stamp
+                return (points, len(np.unique(points, axis=0)), tf_stamp), None
             result = tool_cloud_from_points(points.astype(np.float64), self.config, rng)
         elif self.kind == "points":
             scene = M.cloud_xyz(msg, where)
@@ -242,22 +299,40 @@ class _Camera:
             # not the "no_tool_pixels" that counting only the pre-cropped points would give
             result = tool_cloud_from_points(transform(points, rot, pos), self.config, rng,
                                             counts={"tool_pixels": len(scene)})
+            if self.objects is not None:
+                frame_object = self.objects.frame(stamp, (rot, pos), arm_q, scene_points=scene,
+                                                  tool_points_hand=result.points)
         else:
             j = self.info.latest_at_or_before(stamp)
             if j < 0:
                 self.summary.drop("depth images without a camera_info stamped at or before them")
-                return None
+                return None, FrameObject(stamp, flag="no_camera_info")
             intrinsics = M.intrinsics_from_camera_info(self.bag.deserialize(self.info.payloads[j], self.info.msgtype))
             depth = M.depth_image_m(msg, where)
             if depth.shape != (intrinsics.height, intrinsics.width):
                 self.summary.drop("depth images whose size differs from their camera_info")
-                return None
+                return None, FrameObject(stamp, flag="depth_size_differs")
             frame = CameraFrame(depth, intrinsics, rot, pos, stamp_s=stamp / 1e9)
             result = tool_cloud_from_frame(frame, self.config, rng, mask=np.ones(depth.shape, bool))
+            if self.objects is not None:
+                frame_object = self._depth_object(stamp, (rot, pos), arm_q, depth, intrinsics, mask, result.points)
         if result.points is None:
             self.summary.drop(f"camera frames without a tool cloud in the crop box ({result.flag})")
-            return None
-        return result.points, result.n_distinct, tf_stamp
+            return None, frame_object
+        return (result.points, result.n_distinct, tf_stamp), frame_object
+
+    def _depth_object(self, stamp: int, camera_in_hand, arm_q, depth, intrinsics, mask: bytes | None, tool_points):
+        if mask is None:
+            return self.objects.frame(stamp, camera_in_hand, arm_q, depth=depth, intrinsics=intrinsics,
+                                      tool_points_hand=tool_points)
+        if mask == _MASK_MISSING:
+            return self.objects.missing_mask(stamp)
+        where = f"{self.bag.path}: {self.mask_topic} at {stamp / 1e9:.3f} s"
+        pixels = M.mask_image(self.bag.deserialize(mask, self.bag.topics[self.mask_topic]), where)
+        if pixels.shape != depth.shape:
+            raise DatasetError(f"{where}: the mask is {pixels.shape[1]} x {pixels.shape[0]}, its depth image "
+                               f"{depth.shape[1]} x {depth.shape[0]}; a mask segments the depth image pixel for pixel")
+        return self.objects.frame(stamp, camera_in_hand, arm_q, depth=depth, intrinsics=intrinsics, mask=pixels)
 
     def latest(self, t_ns: int):
         """(sorted position, cloud, n_distinct, tf stamp) of the latest usable frame stamped at or before t_ns,
@@ -266,6 +341,12 @@ class _Camera:
         while p >= 0 and self._result.get(p) is None:
             p -= 1
         return None if p < 0 else (p, *self._result[p])
+
+    def object_at(self, t_ns: int) -> FrameObject | None:
+        """The object of the latest frame stamped at or before t_ns (whether or not it gave a tool cloud), or None
+        (after ``prepare`` for t_ns, with ``objects``)."""
+        p = int(np.searchsorted(self.stamps, t_ns, side="right")) - 1
+        return None if p < 0 else self._object.get(p)
 
 
 def near_crop_box(points: np.ndarray, rot: np.ndarray, pos: np.ndarray, cloud: ToolCloudConfig) -> np.ndarray:
@@ -352,19 +433,29 @@ def _by_stamp(rows: list) -> _Rows:
 
 
 def import_bag(path, out, names: dict, state, progress: bool = False,
-               cloud: ToolCloudConfig = ToolCloudConfig(), imported: dict | None = None) -> BagSummary:
+               cloud: ToolCloudConfig = ToolCloudConfig(), imported: dict | None = None,
+               objects: ObjectFromCloud | None = None) -> BagSummary:
     """One bag into the dataset ``out`` (created if needed); see the module docstring. ``state``: a ``ToolState``
     (n_tools 1, 20 Hz), reset at every episode. ``imported``: the trials ``out`` holds (``imported_trials``),
-    skipped here; the trials this imports are added to it."""
+    skipped here; the trials this imports are added to it. ``objects``: the object from the camera frames
+    (``--object-from-cloud``), else from the bag's object pose."""
     path = Path(path)
     bag = open_bag(path)
     camera_kind = _check_topics(bag, names)
+    mask_topic = _check_object_source(bag, names, camera_kind, objects)
     # the dataset is made once the first bag is known to fit: a refused bag leaves no empty dataset behind
-    create_dataset(out, name=Path(out).name, source=SOURCE, config=import_config(names, cloud),
+    create_dataset(out, name=Path(out).name, source=SOURCE,
+                   config=import_config(names, cloud, None if objects is None else objects.estimator),
                    description="real-rig trials imported from ROS 2 bags (hingelab datasets import-ros2)")
     summary = BagSummary(bag.name)
     if bag.cut_off:  # what was read is counted; metadata.yaml's counts are only quoted in the note
         summary.notes.append(bag.cut_off)
+    if objects is None and names["object"] not in bag.topics and camera_kind != "tool_points":
+        summary.notes.append(f"no object pose ({names['object']}): the episodes have no object position, which "
+                             "train high needs; --object-from-cloud estimates it from the camera frames")
+    if objects is not None and names["object_mask"] in bag.topics and mask_topic is None:
+        summary.notes.append(f"{names['object_mask']} segments depth images, and the camera here is the cloud "
+                             f"{names[camera_kind]}: the object is segmented by the points over the platform")
     small = [k for k in ("joints", "action", "object", "events", "tf", "tf_static", "episode")
              + (("camera_info",) if camera_kind == "depth" else ()) if names[k] in bag.topics]
     raw = bag.read({names[k] for k in small})
@@ -396,28 +487,71 @@ def import_bag(path, out, names: dict, state, progress: bool = False,
         summary.notes.append(f"{len(already)} trial{'s' if len(already) > 1 else ''} already in {out} (the same "
                              f"topics and time range: {shown}), skipped")
     todo = [(index, trial, key) for index, (trial, key) in enumerate(zip(trials, keys)) if key not in imported]
-    camera = _Camera(bag, names[camera_kind], camera_kind, streams.get("camera_info"), tf, cloud, summary, progress)
+    joints = _Joints(bag, names["joints"], raw[names["joints"]], summary)
+    camera = _Camera(bag, names[camera_kind], camera_kind, streams.get("camera_info"), tf, cloud, summary, progress,
+                     objects=objects, joints=joints, mask_topic=mask_topic)
     summary.messages += camera.messages
     grids = [trial.start_ns + STEP_NS * np.arange(max(0, (trial.end_ns - trial.start_ns) // STEP_NS + 1))
              for _, trial, _ in todo]
     if grids:
         camera.prepare(np.concatenate(grids))
-    joints = _Joints(bag, names["joints"], raw[names["joints"]], summary)
     action = _ActionStream(bag, streams.get("action"), summary)
     exported = [(t, _exported_metadata(bag, p, summary)) for t, p in raw.get(names["episode"], [])]
     bar = tqdm(total=sum(len(g) for g in grids), desc=f"import {bag.name}", unit="step", disable=not progress,
                leave=False)
+    track = None if objects is None else _ObjectSteps(objects, "mask" if mask_topic else "platform")
     try:
         for index, trial, key in todo:
             recorded = next((m for t, m in reversed(exported) if t <= trial.start_ns), {})
             written = _write_episode(bag, trial, index, out, names, joints, camera, action, streams.get("object"), tf,
-                                     state, summary, bar, recorded)
+                                     state, summary, bar, recorded, track)
             if written is not None:
                 summary.episodes.append(written)
                 imported[key] = Path(written).name
     finally:
         bar.close()
+    if track is not None and track.steps:
+        summary.notes.append(track.line())
     return summary
+
+
+def _check_object_source(bag: Bag, names: dict, camera_kind: str, objects: ObjectFromCloud | None) -> str | None:
+    """Refuse ``--object-from-cloud`` on a bag whose camera is only the tool's cloud; the mask topic read with it
+    (the bag's, with a depth image), or None."""
+    if objects is None:
+        return None
+    if camera_kind == "tool_points":
+        raise DatasetError(f"{bag.path}: --object-from-cloud estimates the object from the scene's camera frames "
+                           f"({names['points']} or {names['depth']}), and this bag's camera is the tool's cloud "
+                           f"{names['tool_points']}; name the scene camera with --topic points=NAME or --topic "
+                           "depth=NAME, or import without --object-from-cloud")
+    mask = names["object_mask"]
+    if mask in bag.topics and bag.topics[mask] != KINDS["object_mask"].msgtype:
+        raise DatasetError(f"{bag.path}: topic {mask} is {bag.topics[mask]}, but the import reads object_mask as "
+                           f"{KINDS['object_mask'].msgtype}; point --topic object_mask=NAME at a mask image")
+    return mask if camera_kind == "depth" and mask in bag.topics else None
+
+
+class _ObjectSteps:
+    """The object of a bag's steps from the camera (``ObjectTrack``, reset per trial), and its counts over the
+    bag for the summary line."""
+
+    def __init__(self, objects: ObjectFromCloud, segmentation: str):
+        self.objects, self.segmentation, self.track = objects, segmentation, ObjectTrack()
+        self.steps, self.fresh, self.flags = 0, 0, {}
+
+    def add_trial(self) -> None:
+        """Count the trial ``track`` has followed."""
+        self.steps += self.track.steps
+        self.fresh += self.track.fresh_steps
+        for flag, n in self.track.flags.items():
+            self.flags[flag] = self.flags.get(flag, 0) + n
+
+    def line(self) -> str:
+        flags = ", ".join(f"{n} {flag}" for flag, n in sorted(self.flags.items()))
+        return (f"object from the camera ({self.objects.estimator}, segmented by the {self.segmentation}): "
+                f"{self.fresh} of {self.steps} steps estimated"
+                + (f", the others flagged and carrying the last estimate ({flags})" if flags else ""))
 
 
 def _exported_metadata(bag: Bag, payload, summary: BagSummary) -> dict:
@@ -478,12 +612,20 @@ def _age(t_ns: int, stamp) -> float:
 
 
 def _write_episode(bag, trial: Trial, index: int, out, names, joints: _Joints, camera: _Camera, action: _ActionStream,
-                   objects: Stream | None, tf: TfTree, state, summary: BagSummary, bar, exported: dict):
+                   objects: Stream | None, tf: TfTree, state, summary: BagSummary, bar, exported: dict,
+                   from_cloud: _ObjectSteps | None = None):
     n_grid = (trial.end_ns - trial.start_ns) // STEP_NS + 1
     if n_grid < 1:
         summary.notes.append(f"trial {index} ends before it starts; skipped")
         return None
     state.reset()
+    perception, used = {}, {k: v for k, v in names.items() if v in bag.topics and k != "object_mask"}
+    if from_cloud is not None:
+        from_cloud.track.reset()
+        perception = {KEY_OBJECT_PERCEPTION: from_cloud.objects.estimator,
+                      "ros2_object_segmentation": from_cloud.segmentation}
+        if from_cloud.segmentation == "mask":
+            used["object_mask"] = names["object_mask"]
     action_dim = action.dim if action.stream is not None else 5
     has_action = action.stream is not None
     seed = exported.get("seed")
@@ -498,8 +640,8 @@ def _write_episode(bag, trial: Trial, index: int, out, names, joints: _Joints, c
                                "ros2_bag_end_ns": int(bag.end_ns), "ros2_trial_index": index,
                                "ros2_trial_start_ns": int(trial.start_ns), "ros2_trial_end_ns": int(trial.end_ns),
                                "ros2_trial_closed_by": trial.closed_by,
-                               "ros2_topics_used": [f"{k}={v}" for k, v in sorted(names.items()) if v in bag.topics],
-                               **kept})
+                               "ros2_topics_used": [f"{k}={v}" for k, v in sorted(used.items())],
+                               **kept, **perception})
     skipped = 0
     with writer:
         for k in range(n_grid):
@@ -520,6 +662,10 @@ def _write_episode(bag, trial: Trial, index: int, out, names, joints: _Joints, c
             values, action_stamp = action.at(t)
             act = np.full(action_dim, np.nan) if values is None else values
             obj, obj_stamp = _object_position(bag, objects, tf, t)
+            recorded_object = obj  # the bag's object pose, if any: beside the camera's estimate, as its reference
+            if from_cloud is not None:
+                found = from_cloud.track.step(camera.object_at(t), from_cloud.objects.hand_in_world(arm))
+                obj, obj_stamp = found.position, found.stamp
             position, rotation = sample.position[0], sample.rotation[0]
             success_now = trial.success_ns is not None and trial.success_ns <= t
             attempt_now = 1 + sum(1 for et, text in trial.events if et <= t and text.strip().lower() == "attempt")
@@ -534,10 +680,17 @@ def _write_episode(bag, trial: Trial, index: int, out, names, joints: _Joints, c
             writer.write_step(
                 (t - trial.start_ns) / 1e9, points_hand=points, tool_pose_hand=(position, M.quaternion_xyzw(rotation)),
                 joint_position=q, joint_velocity=qdot, latent_z=sample.z[0], latent_z_smoothed=sample.z_smoothed[0],
-                action=act if has_action else None, object_position_hand=obj if objects is not None else None,
+                action=act if has_action else None,
+                object_position_hand=obj if objects is not None or from_cloud is not None else None,
                 transition=dict(observation=observation, action=act, reward=np.nan,
                                 terminated=last and trial.closed_by == "end",
                                 truncated=last and trial.closed_by != "end", info=info))
+            if from_cloud is not None:
+                writer.write_object_estimate(
+                    (t - trial.start_ns) / 1e9, estimator=from_cloud.objects.estimator, position=found.position,
+                    extent=found.extent, n_points=found.n_points, fresh=found.fresh, flag=found.flag,
+                    true_position=recorded_object if np.isfinite(recorded_object).all() else None,
+                    points=found.points)
         if writer.length == 0:
             writer.abort()
             summary.notes.append(f"trial {index} ({trial.start_ns / 1e9:.3f} s) has no step with joints and a tool "
@@ -550,8 +703,20 @@ def _write_episode(bag, trial: Trial, index: int, out, names, joints: _Joints, c
     if skipped:
         summary.notes.append(f"trial {index}: its first {skipped} steps had no joint state or tool cloud stamped at "
                              "or before them; the episode starts at the first step that has both")
+    if from_cloud is not None:
+        from_cloud.add_trial()
+        _note_missing_object(summary, index, from_cloud.track)
     summary.steps += writer.length
     return writer.path
+
+
+def _note_missing_object(summary: BagSummary, index: int, track: ObjectTrack) -> None:
+    """The trial's steps before its first object estimate (its /object/position is NaN there): said, not hidden."""
+    if not track.before_first:
+        return
+    where = ("at any of its" if track.before_first == track.steps else "at the first") + f" {track.before_first}"
+    summary.notes.append(f"trial {index}: no object estimate {where} steps (first flag: {track.first_flag}); its "
+                         "/object/position is NaN there, and train high leaves such an episode out")
 
 
 __all__ = ["BagSummary", "import_bags", "import_bag", "near_crop_box", "STEP_NS", "AGE_STREAMS", "SOURCE", "TASK"]

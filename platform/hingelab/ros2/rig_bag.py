@@ -226,7 +226,6 @@ def write_rig_bag(path, spec: RigBagSpec = RigBagSpec()) -> dict:
 
 def _depth_messages(ts, stamp_ns, points_optical, size):
     """A 32FC1 depth image (nearest return per pixel) of the points, and its camera_info."""
-    T = ts.types
     width, height = size
     fx = fy = width / 2 / np.tan(np.radians(30))
     cx, cy = width / 2, height / 2
@@ -238,15 +237,29 @@ def _depth_messages(ts, stamp_ns, points_optical, size):
     depth = np.full((height, width), np.inf, np.float32)
     np.minimum.at(depth, (v[inside], u[inside]), z[front][inside].astype(np.float32))
     depth[~np.isfinite(depth)] = 0.0
-    header = _header(ts, stamp_ns, CAMERA_OPTICAL)
-    info = T["sensor_msgs/msg/CameraInfo"](
-        header=header, height=height, width=width, distortion_model="plumb_bob", d=np.zeros(5),
-        k=np.array([fx, 0, cx, 0, fy, cy, 0, 0, 1.0]), r=np.eye(3).ravel(),
+    return (camera_info_message(ts, stamp_ns, CAMERA_OPTICAL, width, height, fx, fy, cx, cy),
+            image_message(ts, stamp_ns, CAMERA_OPTICAL, depth))
+
+
+def camera_info_message(ts, stamp_ns, frame_id, width, height, fx, fy, cx, cy):
+    """A sensor_msgs/CameraInfo of a pinhole camera without distortion."""
+    T = ts.types
+    return T["sensor_msgs/msg/CameraInfo"](
+        header=_header(ts, stamp_ns, frame_id), height=height, width=width, distortion_model="plumb_bob",
+        d=np.zeros(5), k=np.array([fx, 0, cx, 0, fy, cy, 0, 0, 1.0]), r=np.eye(3).ravel(),
         p=np.array([fx, 0, cx, 0, 0, fy, cy, 0, 0, 0, 1.0, 0]), binning_x=0, binning_y=0,
         roi=T["sensor_msgs/msg/RegionOfInterest"](x_offset=0, y_offset=0, height=0, width=0, do_rectify=False))
-    image = T["sensor_msgs/msg/Image"](header=header, height=height, width=width, encoding="32FC1", is_bigendian=0,
-                                       step=width * 4, data=depth.view(np.uint8).ravel())
-    return info, image
 
 
-__all__ = ["RigBagSpec", "RigTrial", "write_rig_bag", "point_cloud2", "camera_in_hand", "CAMERA_OPTICAL", "T0_NS"]
+def image_message(ts, stamp_ns, frame_id, image: np.ndarray):
+    """A sensor_msgs/Image of ``image`` (H, W): float32 as 32FC1 (a depth image in metres), uint8 as mono8."""
+    image = np.ascontiguousarray(image)
+    encoding = {np.dtype(np.float32): "32FC1", np.dtype(np.uint8): "mono8"}[image.dtype]
+    height, width = image.shape
+    return ts.types["sensor_msgs/msg/Image"](
+        header=_header(ts, stamp_ns, frame_id), height=height, width=width, encoding=encoding, is_bigendian=0,
+        step=width * image.itemsize, data=image.view(np.uint8).ravel())
+
+
+__all__ = ["RigBagSpec", "RigTrial", "write_rig_bag", "point_cloud2", "camera_info_message", "image_message",
+           "camera_in_hand", "CAMERA_OPTICAL", "T0_NS"]

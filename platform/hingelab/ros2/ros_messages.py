@@ -97,6 +97,18 @@ def depth_image_m(msg, where: str) -> np.ndarray:
     return image
 
 
+def mask_image(msg, where: str) -> np.ndarray:
+    """(H, W) bool from a mono8 or 8UC1 image: nonzero pixels are in the mask."""
+    if msg.encoding.upper() not in ("MONO8", "8UC1"):
+        raise DatasetError(f"{where}: mask image encoding {msg.encoding!r}; the import reads mono8 or 8UC1 "
+                           "(nonzero: the object)")
+    width, height, step = int(msg.width), int(msg.height), int(msg.step)
+    if step < width or len(msg.data) != height * step:
+        raise DatasetError(f"{where}: mask image of {width} x {height} with step {step} holds {len(msg.data)} bytes "
+                           f"of data, not height x step = {height * step} (with step at least {width})")
+    return np.asarray(msg.data, dtype=np.uint8).reshape(height, step)[:, :width] != 0
+
+
 def intrinsics_from_camera_info(msg) -> DepthIntrinsics:
     k = np.asarray(msg.k, float)
     return DepthIntrinsics("ros2_camera_info", int(msg.width), int(msg.height), float(k[0]), float(k[4]),
@@ -119,5 +131,5 @@ def quaternion_xyzw(rotation: np.ndarray) -> np.ndarray:
     return Rotation.from_matrix(np.asarray(rotation, float)).as_quat()
 
 
-__all__ = ["check_point_cloud2", "cloud_xyz", "depth_image_m", "intrinsics_from_camera_info", "transform_pose",
-           "pose_pose", "quaternion_xyzw", "stamp_ns", "frame_name"]
+__all__ = ["check_point_cloud2", "cloud_xyz", "depth_image_m", "mask_image", "intrinsics_from_camera_info",
+           "transform_pose", "pose_pose", "quaternion_xyzw", "stamp_ns", "frame_name"]

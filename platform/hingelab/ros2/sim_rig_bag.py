@@ -9,6 +9,13 @@ trial per episode) and writes, through ``rosbags``' writer, the topics a lab rec
   ``/tf_static``: world -> camera_link -> camera_depth_optical_frame (a camera fixed in the world);
 - ``/camera/depth/points``: the tweezer's surface sampled at its simulated pose and opening
   (``CloudSynthesizer``, ``camera_noise_m`` per point, no calibration offset), in the camera frame;
+  or (``camera="depth"``) the stand-in's camera: the rig camera's rendered depth image of the whole scene
+  (tool, hand, object, platform, table; ``hingelab.sim.rig_camera``, with the camera path's depth noise)
+  on ``/camera/depth/image_raw`` with its ``/camera/depth/camera_info``, the camera's true pose on
+  ``/tf_static``; or (``camera="points"``) the same frames as a whole-scene PointCloud2 (every pixel with a
+  return); with ``object_mask`` the object's pixels (the simulator's segmentation, mono8) on
+  ``/camera/depth/object_mask``, stamped as their image. ``hidden_object_steps``: frames whose object
+  pixels give no return (and an empty mask): the object unseen, as behind the tool or out of view;
 - ``/object/pose``: the object's centre (world), as a detector would report it;
 - ``/hingelab/action``: the high-level action the step executed (the heuristic's, as the env reports
   it: the reached latent / 3 and the commanded hand velocity / 0.08), published at the step's start;
@@ -17,9 +24,10 @@ trial per episode) and writes, through ``rosbags``' writer, the topics a lab rec
 
 Header stamps are the states' simulated times (from ``T0_NS``); log times follow by a driver's
 latency. It returns the simulator's truth per trial (the env's rewards and terms, successes, the
-executed actions), which the imported and relabelled episodes are compared against
-(tests/test_real_demos.py): the real path's rewards come from perception and kinematics, these
-from privileged state.
+executed actions, the object's true centre), which the imported and relabelled episodes are compared
+against (tests/test_real_demos.py, tests/test_ros2_object_from_cloud.py): the real path's rewards and
+object estimates come from perception and kinematics, these from privileged state. A rendered camera
+keeps every frame in memory until the bag is written (1.5 MB each): it is for short trials.
 """
 
 from __future__ import annotations
@@ -34,13 +42,25 @@ from rosbags.typesys import Stores, get_typestore
 from scipy.spatial.transform import Rotation
 
 from hingelab.envs import TOOL_PICK_ID
+from hingelab.errors import ConfigError
 from hingelab.heuristic.controller import PrivilegedHeuristic
+from hingelab.perception.camera_cloud import depth_to_points
 from hingelab.perception.clouds import CloudRealism, CloudSynthesizer
-from hingelab.ros2.rig_bag import CAMERA_IN_WORLD, CAMERA_OPTICAL, T0_NS, _header, _tf, point_cloud2
-from hingelab.ros2.topics import ARM_JOINT_NAMES, HAND_JOINTS
+from hingelab.ros2.rig_bag import (
+    CAMERA_IN_WORLD,
+    CAMERA_OPTICAL,
+    T0_NS,
+    _header,
+    _tf,
+    camera_info_message,
+    image_message,
+    point_cloud2,
+)
+from hingelab.ros2.topics import ARM_JOINT_NAMES, HAND_JOINTS, KINDS
 from hingelab.seeds import demo_seed
 from hingelab.sim import names
 from hingelab.sim.finger_synergy import FingerSynergy
+from hingelab.sim.rig_camera import camera_pose_world
 
 STEP_S = 0.05
 
@@ -57,31 +77,50 @@ class SimRigBagSpec:
     camera_noise_m: float = 0.001  # per-point depth noise
     object_pose: bool = True  # write /object/pose (a rig without an object detector: False)
     gap_s: float = 0.5  # before and between trials
+    camera: str = "synthesized"  # or "depth", "points": the rig camera's rendered frames (module docstring)
+    object_mask: bool = False  # with camera "depth": the object's pixels on /camera/depth/object_mask
+    hidden_object_steps: tuple = ()  # (trial, state index) pairs whose rendered frame does not see the object
+
+    def __post_init__(self):
+        if self.camera not in CAMERAS:
+            raise ConfigError(f"camera {self.camera!r} is unknown; choose one of {', '.join(CAMERAS)}")
+        if self.object_mask and self.camera != "depth":
+            raise ConfigError("object_mask segments the depth image: it needs camera 'depth'")
 
 
-def _snapshot(pick) -> dict:
-    """The state a rig's drivers would publish now (world = the arm's base frame)."""
+CAMERAS = ("synthesized", "depth", "points")
+
+
+def _snapshot(pick, rendered: bool) -> dict:
+    """The state a rig's drivers would publish now (world = the arm's base frame); with a rendered camera, the
+    frame the env's camera path rendered of it (noisy depth, metres) and the object's pixels."""
     d, s = pick.sim.data, pick.state
     hand = pick.sim.reader.hand_body
-    return {"arm_q": np.array([d.joint(j).qpos[0] for j in names.ARM_JOINTS]),
-            "hand_q": pick.sim.hand.q(d).copy(), "hand_qdot": pick.sim.hand.qdot(d).copy(),
-            "hand_rot": d.xmat[hand].reshape(3, 3).copy(), "hand_pos": d.xpos[hand].copy(),
-            "tool_pos": s.tool_pos_hand.copy(), "tool_quat": s.tool_quat_hand.copy(), "hinge": s.hinge_angle,
-            "object": pick.observed_object_centre().copy()}
+    snapshot = {"arm_q": np.array([d.joint(j).qpos[0] for j in names.ARM_JOINTS]),
+                "hand_q": pick.sim.hand.q(d).copy(), "hand_qdot": pick.sim.hand.qdot(d).copy(),
+                "hand_rot": d.xmat[hand].reshape(3, 3).copy(), "hand_pos": d.xpos[hand].copy(),
+                "tool_pos": s.tool_pos_hand.copy(), "tool_quat": s.tool_quat_hand.copy(), "hinge": s.hinge_angle,
+                "object": pick.observed_object_centre().copy()}
+    if rendered:
+        camera = pick.perception.camera  # this step's render (the one the env's tool perception made)
+        object_geoms = np.flatnonzero(pick.sim.model.geom_bodyid == pick.sim.model.body(names.OBJECT_BODY).id)
+        snapshot.update(depth=camera.frame.depth.astype(np.float32, copy=True),
+                        object_mask=np.isin(camera.geoms, object_geoms))
+    return snapshot
 
 
-def _run_trial(env, seed: int) -> dict:
+def _run_trial(env, seed: int, rendered: bool) -> dict:
     env.reset(seed=seed)
     pick = env.unwrapped
     heuristic = PrivilegedHeuristic(pick.sim, FingerSynergy.load(), pick.object)
     heuristic.reset(pick.state, pick.target)
-    states, rewards, terms, actions, success, collisions = [_snapshot(pick)], [], [], [], [], []
+    states, rewards, terms, actions, success, collisions = [_snapshot(pick, rendered)], [], [], [], [], []
     info = {}
     while True:
         command = heuristic.act(pick.state)
         pick.command_privileged(command.arm_velocity, command.hinge_target, command.hand_targets)
         _, reward, terminated, truncated, info = env.step(np.zeros(5))
-        states.append(_snapshot(pick))
+        states.append(_snapshot(pick, rendered))
         rewards.append(reward)
         terms.append(dict(info["reward_terms"]))
         actions.append(np.asarray(info["executed_action"], float))
@@ -100,17 +139,23 @@ def write_sim_rig_bag(path, spec: SimRigBagSpec = SimRigBagSpec()) -> dict:
 
     Returns ``{"trials": [...]}``: per trial its start (ns), the env's per-step ``rewards`` (T,),
     ``terms``, ``actions`` (T, 5), ``is_success`` (T,), ``table_collision`` (T,), ``success``,
-    ``target_world`` and the T + 1 simulated ``states`` it published."""
+    ``target_world`` and the T + 1 simulated ``states`` it published (each with ``object``, the object's
+    true centre in the world, m)."""
     ts = get_typestore(Stores.ROS2_HUMBLE)
     T = ts.types
     synth = CloudSynthesizer(realism=CloudRealism(noise_std_m=spec.camera_noise_m, removal_fraction=0.0,
                                                   max_angle_rad=0.0, max_offset_m=0.0),
                              seed=spec.seed, n_points=spec.camera_points)
     synth.new_episode(spec.seed)
+    rendered = spec.camera != "synthesized"
     env = gym.make(TOOL_PICK_ID, object=spec.object, size=spec.size, randomize=spec.randomize,
-                   max_episode_steps=spec.max_episode_steps, low_level="privileged")
+                   max_episode_steps=spec.max_episode_steps, low_level="privileged",
+                   perception="camera" if rendered else "synthesized")
     try:
-        trials = [_run_trial(env, demo_seed(spec.seed, i)) for i in range(spec.episodes)]
+        trials = [_run_trial(env, demo_seed(spec.seed, i), rendered) for i in range(spec.episodes)]
+        pick = env.unwrapped
+        intrinsics = pick.perception.camera.intrinsics if rendered else None
+        cam_rot, cam_pos = camera_pose_world(pick.sim.model, pick.sim.data) if rendered else CAMERA_IN_WORLD
     finally:
         env.close()
     messages = []  # (log ns, order, topic, message)
@@ -118,12 +163,12 @@ def write_sim_rig_bag(path, spec: SimRigBagSpec = SimRigBagSpec()) -> dict:
     def add(log_ns, topic, msg):
         messages.append((int(log_ns), len(messages), topic, msg))
 
-    cam_rot, cam_pos = CAMERA_IN_WORLD
     add(T0_NS, "/tf_static", T["tf2_msgs/msg/TFMessage"](transforms=[
         _tf(ts, T0_NS, "world", "camera_link", cam_rot, cam_pos),
         _tf(ts, T0_NS, "camera_link", CAMERA_OPTICAL, np.eye(3), np.zeros(3))]))
     start_s = spec.gap_s
-    for trial in trials:
+    hidden = {tuple(pair) for pair in spec.hidden_object_steps}
+    for index, trial in enumerate(trials):
         start = T0_NS + round(start_s * 1e9)
         trial["start_ns"] = start
         stamps = start + np.arange(len(trial["states"])) * round(STEP_S * 1e9)
@@ -134,11 +179,14 @@ def write_sim_rig_bag(path, spec: SimRigBagSpec = SimRigBagSpec()) -> dict:
                 header=_header(ts, t), name=list(ARM_JOINT_NAMES) + list(HAND_JOINTS),
                 position=np.concatenate([s["arm_q"], s["hand_q"]]),
                 velocity=np.concatenate([np.zeros(6), s["hand_qdot"]]), effort=np.zeros(0)))
-            rot_tool = Rotation.from_quat(s["tool_quat"], scalar_first=True).as_matrix()
-            tool_hand = synth.from_tool_pose(rot_tool, s["tool_pos"], s["hinge"]).astype(float)
-            world = tool_hand @ s["hand_rot"].T + s["hand_pos"]
-            add(t + 30_000_000, "/camera/depth/points",
-                point_cloud2(ts, t, CAMERA_OPTICAL, (world - cam_pos) @ cam_rot))
+            if rendered:
+                _add_rendered(ts, add, t, s, intrinsics, spec, (index, k) in hidden)
+            else:
+                rot_tool = Rotation.from_quat(s["tool_quat"], scalar_first=True).as_matrix()
+                tool_hand = synth.from_tool_pose(rot_tool, s["tool_pos"], s["hinge"]).astype(float)
+                world = tool_hand @ s["hand_rot"].T + s["hand_pos"]
+                add(t + 30_000_000, "/camera/depth/points",
+                    point_cloud2(ts, t, CAMERA_OPTICAL, (world - cam_pos) @ cam_rot))
             if spec.object_pose:
                 p = s["object"]
                 add(t + 30_000_000, "/object/pose", T["geometry_msgs/msg/PoseStamped"](
@@ -166,6 +214,24 @@ def write_sim_rig_bag(path, spec: SimRigBagSpec = SimRigBagSpec()) -> dict:
                 connections[topic] = writer.add_connection(topic, msg.__msgtype__, typestore=ts)
             writer.write(connections[topic], log_ns, ts.serialize_cdr(msg, msg.__msgtype__))
     return {"trials": trials, "messages": len(messages)}
+
+
+def _add_rendered(ts, add, t: int, state: dict, intrinsics, spec: SimRigBagSpec, hidden: bool) -> None:
+    """One rendered frame: the depth image and its camera_info (and the object's mask), or the scene cloud."""
+    depth, mask = state["depth"], state["object_mask"]
+    if hidden:  # the object's pixels give no return: nothing of it is seen
+        depth, mask = np.where(mask, np.float32(0.0), depth), np.zeros_like(mask)
+    k = intrinsics
+    if spec.camera == "points":
+        add(t + 30_000_000, KINDS["points"].default,
+            point_cloud2(ts, t, CAMERA_OPTICAL, depth_to_points(depth, k).astype(np.float32)))
+        return
+    add(t + 30_000_000, KINDS["camera_info"].default,
+        camera_info_message(ts, t, CAMERA_OPTICAL, k.width, k.height, k.fx, k.fy, k.cx, k.cy))
+    add(t + 30_000_000, KINDS["depth"].default, image_message(ts, t, CAMERA_OPTICAL, depth))
+    if spec.object_mask:
+        add(t + 40_000_000, KINDS["object_mask"].default,
+            image_message(ts, t, CAMERA_OPTICAL, mask.astype(np.uint8) * np.uint8(255)))
 
 
 __all__ = ["SimRigBagSpec", "write_sim_rig_bag"]

@@ -31,6 +31,9 @@ KINDS = {k.kind: k for k in (
               "depth image, 32FC1 metres (16UC1 millimetres also read), with camera_info"),
     TopicKind("camera_info", "/camera/depth/camera_info", "sensor_msgs/msg/CameraInfo", False,
               "the depth image's intrinsics"),
+    TopicKind("object_mask", "/camera/depth/object_mask", "sensor_msgs/msg/Image", False,
+              "the rig's segmentation of the object in the depth image (mono8, nonzero: the object), stamped as "
+              "its image: read by --object-from-cloud (optional)"),
     TopicKind("tf", "/tf", "tf2_msgs/msg/TFMessage", False, "dynamic transforms"),
     TopicKind("tf_static", "/tf_static", "tf2_msgs/msg/TFMessage", False, "static transforms"),
     TopicKind("events", "/trial/event", "std_msgs/msg/String", True,

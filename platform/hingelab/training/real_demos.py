@@ -9,7 +9,8 @@ from what an imported episode holds, and then takes the reward from the env's ow
 * **the hand in the world**: the arm's joint angles (step infos ``arm_joint_1..6``) through MuJoCo's
   kinematics of the pick scene (``hingelab.sim.arm_kinematics``): the world is the arm's base
   frame, as in the sim, and the rig's platform is taken to stand where the scene has it;
-* **the object**: ``/object/position`` (hand_base, from the bag's ``/object/pose``) into the world
+* **the object**: ``/object/position`` (hand_base, from the bag's ``/object/pose``, or the camera's
+  estimate with ``import-ros2 --object-from-cloud``) into the world
   by the hand's pose; **the target**: 5 cm above the object's position at the episode's first step
   (the env's rule, ``tool_pick.TARGET_HEIGHT`` above the object's start);
 * **the grip point** (the reward's "tool"): the env's rule (``scripted.grip_point``: between the
@@ -70,7 +71,8 @@ TOPICS = [S.TOPIC_STEP, S.TOPIC_TOOL_POSE, S.TOPIC_LATENT, S.TOPIC_OBJECT]
 OBSERVATION_DIM = 14
 ACTION_DIM = 5
 RECORD_OBJECT = ("add /object/pose (geometry_msgs/msg/PoseStamped, the object detector's pose) to ros2 bag record, "
-                 "or name the bag's object topic with --topic object=NAME at import")
+                 "name the bag's object topic with --topic object=NAME at import, or re-import the bag with "
+                 "--object-from-cloud (the object estimated from its camera frames)")
 RECORD_ARM = ("record the arm driver's JointState with arm_joint_1..6 on /joint_states (or the topic given with "
               "--topic joints=NAME)")
 
@@ -103,16 +105,23 @@ def _arm_joints(episode, step: dict, n: int) -> np.ndarray:
 
 def _object_hand(episode, n: int) -> np.ndarray:
     topic = episode.topics.get(S.TOPIC_OBJECT)
+    bag = episode.metadata.get("ros2_bag")
+    source = f" (from bag {bag})" if bag else ""
     if topic is None or "position" not in topic:
-        raise RealEpisodeError(f"{episode.path}: no {S.TOPIC_OBJECT} (the object's position), which the reward's "
-                               f"distances and the target need; {RECORD_OBJECT}")
+        raise RealEpisodeError(f"{episode.path}{source}: no {S.TOPIC_OBJECT} (the object's position), which the "
+                               f"reward's distances and the target need; {RECORD_OBJECT}")
     obj = np.asarray(topic["position"][:n], float)
     bad = ~np.isfinite(obj).all(axis=1)
     if len(obj) < n or bad.any():
         lacking = n - len(obj) + int(bad.sum())
-        raise RealEpisodeError(f"{episode.path}: {S.TOPIC_OBJECT} is NaN at {lacking} of {n} steps (no /object/pose "
-                               "stamped at or before them, or TF could not place it in hand_base); record the object "
-                               "pose from the trial's start, with the TF from its frame to hand_base")
+        estimator = episode.metadata.get(S.KEY_OBJECT_PERCEPTION)
+        if estimator:  # imported with --object-from-cloud
+            raise RealEpisodeError(f"{episode.path}{source}: {S.TOPIC_OBJECT} is NaN at {lacking} of {n} steps: the "
+                                   f"camera's object estimate ({estimator}) had none yet (/object/estimate's flag "
+                                   "says why); the object must be seen from the trial's start")
+        raise RealEpisodeError(f"{episode.path}{source}: {S.TOPIC_OBJECT} is NaN at {lacking} of {n} steps (no "
+                               "/object/pose stamped at or before them, or TF could not place it in hand_base); "
+                               "record the object pose from the trial's start, with the TF from its frame to hand_base")
     return obj
 
 
