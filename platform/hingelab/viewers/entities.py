@@ -3,7 +3,9 @@ loggers (``episode_log``, ``dataset_log``), the blueprints and the tests.
 
 Frames: everything under ``world/`` is in the hand frame ``hand_base`` (metres, the
 MCAP files' frame, see datasets/README.md); ``world/tool`` carries the registered tool
-pose as a transform, so its child ``world/tool/axes`` draws the tool frame.
+pose as a transform, so its child ``world/tool/axes`` draws the tool frame. hand_base is the
+3-D view's root (not MuJoCo's world): the recorded data needs no conversion and stays where it was
+recorded, the hand stays still and the arm and platform (``world/robot``) move around it.
 """
 
 from __future__ import annotations
@@ -25,6 +27,7 @@ TIPS = "world/tips"  # Points3D, 2 per step: tip a, tip b (privileged)
 OBJECT = "world/object"  # Points3D, 1 per step: object position (as observed)
 TARGET = "world/target"  # Points3D, 1 per step: target position
 TIP_PATH = "world/tip_path"  # LineStrips3D (static): the midpoint of the tips over the episode
+ROBOT = "world/robot"  # world/robot/<body>: Mesh3D (static, body frame) + Transform3D per step (body in hand_base)
 CAMERA = "world/camera"  # Transform3D per recorded frame (optical frame in hand_base) + Pinhole (static): frustum
 CAMERA_DEPTH = "world/camera/depth"  # DepthImage, millimetres (trials: every --depth-every step)
 

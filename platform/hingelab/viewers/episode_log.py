@@ -2,7 +2,8 @@
 
 Every per-step series goes out as columns on the timelines ``step`` (control step)
 and ``sim_time`` (seconds), so scrubbing either replays the episode. Static parts:
-hand_base as the 3-D frame, the tool frame's axes, series names and colors, the
+hand_base as the 3-D frame, the scene's meshes from the MJCF posed every step
+(``robot_log``), the tool frame's axes, series names and colors, the
 episode's facts, the latent trajectory on the latent plane and the tips' path. Episodes with
 a camera (robot trials) add its depth image and frustum (``camera_log``).
 """
@@ -29,6 +30,7 @@ from hingelab.viewers.rerun_send import (
     send_series,
     send_static_style,
 )
+from hingelab.viewers.robot_log import log_robot, sources_markdown
 
 
 def log_episode(rec: rr.RecordingStream, episode: Episode) -> list[Series]:
@@ -38,7 +40,9 @@ def log_episode(rec: rr.RecordingStream, episode: Episode) -> list[Series]:
     for one in series:
         send_static_style(rec, one)
         send_series(rec, one, episode_indexes(one))
-    rec.log(E.FACTS, rr.TextDocument(episode_facts_markdown(episode), media_type="text/markdown"), static=True)
+    poses = log_robot(rec, episode)  # the arm, hand, tweezer, platform and object as posed meshes
+    facts = episode_facts_markdown(episode) + (sources_markdown(poses) if poses is not None else "")
+    rec.log(E.FACTS, rr.TextDocument(facts, media_type="text/markdown"), static=True)
     trajectory = latent_trajectory(episode)
     if trajectory is not None and len(trajectory) > 1:
         rec.log(E.PLANE_TRAJECTORY, rr.LineStrips2D([trajectory], colors=[(150, 150, 150)], radii=[LINE_RADIUS_UI]),

@@ -1,0 +1,64 @@
+"""Log the robot and the scene into an episode's 3-D view: MJCF meshes, posed every step.
+
+Each body's mesh (``scene_geometry.scene_meshes`` of the pick scene, vertices in the body frame) goes
+out once, static, as ``rr.Mesh3D`` at ``world/robot/<body>``; its pose in hand_base goes out on the same
+entity as ``rr.Transform3D`` columns on the ``step`` and ``sim_time`` timelines (one ``send_columns``
+per body). ``world`` is hand_base (``entities``), so the hand stays put and the arm and platform move
+around it. Where each part's poses come from is in ``scene_geometry``'s docstring; the episode's facts
+panel lists them per episode.
+"""
+
+from __future__ import annotations
+
+import functools
+
+import mujoco
+import numpy as np
+import rerun as rr
+
+from hingelab.episodes import Episode
+from hingelab.viewers import entities as E
+from hingelab.viewers.scene_geometry import BodyMesh, ScenePoses, drawn, scene_meshes, scene_poses
+
+
+@functools.cache
+def _scene() -> tuple[mujoco.MjModel, tuple[BodyMesh, ...]]:
+    from hingelab.sim.scene import load_scene
+
+    model = load_scene("tool_pick")
+    return model, tuple(scene_meshes(model))
+
+
+def robot_entity(mesh: BodyMesh) -> str:
+    """The entity path of one body's mesh."""
+    return f"{E.ROBOT}/{mesh.name}"
+
+
+def log_robot(rec: rr.RecordingStream, episode: Episode) -> ScenePoses | None:
+    """Send the posed meshes of ``episode`` (see the module docstring); the poses, or None without hand joints."""
+    model, meshes = _scene()
+    poses = scene_poses(model, episode, [m.body_id for m in meshes])
+    if poses is None:
+        return None
+    steps = np.arange(len(poses.step_time_ns), dtype=np.int64)
+    indexes = [rr.TimeColumn(E.TIMELINE_STEP, sequence=steps),
+               rr.TimeColumn(E.TIMELINE_SIM_TIME, duration=poses.step_time_ns.astype("timedelta64[ns]"))]
+    for b, mesh in enumerate(meshes):
+        if not drawn(mesh, poses):
+            continue
+        entity = robot_entity(mesh)
+        rec.log(entity, rr.Mesh3D(vertex_positions=mesh.vertices, triangle_indices=mesh.triangles,
+                                  vertex_colors=mesh.colors), static=True)
+        rec.send_columns(entity, indexes=indexes, columns=rr.Transform3D.columns(
+            translation=poses.translation[:, b], quaternion=poses.quaternion[:, b]))
+    return poses
+
+
+def sources_markdown(poses: ScenePoses) -> str:
+    """Where each part's poses came from, a markdown table for the episode's facts panel."""
+    lines = ["", "## the scene's poses (in hand_base)", "", "| part | source |", "|---|---|"]
+    lines += [f"| {part} | {source} |" for part, source in poses.sources.items()]
+    return "\n".join(lines) + "\n"
+
+
+__all__ = ["log_robot", "robot_entity", "sources_markdown"]

@@ -1,0 +1,142 @@
+"""The robot in an episode's Rerun view: MJCF meshes posed every step, checked in the saved .rrd.
+
+A real heuristic episode (``test_view_episode.write_heuristic_episode``: the sim's privileged body
+poses, no arm joints) and a small trial-like episode (arm and hand joints and a registered tool pose,
+no privileged state) are viewed with ``--save``; the .rrd is read back with Rerun's chunk reader and
+checked by Rerun's own CLI (``rerun rrd verify``, ``rerun rrd stats``).
+"""
+
+from __future__ import annotations
+
+import shutil
+import subprocess
+import sys
+from pathlib import Path
+
+import mujoco
+import numpy as np
+import pytest
+from scipy.spatial.transform import Rotation
+
+from hingelab.episodes import EpisodeWriter, create_dataset, read_episode
+from hingelab.sim import names
+from hingelab.sim.arm_kinematics import default_kinematics
+from hingelab.sim.scene import load_scene
+from hingelab.viewers import entities as E
+from hingelab.viewers import view
+from hingelab.viewers.scene_geometry import scene_meshes
+from test_view_episode import rrd_tables, sorted_by, write_heuristic_episode
+
+RERUN = shutil.which("rerun", path=str(Path(sys.executable).parent)) or shutil.which("rerun")
+
+
+def _poses(tables, body: str) -> tuple[np.ndarray, np.ndarray]:
+    """(translation (T, 3), rotation (T, 3, 3)) of ``world/robot/<body>`` per step, hand_base."""
+    table = sorted_by(tables[f"/{E.ROBOT}/{body}"], E.TIMELINE_STEP)
+    translation = np.array(table.column("Transform3D:translation").to_pylist()).reshape(-1, 3)
+    quaternion = np.array(table.column("Transform3D:quaternion").to_pylist()).reshape(-1, 4)
+    return translation, Rotation.from_quat(quaternion).as_matrix()
+
+
+@pytest.fixture(scope="module")
+def heuristic(tmp_path_factory):
+    root = tmp_path_factory.mktemp("robot") / "heuristic"
+    create_dataset(root, name="heuristic", source="heuristic", config={"test": "robot"}, seed=0)
+    path = write_heuristic_episode(root, max_steps=30)
+    rrd = root.parent / "heuristic.rrd"
+    view(path, save=rrd, progress=False)
+    return rrd, rrd_tables(rrd), read_episode(path)
+
+
+@pytest.fixture(scope="module")
+def trial(tmp_path_factory):
+    """Six steps with arm joints, hand joints and a registered tool pose only (what a real trial has)."""
+    root = tmp_path_factory.mktemp("robot") / "trial"
+    create_dataset(root, name="trial", source="trial", config={"test": "robot"}, seed=0)
+    model = load_scene("tool_pick")
+    home = model.key_qpos[model.key(names.GRASP_KEYFRAME).id]
+    arm_home = np.array([home[model.jnt_qposadr[model.joint(j).id]] for j in names.ARM_JOINTS])
+    arm_q = arm_home + np.linspace(0.0, 0.2, 6)[:, None] * np.array([1, -1, 1, 0.5, -0.5, 1.0])
+    with EpisodeWriter(root, source="trial", task="tool_pick", object="sphere", seed=0) as writer:
+        for k, q in enumerate(arm_q):
+            writer.write_arm_joints(0.05 * k, names.ARM_JOINTS, q, np.zeros(6))
+            writer.write_step(0.05 * k, joint_position=np.full(9, 0.1 * k / 6), joint_velocity=np.zeros(9),
+                              tool_pose_hand=(np.array([0.035, 0.032, 0.122]), np.array([0.0, 1.0, 0.0, 0.0])),
+                              object_position_hand=np.array([-0.15, 0.0, 0.12]))
+        writer.set_outcome(success=False, failure_reason="timeout")
+    rrd = root.parent / "trial.rrd"
+    view(writer.path, save=rrd, progress=False)
+    return rrd, rrd_tables(rrd), arm_q
+
+
+def test_scene_meshes_are_the_mjcf_geoms_in_body_frames():
+    model = load_scene("tool_pick")
+    meshes = {m.name: m for m in scene_meshes(model)}
+    assert {"arm_link_2", "hand_base", "svh_index_t", "tool_leg_a", "tool_leg_b", "object", "world"} <= set(meshes)
+    for mesh in meshes.values():
+        assert mesh.triangles.max() < len(mesh.vertices) and len(mesh.colors) == len(mesh.vertices)
+    platform = meshes["world"].vertices  # the platform box, 20 cm a side, top at z = 0.2 m (table left out)
+    np.testing.assert_allclose(platform.min(axis=0), [0.4, -0.1, 0.0], atol=1e-6)
+    np.testing.assert_allclose(platform.max(axis=0), [0.6, 0.1, 0.2], atol=1e-6)
+    sphere = meshes["object"].vertices  # the training sphere, 2 cm across
+    np.testing.assert_allclose(np.ptp(sphere, axis=0), [0.02] * 3, atol=1e-3)
+
+
+def test_sim_episode_poses_come_from_the_recorded_bodies(heuristic):
+    _, tables, episode = heuristic
+    privileged = episode["/sim/privileged"]
+    assert not any(key.startswith(f"/{E.ROBOT}/arm_") for key in tables), "no arm joints: no arm drawn"
+    meshes = tables[f"/{E.ROBOT}/svh_index_t"].column("Mesh3D:vertex_positions").drop_null().to_pylist()
+    assert len(meshes) == 1 and len(meshes[0]) > 100, "one static mesh per body"
+    leg_a, rot_a = _poses(tables, names.TOOL_BODY_A)
+    np.testing.assert_allclose(leg_a, privileged["tool_position"], atol=1e-6)
+    obj, _ = _poses(tables, names.OBJECT_BODY)
+    np.testing.assert_allclose(obj, privileged["object_position"], atol=1e-6)
+    # the tips: the model's tip sites on the drawn legs land on the recorded tips (hinge angle included)
+    model = load_scene("tool_pick")
+    for site, tip in zip(names.TOOL_TIP_SITES, ("tip_a", "tip_b"), strict=True):
+        body = model.body(model.site_bodyid[model.site(site).id]).name
+        position, rotation = _poses(tables, body)
+        drawn_tip = position + rotation @ model.site_pos[model.site(site).id]
+        np.testing.assert_allclose(drawn_tip, privileged[tip], atol=1e-5)
+    facts = tables["/" + E.FACTS].column("TextDocument:text").to_pylist()[0][0]
+    assert "/sim/privileged tool pose" in facts and "not recorded" in facts
+
+
+def test_trial_poses_come_from_the_arm_joints_through_kinematics(trial):
+    _, tables, arm_q = trial
+    # the world (platform) seen from hand_base is the inverse of the hand's pose in the world
+    rot, pos = default_kinematics().hand_poses(arm_q)
+    world_t, world_r = _poses(tables, "world")
+    np.testing.assert_allclose(world_t, -np.einsum("tji,tj->ti", rot, pos), atol=1e-6)
+    np.testing.assert_allclose(world_r, np.transpose(rot, (0, 2, 1)), atol=1e-6)
+    assert len(world_t) == len(arm_q) and f"/{E.ROBOT}/arm_link_3" in tables
+    leg_a, rot_a = _poses(tables, names.TOOL_BODY_A)  # the registered tool pose
+    np.testing.assert_allclose(leg_a, np.tile([0.035, 0.032, 0.122], (len(arm_q), 1)), atol=1e-6)
+    np.testing.assert_allclose(rot_a, np.tile(np.diag([-1.0, 1.0, -1.0]), (len(arm_q), 1, 1)), atol=1e-6)
+
+
+def test_flange_meets_hand_base(trial):
+    """The arm's last link is drawn where the hand hangs from it (the FK and the hand frame agree)."""
+    _, tables, _ = trial
+    model = load_scene("tool_pick")
+    hand = model.body(names.HAND_BASE_BODY).id
+    flange_t, flange_r = _poses(tables, model.body(model.body_parentid[hand]).name)
+    offset = model.body_pos[hand]
+    rot = np.zeros(9)
+    mujoco.mju_quat2Mat(rot, model.body_quat[hand])
+    np.testing.assert_allclose(flange_t + flange_r @ offset, 0.0, atol=1e-6)
+
+
+@pytest.mark.skipif(RERUN is None, reason="the rerun executable of rerun-sdk is not on this environment's path")
+@pytest.mark.parametrize("which", ["heuristic", "trial"])
+def test_rrd_passes_rerun_verify_and_stats(which, request):
+    rrd = request.getfixturevalue(which)[0]
+    verify = subprocess.run([RERUN, "rrd", "verify", str(rrd)], capture_output=True, text=True, timeout=60)
+    assert verify.returncode == 0, verify.stderr
+    assert "verified without error" in verify.stdout + verify.stderr
+    stats = subprocess.run([RERUN, "rrd", "stats", str(rrd)], capture_output=True, text=True, timeout=60)
+    assert stats.returncode == 0, stats.stderr
+    for entity in (f"/{E.ROBOT}/{names.TOOL_BODY_A}", f"/{E.ROBOT}/{names.TOOL_BODY_B}", f"/{E.ROBOT}/hand_base",
+                   "/" + E.TOOL_FRAME):
+        assert entity in stats.stdout, f"{entity} not in rerun rrd stats"
