@@ -140,3 +140,34 @@ def test_rrd_passes_rerun_verify_and_stats(which, request):
     for entity in (f"/{E.ROBOT}/{names.TOOL_BODY_A}", f"/{E.ROBOT}/{names.TOOL_BODY_B}", f"/{E.ROBOT}/hand_base",
                    "/" + E.TOOL_FRAME):
         assert entity in stats.stdout, f"{entity} not in rerun rrd stats"
+
+
+def _static(tables, entity: str, column: str):
+    values = tables["/" + entity].column(column).drop_null().to_pylist()
+    assert len(values) == 1, f"{entity} {column}: one static value"
+    return values[0]
+
+
+def test_markers_are_sized_in_metres_and_tip_labels_stay_hidden(heuristic):
+    _, tables, _ = heuristic
+    assert _static(tables, E.TIPS, "Points3D:radii") == pytest.approx([0.0015])  # a 3 mm dot per tip
+    assert _static(tables, E.TARGET, "Points3D:radii") == pytest.approx([0.0025])
+    assert _static(tables, E.OBJECT, "Points3D:radii") == pytest.approx([0.010])  # the 2 cm sphere's radius
+    assert _static(tables, E.TIPS, "Points3D:show_labels") == [False]
+    assert _static(tables, E.OBJECT, "Points3D:show_labels") == [True]
+
+
+def test_latent_plane_is_framed_to_the_reachable_region(heuristic):
+    from hingelab.viewers.latent_frame import reachable_latent_curve
+    from hingelab.viewers.view import _episode_plane_bounds
+
+    _, tables, episode = heuristic
+    curve = reachable_latent_curve()
+    assert curve is not None and curve.shape == (64, 2)
+    logged = _static(tables, E.PLANE_REACHABLE, "LineStrips2D:strips")[0]
+    np.testing.assert_allclose(np.array(logged), curve, atol=1e-6)
+    (x0, x1), (y0, y1) = _episode_plane_bounds(episode)
+    assert x1 - x0 == pytest.approx(y1 - y0) and x1 - x0 < 6.0, "square, tighter than the prior's [-3, 3]^2"
+    for points in (curve, episode["/tool/latent"]["z"], episode["/goal"]["z_goal"]):
+        assert (points[:, 0] >= x0).all() and (points[:, 0] <= x1).all()
+        assert (points[:, 1] >= y0).all() and (points[:, 1] <= y1).all()

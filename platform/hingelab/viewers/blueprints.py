@@ -1,7 +1,7 @@
 """The Rerun blueprints (view layouts) of ``hingelab view``, built in code and kept as files.
 
-``episode_blueprint()``: the 3-D tool view in hand_base (cloud, tool frame, tips,
-object, target; a trial's camera frustum) beside the latent plane (z and z_goal, the
+``episode_blueprint()``: the 3-D view in hand_base (the scene's meshes, cloud, tool frame,
+tips, object, target; a trial's camera frustum) beside the latent plane (z and z_goal, the
 trajectory) and the depth camera's image (trials), and below
 them time series of the latent, the hand joints, the reward terms and the hinge
 angle with the success and attempt markers, plus the episode's facts and events.
@@ -31,14 +31,21 @@ DATASET_BLUEPRINT_FILE = "dataset_blueprint.rbl"
 LATENT_BOUNDS = rrb.VisualBounds2D(x_range=[-3.0, 3.0], y_range=[-3.0, 3.0])
 
 
-def _episode_views() -> rrb.Container:
+def _latent_bounds(bounds) -> rrb.VisualBounds2D:
+    """``bounds`` (x_range, y_range) from ``latent_frame.plane_bounds``, or the prior's [-3, 3]^2."""
+    if bounds is None:
+        return LATENT_BOUNDS
+    return rrb.VisualBounds2D(x_range=list(bounds[0]), y_range=list(bounds[1]))
+
+
+def _episode_views(latent_bounds=None) -> rrb.Container:
     scene = rrb.Spatial3DView(
-        name="tool in hand_base", origin=E.WORLD,
+        name="scene in hand_base", origin=E.WORLD,
         contents=["$origin/**"],
     )
     plane = rrb.Spatial2DView(
-        name="latent plane (z, z_goal)", origin="latent_plane",
-        contents=["$origin/**"], visual_bounds=LATENT_BOUNDS,
+        name="latent plane (z, z_goal, reachable)", origin="latent_plane",
+        contents=["$origin/**"], visual_bounds=_latent_bounds(latent_bounds),
     )
     series = rrb.Tabs(
         rrb.TimeSeriesView(name="latent z, z_smoothed, z_goal", origin="latent"),
@@ -63,13 +70,14 @@ def _episode_views() -> rrb.Container:
     )
 
 
-def episode_blueprint() -> rrb.Blueprint:
-    """Layout of a one-episode recording (see the module docstring)."""
-    return rrb.Blueprint(_episode_views(), rrb.TimePanel(state="collapsed"),
+def episode_blueprint(latent_bounds=None) -> rrb.Blueprint:
+    """Layout of a one-episode recording (see the module docstring); ``latent_bounds``: (x_range, y_range)
+    of the latent plane (``latent_frame.plane_bounds``), default the prior's [-3, 3]^2."""
+    return rrb.Blueprint(_episode_views(latent_bounds), rrb.TimePanel(state="collapsed"),
                          rrb.BlueprintPanel(state="collapsed"), rrb.SelectionPanel(state="collapsed"))
 
 
-def _overview_views() -> rrb.Container:
+def _overview_views(latent_bounds=None) -> rrb.Container:
     bars = rrb.Vertical(
         rrb.BarChartView(name="success rate by object", origin=E.SUCCESS_BY_OBJECT),
         rrb.BarChartView(name="success rate by source", origin=E.SUCCESS_BY_SOURCE),
@@ -80,27 +88,31 @@ def _overview_views() -> rrb.Container:
         rrb.TimeSeriesView(name="success per episode", origin=E.EPISODE_SUCCESS),
     )
     plane = rrb.Spatial2DView(name="all latents (green: success, red: failure)", origin=E.ALL_LATENTS,
-                              visual_bounds=LATENT_BOUNDS)
+                              visual_bounds=_latent_bounds(latent_bounds))
     return rrb.Horizontal(
         bars, per_episode, rrb.Vertical(plane, rrb.TextDocumentView(name="summary", origin=E.SUMMARY)),
         name="overview",
     )
 
 
-def dataset_blueprint() -> rrb.Blueprint:
-    """Layout of a dataset recording (see the module docstring)."""
-    return rrb.Blueprint(rrb.Tabs(_overview_views(), _episode_views(), active_tab=0),
+def dataset_blueprint(latent_bounds=None) -> rrb.Blueprint:
+    """Layout of a dataset recording (see the module docstring); ``latent_bounds`` as ``episode_blueprint``'s."""
+    return rrb.Blueprint(rrb.Tabs(_overview_views(latent_bounds), _episode_views(latent_bounds), active_tab=0),
                          rrb.TimePanel(state="collapsed"), rrb.BlueprintPanel(state="collapsed"),
                          rrb.SelectionPanel(state="collapsed"))
 
 
 def save_blueprints(folder) -> list[Path]:
-    """Write ``episode_blueprint.rbl`` and ``dataset_blueprint.rbl`` into ``folder``."""
+    """Write ``episode_blueprint.rbl`` and ``dataset_blueprint.rbl`` into ``folder``, the latent plane framed
+    to the shipped encoder's reachable region."""
     folder = Path(folder)
     folder.mkdir(parents=True, exist_ok=True)
     written = []
-    for name, blueprint in ((EPISODE_BLUEPRINT_FILE, episode_blueprint()),
-                            (DATASET_BLUEPRINT_FILE, dataset_blueprint())):
+    from hingelab.viewers.latent_frame import plane_bounds, reachable_latent_curve  # torch: the encoder
+
+    bounds = plane_bounds(reachable_latent_curve())  # the shipped encoder's reachable region
+    for name, blueprint in ((EPISODE_BLUEPRINT_FILE, episode_blueprint(bounds)),
+                            (DATASET_BLUEPRINT_FILE, dataset_blueprint(bounds))):
         blueprint.save(E.APPLICATION_ID, folder / name)
         written.append(folder / name)
     return written

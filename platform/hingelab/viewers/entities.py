@@ -39,6 +39,7 @@ LATENT_Z_GOAL = "latent/z_goal"  # Scalars, 2 per step
 PLANE_Z = "latent_plane/z"  # Points2D, 1 per step: the current z on the latent plane
 PLANE_Z_GOAL = "latent_plane/z_goal"  # Points2D, 1 per step
 PLANE_TRAJECTORY = "latent_plane/trajectory"  # LineStrips2D (static in an episode view): z over time
+PLANE_REACHABLE = "latent_plane/reachable"  # LineStrips2D (static): the encoder's latent over the reachable openings
 REWARD = "reward"  # reward/<term> Scalars per term, reward/total their sum
 HINGE_ANGLE = "privileged/hinge_angle"  # Scalars, rad (simulator ground truth)
 SUCCESS = "outcome/success"  # Scalars 0/1 per step (info is_success, else the outcome at the last step)

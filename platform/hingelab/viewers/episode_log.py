@@ -22,6 +22,7 @@ from hingelab.viewers.episode_series import (
     latent_trajectory,
     tip_midpoints,
 )
+from hingelab.viewers.latent_frame import reachable_latent_curve
 from hingelab.viewers.rerun_send import (
     COLORS,
     LINE_RADIUS_UI,
@@ -47,6 +48,10 @@ def log_episode(rec: rr.RecordingStream, episode: Episode) -> list[Series]:
     if trajectory is not None and len(trajectory) > 1:
         rec.log(E.PLANE_TRAJECTORY, rr.LineStrips2D([trajectory], colors=[(150, 150, 150)], radii=[LINE_RADIUS_UI]),
                 static=True)
+    reachable = reachable_latent_curve() if trajectory is not None else None
+    if reachable is not None:
+        rec.log(E.PLANE_REACHABLE, rr.LineStrips2D([reachable], colors=[(200, 200, 200)], radii=[-3.0],
+                                                   labels=["reachable"], show_labels=False), static=True)
     path = tip_midpoints(episode)
     if path is not None and len(path) > 1:
         rec.log(E.TIP_PATH, rr.LineStrips3D([path], colors=[COLORS[E.TIPS]], radii=[0.0005]), static=True)
