@@ -19,6 +19,7 @@ import pytest
 from scipy.spatial.transform import Rotation
 
 from hingelab.episodes import EpisodeWriter, create_dataset, read_episode
+from hingelab.perception.encoder import shipped_encoder
 from hingelab.sim import names
 from hingelab.sim.arm_kinematics import default_kinematics
 from hingelab.sim.scene import load_scene
@@ -50,23 +51,26 @@ def heuristic(tmp_path_factory):
 
 @pytest.fixture(scope="module")
 def trial(tmp_path_factory):
-    """Six steps with arm joints, hand joints and a registered tool pose only (what a real trial has)."""
+    """Six steps with arm joints, hand joints, a registered tool pose and a latent only (what a real trial has)."""
     root = tmp_path_factory.mktemp("robot") / "trial"
     create_dataset(root, name="trial", source="trial", config={"test": "robot"}, seed=0)
     model = load_scene("tool_pick")
     home = model.key_qpos[model.key(names.GRASP_KEYFRAME).id]
     arm_home = np.array([home[model.jnt_qposadr[model.joint(j).id]] for j in names.ARM_JOINTS])
     arm_q = arm_home + np.linspace(0.0, 0.2, 6)[:, None] * np.array([1, -1, 1, 0.5, -0.5, 1.0])
+    openings = np.linspace(0.05, 0.25, len(arm_q))
+    latents = shipped_encoder().calibration.z_for_opening(openings)
     with EpisodeWriter(root, source="trial", task="tool_pick", object="sphere", seed=0) as writer:
         for k, q in enumerate(arm_q):
             writer.write_arm_joints(0.05 * k, names.ARM_JOINTS, q, np.zeros(6))
             writer.write_step(0.05 * k, joint_position=np.full(9, 0.1 * k / 6), joint_velocity=np.zeros(9),
+                              latent_z=latents[k], latent_z_smoothed=latents[k],
                               tool_pose_hand=(np.array([0.035, 0.032, 0.122]), np.array([0.0, 1.0, 0.0, 0.0])),
                               object_position_hand=np.array([-0.15, 0.0, 0.12]))
         writer.set_outcome(success=False, failure_reason="timeout")
     rrd = root.parent / "trial.rrd"
     view(writer.path, save=rrd, progress=False)
-    return rrd, rrd_tables(rrd), arm_q
+    return rrd, rrd_tables(rrd), arm_q, openings
 
 
 def test_scene_meshes_are_the_mjcf_geoms_in_body_frames():
@@ -104,7 +108,7 @@ def test_sim_episode_poses_come_from_the_recorded_bodies(heuristic):
 
 
 def test_trial_poses_come_from_the_arm_joints_through_kinematics(trial):
-    _, tables, arm_q = trial
+    _, tables, arm_q, openings = trial
     # the world (platform) seen from hand_base is the inverse of the hand's pose in the world
     rot, pos = default_kinematics().hand_poses(arm_q)
     world_t, world_r = _poses(tables, "world")
@@ -114,11 +118,16 @@ def test_trial_poses_come_from_the_arm_joints_through_kinematics(trial):
     leg_a, rot_a = _poses(tables, names.TOOL_BODY_A)  # the registered tool pose
     np.testing.assert_allclose(leg_a, np.tile([0.035, 0.032, 0.122], (len(arm_q), 1)), atol=1e-6)
     np.testing.assert_allclose(rot_a, np.tile(np.diag([-1.0, 1.0, -1.0]), (len(arm_q), 1, 1)), atol=1e-6)
+    _, rot_b = _poses(tables, names.TOOL_BODY_B)  # leg b opened by the opening read off the latent
+    between = Rotation.from_matrix(np.einsum("tji,tjk->tik", rot_a, rot_b)).magnitude()
+    np.testing.assert_allclose(between, openings, atol=0.01)
+    facts = tables["/" + E.FACTS].column("TextDocument:text").to_pylist()[0][0]
+    assert "/arm/joints through mj_kinematics" in facts and "read off the latent" in facts
 
 
 def test_flange_meets_hand_base(trial):
     """The arm's last link is drawn where the hand hangs from it (the FK and the hand frame agree)."""
-    _, tables, _ = trial
+    _, tables, _, _ = trial
     model = load_scene("tool_pick")
     hand = model.body(names.HAND_BASE_BODY).id
     flange_t, flange_r = _poses(tables, model.body(model.body_parentid[hand]).name)

@@ -21,19 +21,31 @@ MIN_HALF_SPAN = 0.05  # latent units: a single point still gets a readable frame
 
 
 @functools.cache
-def reachable_latent_curve() -> np.ndarray | None:
-    """(K, 2) the shipped encoder's latent over the reachable openings, or None without one."""
-    try:  # torch loads the checkpoint: imported here, only for views with a latent plane
+def _calibration():
+    try:  # torch loads the checkpoint: imported here, only for views with a latent
         from hingelab.perception.encoder import shipped_encoder
-        from hingelab.sim.finger_synergy import FingerSynergy
 
-        calibration = shipped_encoder().calibration
-        low, high = FingerSynergy.load().theta_range
+        return shipped_encoder().calibration
     except (ImportError, ConfigError):
         return None
+
+
+@functools.cache
+def reachable_latent_curve() -> np.ndarray | None:
+    """(K, 2) the shipped encoder's latent over the reachable openings, or None without one."""
+    from hingelab.sim.finger_synergy import FingerSynergy
+
+    calibration = _calibration()
     if calibration is None:
         return None
+    low, high = FingerSynergy.load().theta_range
     return np.asarray(calibration.z_for_opening(np.linspace(low, high, CURVE_POINTS)), float).reshape(-1, 2)
+
+
+def latent_opening(z: np.ndarray) -> np.ndarray | None:
+    """(T,) hinge openings (rad) read off latents ``z`` (T, 2) by the shipped encoder's calibration, or None."""
+    calibration = _calibration()
+    return None if calibration is None else np.asarray(calibration.opening_rad(z), float).reshape(-1)
 
 
 def plane_bounds(*points) -> tuple[list[float], list[float]] | None:
@@ -51,4 +63,4 @@ def plane_bounds(*points) -> tuple[list[float], list[float]] | None:
     return [centre[0] - half, centre[0] + half], [centre[1] - half, centre[1] + half]
 
 
-__all__ = ["reachable_latent_curve", "plane_bounds"]
+__all__ = ["reachable_latent_curve", "latent_opening", "plane_bounds"]

@@ -18,6 +18,7 @@ import rerun as rr
 
 from hingelab.episodes import Episode
 from hingelab.viewers import entities as E
+from hingelab.viewers.latent_frame import latent_opening
 from hingelab.viewers.scene_geometry import BodyMesh, ScenePoses, drawn, scene_meshes, scene_poses
 
 
@@ -37,7 +38,7 @@ def robot_entity(mesh: BodyMesh) -> str:
 def log_robot(rec: rr.RecordingStream, episode: Episode) -> ScenePoses | None:
     """Send the posed meshes of ``episode`` (see the module docstring); the poses, or None without hand joints."""
     model, meshes = _scene()
-    poses = scene_poses(model, episode, [m.body_id for m in meshes])
+    poses = scene_poses(model, episode, [m.body_id for m in meshes], opening_of_z=latent_opening)
     if poses is None:
         return None
     steps = np.arange(len(poses.step_time_ns), dtype=np.int64)

@@ -13,7 +13,8 @@ the frame of everything an episode records and the root of the viewers' 3-D view
   ``mj_kinematics`` (a pose relative to hand_base needs only the hand's joints);
 - the tweezer: the recorded body pose where the episode has it (``/sim/privileged`` tool position and
   orientation = body ``tool_leg_a``), else the registered tool pose (``/tool/pose``); leg b from the
-  recorded hinge angle, else the ``grasp`` keyframe's;
+  recorded hinge angle, else the opening read off the recorded latent (``opening_of_z``: the encoder's
+  calibration), else the ``grasp`` keyframe's;
 - the object: ``/sim/privileged`` object position and orientation, else ``/object/position`` with no
   rotation;
 - the arm and the platform: the recorded arm joints (``/arm/joints``, or real imports' step infos
@@ -177,8 +178,11 @@ def _wxyz(xyzw: np.ndarray) -> np.ndarray:
     return np.where(norm > 0, q / np.where(norm > 0, norm, 1.0), [1.0, 0.0, 0.0, 0.0])
 
 
-def scene_poses(model: mujoco.MjModel, episode: Episode, body_ids) -> ScenePoses | None:
-    """Poses of ``body_ids`` per hand-joint step (see the module docstring); None without hand joints."""
+def scene_poses(model: mujoco.MjModel, episode: Episode, body_ids, opening_of_z=None) -> ScenePoses | None:
+    """Poses of ``body_ids`` per hand-joint step (see the module docstring); None without hand joints.
+
+    opening_of_z: (T, 2) latents -> (T,) hinge openings (rad) or None; reads leg b's angle off the
+    recorded latent when the episode has no recorded hinge angle (real episodes)."""
     joints = episode.topics.get(S.TOPIC_JOINTS)
     if joints is None or len(joints.get("position", ())) == 0:
         return None
@@ -213,9 +217,16 @@ def scene_poses(model: mujoco.MjModel, episode: Episode, body_ids) -> ScenePoses
     else:
         sources["tool"] = "the grasp keyframe, in the hand"
     hinge = None
+    latent = episode.topics.get(S.TOPIC_LATENT, {})
     if "hinge_angle" in privileged:
         hinge = _at(np.asarray(privileged["log_time_ns"]), np.asarray(privileged["hinge_angle"], float), times)
         sources["tool"] += ", hinge recorded"
+    elif opening_of_z is not None and "z" in latent:
+        z = latent.get("z_smoothed", latent["z"])
+        opening = opening_of_z(np.asarray(z, float))
+        if opening is not None:
+            hinge = _at(np.asarray(latent["log_time_ns"]), np.asarray(opening, float).reshape(-1), times)
+            sources["tool"] += ", hinge read off the latent (the encoder's calibration)"
     obj_pos = obj_quat = None
     if "object_position" in privileged:
         pt = np.asarray(privileged["log_time_ns"])
