@@ -40,10 +40,16 @@ def recording(dataset, tmp_path_factory):
 def test_overview_bar_charts_are_the_success_rates(recording):
     tables, index = recording
     expected = index.assign(success=index["success"].astype(float)).groupby("object")["success"].mean()
-    bars = tables["/" + E.SUCCESS_BY_OBJECT].column("BarChart:values").to_pylist()[0][0]  # a tensor
-    assert bars["shape"] == [3]
-    np.testing.assert_allclose(bars["buffer"], expected.sort_index().to_numpy())
-    np.testing.assert_allclose(bars["buffer"], [2 / 3, 0.0, 0.5])  # cube, cylinder, sphere
+    bars = {}  # one named bar per object: {name: (position, rate)}
+    for name in ("cube", "cylinder", "sphere"):
+        table = tables[f"/{E.SUCCESS_BY_OBJECT}/{name}"]
+        values = table.column("BarChart:values").drop_null().to_pylist()[0][0]  # a tensor
+        position = table.column("BarChart:abscissa").drop_null().to_pylist()[0][0]
+        assert values["shape"] == [1]
+        bars[name] = (position["buffer"][0], values["buffer"][0])
+    assert [bars[n][0] for n in ("cube", "cylinder", "sphere")] == [0.0, 1.0, 2.0]  # the summary's rows
+    np.testing.assert_allclose([bars[n][1] for n in expected.sort_index().index], expected.sort_index().to_numpy())
+    np.testing.assert_allclose([bars[n][1] for n in ("cube", "cylinder", "sphere")], [2 / 3, 0.0, 0.5])
     summary = tables["/" + E.SUMMARY].column("TextDocument:text").to_pylist()[0][0]
     assert "| 0 | cube | 3 | 2 | 0.667 |" in summary  # cubes: seeds 2, 4 succeed, 3 fails
 

@@ -3,7 +3,9 @@
 Overview (from the index alone, no episode is read):
 
 - ``overview/success_by_object`` and ``overview/success_by_source``: bar charts of the
-  success rate (0..1), bars in the order of the ``overview/summary`` tables;
+  success rate (0..1), one named bar per object or source (``<chart>/<name>``, a one-value
+  ``BarChart`` at its row's position: Rerun's bar charts carry no bar labels, its legend names
+  entities), in the order of the ``overview/summary`` tables;
 - ``overview/return``, ``overview/length``, ``overview/success``: one value per episode
   on the ``episode`` timeline.
 
@@ -47,6 +49,7 @@ from hingelab.viewers.rerun_send import (
     send_static_style,
 )
 
+BAR_COLORS = ((90, 150, 220), (245, 160, 30), (40, 180, 90), (200, 80, 160), (150, 110, 60), (120, 120, 120))
 SUCCESS_COLOR = (40, 180, 90)
 FAILURE_COLOR = (220, 60, 60)
 
@@ -81,14 +84,20 @@ def _markdown(table: pd.DataFrame, title: str) -> str:
     return "\n".join(lines) + "\n"
 
 
+def bar_entity(chart: str, name) -> str:
+    """The entity of one named bar: ``<chart>/<name>``, so the bar chart's legend names it."""
+    return f"{chart}/{rr.escape_entity_path_part(str(name))}"
+
+
 def log_overview(rec: rr.RecordingStream, dataset: Dataset) -> None:
     """Bar charts, per-episode return/length/success and the summary tables (see module doc)."""
     index = dataset.index
     parts = [f"# {dataset.card.name}: {len(index)} episodes, source {dataset.card.source}\n"]
     for by, entity in (("object", E.SUCCESS_BY_OBJECT), ("source", E.SUCCESS_BY_SOURCE)):
         table = success_table(index, by)
-        rec.log(entity, rr.BarChart(table["success_rate"].to_numpy(np.float64),
-                                    abscissa=np.arange(len(table), dtype=np.float64)), static=True)
+        for i, (name, rate) in enumerate(zip(table[by], table["success_rate"], strict=True)):
+            rec.log(bar_entity(entity, name), rr.BarChart([float(rate)], abscissa=[float(i)],
+                                                          color=BAR_COLORS[i % len(BAR_COLORS)]), static=True)
         parts.append(_markdown(table, f"success rate by {by} (bar: row)"))
     rec.log(E.SUMMARY, rr.TextDocument("\n".join(parts), media_type="text/markdown"), static=True)
     episode = np.arange(len(index), dtype=np.int64)
@@ -206,4 +215,4 @@ def _first_steps(collected: _Concatenator, n_episodes: int) -> np.ndarray:
     return first
 
 
-__all__ = ["log_dataset", "log_overview", "success_table", "DatasetLogStats"]
+__all__ = ["log_dataset", "log_overview", "success_table", "bar_entity", "DatasetLogStats"]

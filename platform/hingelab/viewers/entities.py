@@ -49,8 +49,8 @@ FACTS = "episode/facts"  # TextDocument: the episode's metadata (markdown)
 
 # --- a dataset overview (static or on the episode timeline) ---------------------------------------
 OVERVIEW = "overview"
-SUCCESS_BY_OBJECT = "overview/success_by_object"  # BarChart: success rate per object, in SUMMARY's order
-SUCCESS_BY_SOURCE = "overview/success_by_source"  # BarChart: success rate per source
+SUCCESS_BY_OBJECT = "overview/success_by_object"  # <this>/<object>: BarChart, one bar each, in SUMMARY's order
+SUCCESS_BY_SOURCE = "overview/success_by_source"  # <this>/<source>: BarChart, one bar each
 EPISODE_RETURN = "overview/return"  # Scalars on the episode timeline
 EPISODE_LENGTH = "overview/length"  # Scalars on the episode timeline, steps
 EPISODE_SUCCESS = "overview/success"  # Scalars 0/1 on the episode timeline
