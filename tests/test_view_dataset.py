@@ -13,7 +13,13 @@ from hingelab.episodes.dataset import Dataset
 from hingelab.episodes.synthetic import write_synthetic_episode
 from hingelab.viewers import entities as E
 from hingelab.viewers import view
-from hingelab.viewers.blueprints import DATASET_BLUEPRINT_FILE, EPISODE_BLUEPRINT_FILE, save_blueprints
+from hingelab.viewers.blueprints import (
+    DATASET_BLUEPRINT_FILE,
+    EPISODE_BLUEPRINT_FILE,
+    KINDS,
+    kind_blueprint_file,
+    save_blueprints,
+)
 from test_view_episode import rrd_tables, sorted_by
 
 OBJECTS = ("sphere", "sphere", "cube", "cube", "cube", "cylinder")  # success rates 1/2, 2/3, 0
@@ -85,7 +91,8 @@ def test_every_episode_back_to_back(recording):
 
 def test_blueprint_files_are_saved(tmp_path):
     written = save_blueprints(tmp_path)
-    assert [p.name for p in written] == [EPISODE_BLUEPRINT_FILE, DATASET_BLUEPRINT_FILE]
+    assert [p.name for p in written] == [EPISODE_BLUEPRINT_FILE, DATASET_BLUEPRINT_FILE] + [
+        kind_blueprint_file(kind) for kind in KINDS]
     assert all(p.stat().st_size > 1000 for p in written)
 
 

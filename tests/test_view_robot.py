@@ -53,14 +53,14 @@ def heuristic(tmp_path_factory):
 def trial(tmp_path_factory):
     """Six steps with arm joints, hand joints, a registered tool pose and a latent only (what a real trial has)."""
     root = tmp_path_factory.mktemp("robot") / "trial"
-    create_dataset(root, name="trial", source="trial", config={"test": "robot"}, seed=0)
+    create_dataset(root, name="trial", source="stand_in", config={"test": "robot"}, seed=0)
     model = load_scene("tool_pick")
     home = model.key_qpos[model.key(names.GRASP_KEYFRAME).id]
     arm_home = np.array([home[model.jnt_qposadr[model.joint(j).id]] for j in names.ARM_JOINTS])
     arm_q = arm_home + np.linspace(0.0, 0.2, 6)[:, None] * np.array([1, -1, 1, 0.5, -0.5, 1.0])
     openings = np.linspace(0.05, 0.25, len(arm_q))
     latents = shipped_encoder().calibration.z_for_opening(openings)
-    with EpisodeWriter(root, source="trial", task="tool_pick", object="sphere", seed=0) as writer:
+    with EpisodeWriter(root, source="stand_in", task="tool_pick", object="sphere", seed=0) as writer:
         for k, q in enumerate(arm_q):
             writer.write_arm_joints(0.05 * k, names.ARM_JOINTS, q, np.zeros(6))
             writer.write_step(0.05 * k, joint_position=np.full(9, 0.1 * k / 6), joint_velocity=np.zeros(9),
@@ -140,6 +140,7 @@ def test_flange_meets_hand_base(trial):
 @pytest.mark.skipif(RERUN is None, reason="the rerun executable of rerun-sdk is not on this environment's path")
 @pytest.mark.parametrize("which", ["heuristic", "trial"])
 def test_rrd_passes_rerun_verify_and_stats(which, request):
+    """Rerun's own CLI reads the recording: it verifies, its stats list the meshes, its blueprint is the kind's."""
     rrd = request.getfixturevalue(which)[0]
     verify = subprocess.run([RERUN, "rrd", "verify", str(rrd)], capture_output=True, text=True, timeout=60)
     assert verify.returncode == 0, verify.stderr
@@ -149,6 +150,17 @@ def test_rrd_passes_rerun_verify_and_stats(which, request):
     for entity in (f"/{E.ROBOT}/{names.TOOL_BODY_A}", f"/{E.ROBOT}/{names.TOOL_BODY_B}", f"/{E.ROBOT}/hand_base",
                    "/" + E.TOOL_FRAME):
         assert entity in stats.stdout, f"{entity} not in rerun rrd stats"
+    printed = subprocess.run([RERUN, "rrd", "print", "-vvv", str(rrd)], capture_output=True, text=True, timeout=60)
+    assert printed.returncode == 0 and f"episode ({which})" in printed.stdout, "the kind's layout"
+
+
+def test_dataset_kinds_from_sources():
+    from hingelab.viewers.blueprints import dataset_kind
+
+    assert [dataset_kind(s) for s in ("heuristic", "scripted", "low_level_evaluation", "low_level_training",
+                                      "high_level_evaluation", "flat_training", "stand_in", "real", "bench", None)] == [
+        "heuristic", "heuristic", "low_level", "low_level", "high_level", "high_level", "trial", "real", "generic",
+        "generic"]
 
 
 def _static(tables, entity: str, column: str):

@@ -27,7 +27,7 @@ from hingelab.episodes.dataset import Dataset, open_dataset
 from hingelab.errors import HingelabError
 from hingelab.safe_names import safe_file_name
 from hingelab.viewers import entities as E
-from hingelab.viewers.blueprints import dataset_blueprint, episode_blueprint
+from hingelab.viewers.blueprints import dataset_blueprint, dataset_kind, episode_blueprint
 from hingelab.viewers.dataset_log import DatasetLogStats, log_dataset
 from hingelab.viewers.episode_log import log_episode
 from hingelab.viewers.latent_frame import plane_bounds, reachable_latent_curve
@@ -129,11 +129,13 @@ def view(path, save=None, web: bool = False, cloud_every: int = 10, max_episodes
         save = Path(workdir.name) / f"{file_name}.rrd"
     if kind == "episode":
         episode = read_episode(target)  # before opening the sink: a bad file leaves no .rrd behind
-        rec = _open_recording(name, episode_blueprint(_episode_plane_bounds(episode)), save)
+        kind_of = dataset_kind(episode.metadata.get(S.KEY_SOURCE))
+        rec = _open_recording(name, episode_blueprint(_episode_plane_bounds(episode), kind_of), save)
         log_episode(rec, episode)
         result = ViewResult(kind, name, save, None, 1, episode.length, 0.0)
     else:
-        rec = _open_recording(name, dataset_blueprint(plane_bounds(reachable_latent_curve())), save)
+        blueprint = dataset_blueprint(plane_bounds(reachable_latent_curve()), dataset_kind(target.card.source))
+        rec = _open_recording(name, blueprint, save)
         stats = log_dataset(rec, target, cloud_every=cloud_every, max_episodes=max_episodes, progress=progress)
         result = ViewResult(kind, name, save, None, stats.episodes, stats.steps, 0.0, stats)
     rec.flush()
