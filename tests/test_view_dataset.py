@@ -87,6 +87,9 @@ def test_every_episode_back_to_back(recording):
     events = sorted_by(tables["/" + E.EVENTS], E.TIMELINE_DATASET_STEP).column("TextLog:text").to_pylist()
     outcomes = [text[0] for text in events]
     assert outcomes == ["success" if s else "failure: timeout" for s in index["success"]]
+    hand = sorted_by(tables[f"/{E.ROBOT}/hand_base"], E.TIMELINE_DATASET_STEP)  # the scene, posed with the clouds
+    assert hand.column(E.TIMELINE_DATASET_STEP).to_pylist() == clouds.column(E.TIMELINE_DATASET_STEP).to_pylist()
+    assert tables[f"/{E.ROBOT}/tool_leg_a"].column("Mesh3D:vertex_positions").drop_null().to_pylist()
 
 
 def test_blueprint_files_are_saved(tmp_path):

@@ -12,7 +12,8 @@ Overview (from the index alone, no episode is read):
 Episodes: the same entities as the one-episode view (``entities.py``), all episodes
 concatenated per entity and sent in **one** ``send_columns`` call per entity, on the
 timelines ``episode`` (to step through episodes) and ``dataset_step`` (all steps back
-to back, to replay). ``overview/latent_plane`` holds every step's z of every episode
+to back, to replay); the scene's meshes (``robot_log``) are posed every ``cloud_every`` steps.
+``overview/latent_plane`` holds every step's z of every episode
 (green: successful episodes, red: failed) over the latent plane. Clouds are kept every
 ``cloud_every`` steps (and at each episode's last step) so a 1000-episode recording
 stays small; ``cloud_every=1`` keeps all.
@@ -48,6 +49,7 @@ from hingelab.viewers.rerun_send import (
     send_series,
     send_static_style,
 )
+from hingelab.viewers.robot_log import DatasetRobot
 
 BAR_COLORS = ((90, 150, 220), (245, 160, 30), (40, 180, 90), (200, 80, 160), (150, 110, 60), (120, 120, 120))
 SUCCESS_COLOR = (40, 180, 90)
@@ -155,6 +157,7 @@ def log_dataset(rec: rr.RecordingStream, dataset: Dataset, cloud_every: int = 10
     paths = dataset.paths()[:max_episodes]
     succeeded = dataset.index["success"].iloc[: len(paths)].fillna(False).to_numpy(bool)
     collected = _Concatenator()
+    robot = DatasetRobot(every=cloud_every)  # the scene's meshes, posed at the steps whose clouds are kept
     trajectories, tip_paths, facts, plane_points, plane_colors = [], [], [], [], []
     offset = clouds = 0
     for number, path in enumerate(tqdm(paths, desc=f"view {dataset.root.name}", unit="episode",
@@ -178,12 +181,14 @@ def log_dataset(rec: rr.RecordingStream, dataset: Dataset, cloud_every: int = 10
             plane_points.append(z)
             color = SUCCESS_COLOR if succeeded[number] else FAILURE_COLOR
             plane_colors.append(np.tile(color, (len(z), 1)))
+        robot.add(episode, number, offset)
         mid = tip_midpoints(episode)
         tip_paths.append(mid if mid is not None else np.zeros((0, 3)))
         facts.append(episode_facts_markdown(episode))
         offset += length
     read_s = time.perf_counter() - started
     collected.send(rec)
+    robot.send(rec)
     first_steps = np.zeros(len(paths), np.int64)  # each episode's first dataset_step
     episode_numbers = np.arange(len(paths), dtype=np.int64)
     if len(paths):

@@ -41,8 +41,7 @@ def log_robot(rec: rr.RecordingStream, episode: Episode) -> ScenePoses | None:
     poses = scene_poses(model, episode, [m.body_id for m in meshes], opening_of_z=latent_opening)
     if poses is None:
         return None
-    steps = np.arange(len(poses.step_time_ns), dtype=np.int64)
-    indexes = [rr.TimeColumn(E.TIMELINE_STEP, sequence=steps),
+    indexes = [rr.TimeColumn(E.TIMELINE_STEP, sequence=poses.step),
                rr.TimeColumn(E.TIMELINE_SIM_TIME, duration=poses.step_time_ns.astype("timedelta64[ns]"))]
     for b, mesh in enumerate(meshes):
         if not drawn(mesh, poses):
@@ -55,6 +54,41 @@ def log_robot(rec: rr.RecordingStream, episode: Episode) -> ScenePoses | None:
     return poses
 
 
+class DatasetRobot:
+    """The posed meshes of many episodes back to back (a dataset view): ``add`` each episode, then ``send`` once.
+
+    Poses are kept every ``every`` steps (and at each episode's last step), like the dataset view's
+    clouds; a body goes out only for the episodes that can pose it (the arm and platform need arm joints).
+    """
+
+    def __init__(self, every: int = 1):
+        self.every = max(int(every), 1)
+        self.model, self.meshes = _scene()
+        self.rows: dict[int, list[tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]]] = {}
+
+    def add(self, episode: Episode, episode_number: int, step_offset: int) -> None:
+        poses = scene_poses(self.model, episode, [m.body_id for m in self.meshes], opening_of_z=latent_opening,
+                            every=self.every)
+        if poses is None or not len(poses.step):
+            return
+        for b, mesh in enumerate(self.meshes):
+            if drawn(mesh, poses):
+                self.rows.setdefault(b, []).append((poses.translation[:, b], poses.quaternion[:, b],
+                                                    np.full(len(poses.step), episode_number, np.int64),
+                                                    poses.step + step_offset))
+
+    def send(self, rec: rr.RecordingStream) -> None:
+        for b, parts in self.rows.items():
+            mesh = self.meshes[b]
+            entity = robot_entity(mesh)
+            rec.log(entity, rr.Mesh3D(vertex_positions=mesh.vertices, triangle_indices=mesh.triangles,
+                                      vertex_colors=mesh.colors), static=True)
+            indexes = [rr.TimeColumn(E.TIMELINE_EPISODE, sequence=np.concatenate([p[2] for p in parts])),
+                       rr.TimeColumn(E.TIMELINE_DATASET_STEP, sequence=np.concatenate([p[3] for p in parts]))]
+            rec.send_columns(entity, indexes=indexes, columns=rr.Transform3D.columns(
+                translation=np.concatenate([p[0] for p in parts]), quaternion=np.concatenate([p[1] for p in parts])))
+
+
 def sources_markdown(poses: ScenePoses) -> str:
     """Where each part's poses came from, a markdown table for the episode's facts panel."""
     lines = ["", "## the scene's poses (in hand_base)", "", "| part | source |", "|---|---|"]
@@ -62,4 +96,4 @@ def sources_markdown(poses: ScenePoses) -> str:
     return "\n".join(lines) + "\n"
 
 
-__all__ = ["log_robot", "robot_entity", "sources_markdown"]
+__all__ = ["log_robot", "robot_entity", "sources_markdown", "DatasetRobot"]

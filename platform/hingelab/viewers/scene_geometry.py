@@ -29,6 +29,7 @@ from dataclasses import dataclass
 import mujoco
 import numpy as np
 import trimesh
+from scipy.spatial.transform import Rotation
 
 from hingelab.episodes import Episode
 from hingelab.episodes import schemas as S
@@ -128,12 +129,14 @@ def scene_meshes(model: mujoco.MjModel) -> list[BodyMesh]:
 @dataclass
 class ScenePoses:
     """Body poses per step in hand_base: ``translation`` (T, B, 3) metres, ``quaternion`` (T, B, 4) x y z w,
-    for the bodies ``body_ids`` (B,); ``step_time_ns`` (T,) the steps' log times; ``sources``: part -> where
-    its poses came from (for the facts panel and the tests)."""
+    for the bodies ``body_ids`` (B,); ``step`` (T,) the steps' indices and ``step_time_ns`` (T,) their log
+    times; ``has_arm``: the arm joints were recorded; ``sources``: part -> where its poses came from (for the
+    facts panel and the tests)."""
 
     body_ids: np.ndarray
     translation: np.ndarray
     quaternion: np.ndarray
+    step: np.ndarray
     step_time_ns: np.ndarray
     has_arm: bool
     sources: dict[str, str]
@@ -172,25 +175,33 @@ def _at(times: np.ndarray, values: np.ndarray, at: np.ndarray) -> np.ndarray:
     return values[k]
 
 
-def _wxyz(xyzw: np.ndarray) -> np.ndarray:
-    q = np.asarray(xyzw, float)[..., [3, 0, 1, 2]]
-    norm = np.linalg.norm(q, axis=-1, keepdims=True)
-    return np.where(norm > 0, q / np.where(norm > 0, norm, 1.0), [1.0, 0.0, 0.0, 0.0])
+def _rotations(xyzw: np.ndarray | None, n: int) -> np.ndarray:
+    """(n, 3, 3) rotation matrices of quaternions x y z w (zero or missing: identity)."""
+    if xyzw is None:
+        return np.tile(np.eye(3), (n, 1, 1))
+    q = np.asarray(xyzw, float).reshape(n, 4)
+    q = np.where(np.linalg.norm(q, axis=1, keepdims=True) > 0, q, [0.0, 0.0, 0.0, 1.0])
+    return Rotation.from_quat(q).as_matrix()
 
 
-def scene_poses(model: mujoco.MjModel, episode: Episode, body_ids, opening_of_z=None) -> ScenePoses | None:
+def scene_poses(model: mujoco.MjModel, episode: Episode, body_ids, opening_of_z=None,
+                every: int = 1) -> ScenePoses | None:
     """Poses of ``body_ids`` per hand-joint step (see the module docstring); None without hand joints.
+
+    every: pose every ``every``-th step and the last one only (a dataset view's thinning).
 
     opening_of_z: (T, 2) latents -> (T,) hinge openings (rad) or None; reads leg b's angle off the
     recorded latent when the episode has no recorded hinge angle (real episodes)."""
     joints = episode.topics.get(S.TOPIC_JOINTS)
     if joints is None or len(joints.get("position", ())) == 0:
         return None
-    times = np.asarray(joints["log_time_ns"], np.int64)
+    all_steps = np.arange(len(joints["log_time_ns"]), dtype=np.int64)
+    kept = all_steps[(all_steps % max(int(every), 1) == 0) | (all_steps == all_steps[-1])]
+    times = np.asarray(joints["log_time_ns"], np.int64)[kept]
     n = len(times)
     joint_names = episode.metadata.get(S.KEY_JOINT_NAMES) or list(names.HAND_ACTUATORS)
     hand_adr = [_hand_qpos_adr(model, j) for j in joint_names]
-    hand_q = np.asarray(joints["position"], float)
+    hand_q = np.asarray(joints["position"], float)[kept]
     data = mujoco.MjData(model)
     data.qpos[:] = model.key_qpos[model.key(names.GRASP_KEYFRAME).id]
     coupling = HandCoupling(model)
@@ -198,7 +209,10 @@ def scene_poses(model: mujoco.MjModel, episode: Episode, body_ids, opening_of_z=
     arm_q, arm_source = _arm_joints(episode, n)
     if arm_q is not None:
         arm = episode.topics.get(S.TOPIC_ARM_JOINTS)
-        arm_q = _at(np.asarray(arm["log_time_ns"]), arm_q, times) if arm is not None else arm_q[:n]
+        if arm is not None:
+            arm_q = _at(np.asarray(arm["log_time_ns"]), arm_q, times)
+        else:  # step infos: one row per step
+            arm_q = arm_q[np.minimum(kept, len(arm_q) - 1)]
     sources = {"hand": f"{S.TOPIC_JOINTS} through mj_kinematics",
                "arm": f"{arm_source} through mj_kinematics" if arm_q is not None else "not recorded: not drawn"}
 
@@ -247,7 +261,10 @@ def scene_poses(model: mujoco.MjModel, episode: Episode, body_ids, opening_of_z=
     obj_free = _qpos_adr(model, names.OBJECT_FREE_JOINT)
     body_ids = np.asarray(body_ids, int)
     translation = np.empty((n, len(body_ids), 3))
-    quaternion = np.empty((n, len(body_ids), 4))
+    rotation = np.empty((n, len(body_ids), 3, 3))
+    free_bodies = [(adr, pos, _rotations(quat, n)) for adr, pos, quat in
+                   ((tool_free, tool_pos, tool_quat), (obj_free, obj_pos, obj_quat)) if pos is not None]
+    world_quat = np.zeros(4)
     hand_rot = np.eye(3)
     for k in range(n):
         if arm_q is not None:
@@ -258,24 +275,15 @@ def scene_poses(model: mujoco.MjModel, episode: Episode, body_ids, opening_of_z=
             data.qpos[hinge_adr] = hinge[k]
         mujoco.mj_kinematics(model, data)  # the hand in the world first, to place the free bodies relative to it
         hand_pos, hand_rot = data.xpos[hand_body].copy(), data.xmat[hand_body].reshape(3, 3).copy()
-        for adr, pos, quat in ((tool_free, tool_pos, tool_quat), (obj_free, obj_pos, obj_quat)):
-            if pos is None:
-                continue
+        for adr, pos, rot in free_bodies:
             data.qpos[adr:adr + 3] = hand_pos + hand_rot @ pos[k]
-            rot_hand = np.zeros(9)
-            mujoco.mju_quat2Mat(rot_hand, _wxyz(quat[k]) if quat is not None else np.array([1.0, 0, 0, 0]))
-            world = np.zeros(4)
-            mujoco.mju_mat2Quat(world, (hand_rot @ rot_hand.reshape(3, 3)).ravel())
-            data.qpos[adr + 3:adr + 7] = world
+            mujoco.mju_mat2Quat(world_quat, (hand_rot @ rot[k]).ravel())
+            data.qpos[adr + 3:adr + 7] = world_quat
         mujoco.mj_kinematics(model, data)
-        rel_pos = (data.xpos[body_ids] - hand_pos) @ hand_rot  # rows: R_hand^T (x - p_hand)
-        rel_rot = np.einsum("ji,bjk->bik", hand_rot, data.xmat[body_ids].reshape(-1, 3, 3))
-        translation[k] = rel_pos
-        for b, rot in enumerate(rel_rot):
-            q = np.zeros(4)
-            mujoco.mju_mat2Quat(q, rot.ravel())
-            quaternion[k, b] = q[[1, 2, 3, 0]]
-    return ScenePoses(body_ids, translation, quaternion, times, arm_q is not None, sources)
+        translation[k] = (data.xpos[body_ids] - hand_pos) @ hand_rot  # rows: R_hand^T (x - p_hand)
+        rotation[k] = np.einsum("ji,bjk->bik", hand_rot, data.xmat[body_ids].reshape(-1, 3, 3))
+    quaternion = Rotation.from_matrix(rotation.reshape(-1, 3, 3)).as_quat().reshape(n, len(body_ids), 4)  # x y z w
+    return ScenePoses(body_ids, translation, quaternion, kept, times, arm_q is not None, sources)
 
 
 def drawn(mesh: BodyMesh, poses: ScenePoses) -> bool:
