@@ -60,7 +60,7 @@ def trial(tmp_path_factory):
     arm_q = arm_home + np.linspace(0.0, 0.2, 6)[:, None] * np.array([1, -1, 1, 0.5, -0.5, 1.0])
     openings = np.linspace(0.05, 0.25, len(arm_q))
     latents = shipped_encoder().calibration.z_for_opening(openings)
-    with EpisodeWriter(root, source="stand_in", task="tool_pick", object="sphere", seed=0) as writer:
+    with EpisodeWriter(root, source="stand_in", task="tool_pick", object="cube", seed=0) as writer:
         for k, q in enumerate(arm_q):
             writer.write_arm_joints(0.05 * k, names.ARM_JOINTS, q, np.zeros(6))
             writer.write_step(0.05 * k, joint_position=np.full(9, 0.1 * k / 6), joint_velocity=np.zeros(9),
@@ -123,6 +123,14 @@ def test_trial_poses_come_from_the_arm_joints_through_kinematics(trial):
     np.testing.assert_allclose(between, openings, atol=0.01)
     facts = tables["/" + E.FACTS].column("TextDocument:text").to_pylist()[0][0]
     assert "/arm/joints through mj_kinematics" in facts and "read off the latent" in facts
+
+
+def test_the_object_mesh_is_the_episodes_shape(trial, heuristic):
+    for (_, tables, *_), extent, vertices in ((trial, [0.02] * 3, 8), (heuristic, [0.02] * 3, None)):
+        mesh = np.array(tables[f"/{E.ROBOT}/object"].column("Mesh3D:vertex_positions").drop_null().to_pylist()[0])
+        np.testing.assert_allclose(np.ptp(mesh, axis=0), extent, atol=1e-3)
+        if vertices is not None:
+            assert len(mesh) == vertices, "the trial's cube, not the scene's sphere"
 
 
 def test_flange_meets_hand_base(trial):

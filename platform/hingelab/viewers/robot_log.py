@@ -3,7 +3,8 @@
 Each body's mesh (``scene_geometry.scene_meshes`` of the pick scene, vertices in the body frame) goes
 out once, static, as ``rr.Mesh3D`` at ``world/robot/<body>``; its pose in hand_base goes out on the same
 entity as ``rr.Transform3D`` columns on the ``step`` and ``sim_time`` timelines (one ``send_columns``
-per body). ``world`` is hand_base (``entities``), so the hand stays put and the arm and platform move
+per body; the object's mesh is the episode's own shape and size where its metadata says, see
+``object_spec``). ``world`` is hand_base (``entities``), so the hand stays put and the arm and platform move
 around it. Where each part's poses come from is in ``scene_geometry``'s docstring; the episode's facts
 panel lists them per episode.
 """
@@ -11,12 +12,15 @@ panel lists them per episode.
 from __future__ import annotations
 
 import functools
+import json
 
 import mujoco
 import numpy as np
 import rerun as rr
 
 from hingelab.episodes import Episode
+from hingelab.episodes import schemas as S
+from hingelab.errors import ConfigError
 from hingelab.viewers import entities as E
 from hingelab.viewers.latent_frame import latent_opening
 from hingelab.viewers.scene_geometry import BodyMesh, ScenePoses, drawn, scene_meshes, scene_poses
@@ -28,6 +32,42 @@ def _scene() -> tuple[mujoco.MjModel, tuple[BodyMesh, ...]]:
 
     model = load_scene("tool_pick")
     return model, tuple(scene_meshes(model))
+
+
+def object_spec(metadata: dict) -> tuple[str, float] | None:
+    """(shape, size m) of the episode's object where its metadata says: a primitive shape (``object``, or a
+    family's drawn ``object_kind`` with its ``object_draw`` record's ``size_m``); size: the draw's, else the
+    training object's (episodes of one fixed object record the shape, not the size). None: not a primitive."""
+    from hingelab.sim.objects import SHAPES, TRAINING_OBJECT
+
+    shape, size = metadata.get(S.KEY_OBJECT), TRAINING_OBJECT[1]
+    draw = metadata.get(S.KEY_OBJECT_DRAW)
+    if draw:
+        try:
+            record = json.loads(draw)
+            shape, size = record.get("kind", shape), float(record.get("size_m", size))
+        except (ValueError, TypeError):
+            return None
+    return (shape, size) if shape in SHAPES else None
+
+
+@functools.cache
+def _object_mesh(shape: str, size: float) -> BodyMesh | None:
+    from hingelab.sim.objects import ObjectSpec
+    from hingelab.sim.scene import load_scene
+
+    try:
+        model = load_scene("tool_pick", obj=ObjectSpec(shape, size))
+    except ConfigError:
+        return None
+    return next((m for m in scene_meshes(model) if m.part == "object"), None)
+
+
+def _episode_meshes(meshes: tuple[BodyMesh, ...], episode: Episode) -> list[BodyMesh]:
+    """The scene's meshes with the object swapped for the episode's own shape and size where it is known."""
+    spec = object_spec(episode.metadata)
+    swapped = _object_mesh(*spec) if spec is not None else None
+    return [swapped if swapped is not None and m.part == "object" else m for m in meshes]
 
 
 def robot_entity(mesh: BodyMesh) -> str:
@@ -43,7 +83,7 @@ def log_robot(rec: rr.RecordingStream, episode: Episode) -> ScenePoses | None:
         return None
     indexes = [rr.TimeColumn(E.TIMELINE_STEP, sequence=poses.step),
                rr.TimeColumn(E.TIMELINE_SIM_TIME, duration=poses.step_time_ns.astype("timedelta64[ns]"))]
-    for b, mesh in enumerate(meshes):
+    for b, mesh in enumerate(_episode_meshes(meshes, episode)):
         if not drawn(mesh, poses):
             continue
         entity = robot_entity(mesh)
@@ -96,4 +136,4 @@ def sources_markdown(poses: ScenePoses) -> str:
     return "\n".join(lines) + "\n"
 
 
-__all__ = ["log_robot", "robot_entity", "sources_markdown", "DatasetRobot"]
+__all__ = ["log_robot", "robot_entity", "object_spec", "sources_markdown", "DatasetRobot"]
