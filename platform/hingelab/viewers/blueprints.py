@@ -41,6 +41,11 @@ def kind_blueprint_file(kind: str) -> str:
     return f"dataset_blueprint_{kind}.rbl"
 
 
+# The 3-D view's first eye, in hand_base (+x up): half a metre to the side of the held tweezer, looking at
+# its middle, so the tool and its cloud fill the view rather than the whole arm (orbit or zoom out for it).
+TOOL_MIDDLE_HAND = (-0.02, 0.03, 0.12)
+SCENE_EYE = rrb.EyeControls3D(kind="Orbital", position=(0.1, 0.48, 0.12), look_target=TOOL_MIDDLE_HAND,
+                              eye_up=(1.0, 0.0, 0.0))
 # The latent plane shows z in [-3, 3]^2: the VAE's prior is N(0, I), so nearly all latents fall inside.
 LATENT_BOUNDS = rrb.VisualBounds2D(x_range=[-3.0, 3.0], y_range=[-3.0, 3.0])
 
@@ -70,7 +75,8 @@ def dataset_kind(source: str | None) -> str:
 
 def _episode_views(latent_bounds=None, kind: str = "generic") -> rrb.Container:
     """The episode layout for a ``kind`` of dataset (``KINDS``): which views lead and which are left out."""
-    scene = rrb.Spatial3DView(name="scene in hand_base", origin=E.WORLD, contents=["$origin/**"])
+    scene = rrb.Spatial3DView(name="scene in hand_base", origin=E.WORLD, contents=["$origin/**"],
+                              eye_controls=SCENE_EYE)
     plane = rrb.Spatial2DView(
         name="latent plane (z, z_goal, reachable)", origin="latent_plane",
         contents=["$origin/**"], visual_bounds=_latent_bounds(latent_bounds),

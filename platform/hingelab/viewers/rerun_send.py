@@ -98,8 +98,9 @@ def send_static_style(rec: rr.RecordingStream, series: Series) -> None:
 
 
 def send_scene_statics(rec: rr.RecordingStream) -> None:
-    """hand_base as the 3-D view's frame (z up, metres) and the tool frame's axes."""
-    rec.log(E.WORLD, rr.ViewCoordinates.RIGHT_HAND_Z_UP, static=True)
+    """hand_base as the 3-D view's frame (metres; +x up: the hand hangs with its x axis up at the pick scene's
+    home, tips down, so the platform shows below) and the tool frame's axes."""
+    rec.log(E.WORLD, rr.ViewCoordinates.RIGHT_HAND_X_UP, static=True)
     rec.log(E.TOOL_AXES, rr.TransformAxes3D(0.03), static=True)
 
 
