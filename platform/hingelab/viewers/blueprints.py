@@ -41,10 +41,11 @@ def kind_blueprint_file(kind: str) -> str:
     return f"dataset_blueprint_{kind}.rbl"
 
 
-# The 3-D view's first eye, in hand_base (+x up): half a metre to the side of the held tweezer, looking at
-# its middle, so the tool and its cloud fill the view rather than the whole arm (orbit or zoom out for it).
-TOOL_MIDDLE_HAND = (-0.02, 0.03, 0.12)
-SCENE_EYE = rrb.EyeControls3D(kind="Orbital", position=(0.1, 0.48, 0.12), look_target=TOOL_MIDDLE_HAND,
+# The 3-D view's first eye, in hand_base (+x up): half a metre away, diagonally between the side the tweezer
+# opens to (+y) and the fingers' direction (+z), looking between the held tweezer and the object under its
+# tips, so the tool, its cloud and the object fill the view rather than the whole arm (orbit or zoom out).
+SCENE_LOOK_TARGET_HAND = (-0.06, 0.03, 0.12)
+SCENE_EYE = rrb.EyeControls3D(kind="Orbital", position=(-0.01, 0.35, 0.44), look_target=SCENE_LOOK_TARGET_HAND,
                               eye_up=(1.0, 0.0, 0.0))
 # The latent plane shows z in [-3, 3]^2: the VAE's prior is N(0, I), so nearly all latents fall inside.
 LATENT_BOUNDS = rrb.VisualBounds2D(x_range=[-3.0, 3.0], y_range=[-3.0, 3.0])
