@@ -200,3 +200,29 @@ def test_latent_plane_is_framed_to_the_reachable_region(heuristic):
     for points in (curve, episode["/tool/latent"]["z"], episode["/goal"]["z_goal"]):
         assert (points[:, 0] >= x0).all() and (points[:, 0] <= x1).all()
         assert (points[:, 1] >= y0).all() and (points[:, 1] <= y1).all()
+
+
+def test_real_import_poses_the_arm_from_its_step_infos(tmp_path):
+    """A real import keeps the arm's angles as step infos ``arm_joint_1..6``, not on /arm/joints."""
+    root = tmp_path / "real"
+    create_dataset(root, name="real", source="real", config={"test": "robot"}, seed=0)
+    model = load_scene("tool_pick")
+    home = model.key_qpos[model.key(names.GRASP_KEYFRAME).id]
+    arm_q = np.array([home[model.jnt_qposadr[model.joint(j).id]] for j in names.ARM_JOINTS]) + np.array(
+        [[0.0] * 6, [0.1, -0.1, 0.1, 0.0, 0.0, 0.2]])
+    with EpisodeWriter(root, source="real", task="tool_pick", object="sphere", seed=0) as writer:
+        for k, q in enumerate(arm_q):
+            writer.write_step(0.05 * k, joint_position=np.zeros(9), joint_velocity=np.zeros(9),
+                              tool_pose_hand=(np.array([0.035, 0.032, 0.122]), np.array([0.0, 1.0, 0.0, 0.0])),
+                              transition={"observation": np.zeros(3), "action": np.zeros(5), "reward": 0.0,
+                                          "terminated": False, "truncated": False,
+                                          "info": dict(zip(names.ARM_JOINTS, map(float, q), strict=True))})
+        writer.set_outcome(success=False, failure_reason="timeout")
+    rrd = tmp_path / "real.rrd"
+    view(writer.path, save=rrd, progress=False)
+    tables = rrd_tables(rrd)
+    rot, pos = default_kinematics().hand_poses(arm_q)
+    world_t, _ = _poses(tables, "world")
+    np.testing.assert_allclose(world_t, -np.einsum("tji,tj->ti", rot, pos), atol=1e-6)
+    facts = tables["/" + E.FACTS].column("TextDocument:text").to_pylist()[0][0]
+    assert "/step infos arm_joint_1..6" in facts and "not recorded: not drawn" in facts  # no object recorded
