@@ -226,3 +226,18 @@ def test_real_import_poses_the_arm_from_its_step_infos(tmp_path):
     np.testing.assert_allclose(world_t, -np.einsum("tji,tj->ti", rot, pos), atol=1e-6)
     facts = tables["/" + E.FACTS].column("TextDocument:text").to_pylist()[0][0]
     assert "/step infos arm_joint_1..6" in facts and "not recorded: not drawn" in facts  # no object recorded
+
+
+def test_an_unknown_hand_leaves_the_scene_out_and_says_why(tmp_path):
+    root = tmp_path / "other"
+    create_dataset(root, name="other", source="real", config={"test": "robot"}, seed=0)
+    with EpisodeWriter(root, source="real", task="tool_pick", object="sphere", seed=0,
+                       joint_names=[f"other_{i}" for i in range(9)]) as writer:
+        writer.write_step(0.0, joint_position=np.zeros(9), joint_velocity=np.zeros(9))
+        writer.set_outcome(success=False, failure_reason="timeout")
+    rrd = tmp_path / "other.rrd"
+    view(writer.path, save=rrd, progress=False)
+    tables = rrd_tables(rrd)
+    assert not any(key.startswith(f"/{E.ROBOT}/") for key in tables)
+    facts = tables["/" + E.FACTS].column("TextDocument:text").to_pylist()[0][0]
+    assert "not drawn: the episode's hand joint 'other_0' is not a joint of the pick scene" in facts

@@ -42,7 +42,7 @@ def log_episode(rec: rr.RecordingStream, episode: Episode) -> list[Series]:
         send_static_style(rec, one)
         send_series(rec, one, episode_indexes(one))
     poses = log_robot(rec, episode)  # the arm, hand, tweezer, platform and object as posed meshes
-    facts = episode_facts_markdown(episode) + (sources_markdown(poses) if poses is not None else "")
+    facts = episode_facts_markdown(episode) + sources_markdown(poses)
     rec.log(E.FACTS, rr.TextDocument(facts, media_type="text/markdown"), static=True)
     trajectory = latent_trajectory(episode)
     if trajectory is not None and len(trajectory) > 1:

@@ -75,12 +75,15 @@ def robot_entity(mesh: BodyMesh) -> str:
     return f"{E.ROBOT}/{mesh.name}"
 
 
-def log_robot(rec: rr.RecordingStream, episode: Episode) -> ScenePoses | None:
-    """Send the posed meshes of ``episode`` (see the module docstring); the poses, or None without hand joints."""
+def log_robot(rec: rr.RecordingStream, episode: Episode) -> ScenePoses | str:
+    """Send the posed meshes of ``episode`` (see the module docstring); the poses, or why none were drawn."""
     model, meshes = _scene()
-    poses = scene_poses(model, episode, [m.body_id for m in meshes], opening_of_z=latent_opening)
+    try:
+        poses = scene_poses(model, episode, [m.body_id for m in meshes], opening_of_z=latent_opening)
+    except ConfigError as exc:  # the rest of the episode is still worth seeing
+        return str(exc)
     if poses is None:
-        return None
+        return f"the episode has no {S.TOPIC_JOINTS}"
     indexes = [rr.TimeColumn(E.TIMELINE_STEP, sequence=poses.step),
                rr.TimeColumn(E.TIMELINE_SIM_TIME, duration=poses.step_time_ns.astype("timedelta64[ns]"))]
     for b, mesh in enumerate(_episode_meshes(meshes, episode)):
@@ -107,8 +110,11 @@ class DatasetRobot:
         self.rows: dict[int, list[tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]]] = {}
 
     def add(self, episode: Episode, episode_number: int, step_offset: int) -> None:
-        poses = scene_poses(self.model, episode, [m.body_id for m in self.meshes], opening_of_z=latent_opening,
-                            every=self.every)
+        try:
+            poses = scene_poses(self.model, episode, [m.body_id for m in self.meshes], opening_of_z=latent_opening,
+                                every=self.every)
+        except ConfigError:  # hand joints of another hand: this episode's scene is left out
+            return
         if poses is None or not len(poses.step):
             return
         for b, mesh in enumerate(self.meshes):
@@ -129,8 +135,10 @@ class DatasetRobot:
                 translation=np.concatenate([p[0] for p in parts]), quaternion=np.concatenate([p[1] for p in parts])))
 
 
-def sources_markdown(poses: ScenePoses) -> str:
-    """Where each part's poses came from, a markdown table for the episode's facts panel."""
+def sources_markdown(poses: ScenePoses | str) -> str:
+    """Where each part's poses came from (or why the scene is not drawn), markdown for the episode's facts panel."""
+    if isinstance(poses, str):
+        return f"\n## the scene's poses (in hand_base)\n\nnot drawn: {poses}\n"
     lines = ["", "## the scene's poses (in hand_base)", "", "| part | source |", "|---|---|"]
     lines += [f"| {part} | {source} |" for part, source in poses.sources.items()]
     return "\n".join(lines) + "\n"

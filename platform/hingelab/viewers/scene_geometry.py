@@ -33,6 +33,7 @@ from scipy.spatial.transform import Rotation
 
 from hingelab.episodes import Episode
 from hingelab.episodes import schemas as S
+from hingelab.errors import ConfigError
 from hingelab.sim import names
 from hingelab.sim.hand import HandCoupling
 
@@ -154,7 +155,7 @@ def _hand_qpos_adr(model: mujoco.MjModel, joint: str) -> int:
     for name in (joint, f"svh_{joint}"):
         if mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_JOINT, name) >= 0:
             return _qpos_adr(model, name)
-    raise KeyError(f"the episode's hand joint {joint!r} is not a joint of the pick scene")
+    raise ConfigError(f"the episode's hand joint {joint!r} is not a joint of the pick scene")
 
 
 def _arm_joints(episode: Episode, n: int) -> tuple[np.ndarray | None, str]:
@@ -186,7 +187,8 @@ def _rotations(xyzw: np.ndarray | None, n: int) -> np.ndarray:
 
 def scene_poses(model: mujoco.MjModel, episode: Episode, body_ids, opening_of_z=None,
                 every: int = 1) -> ScenePoses | None:
-    """Poses of ``body_ids`` per hand-joint step (see the module docstring); None without hand joints.
+    """Poses of ``body_ids`` per hand-joint step (see the module docstring); None without hand joints;
+    a ``ConfigError`` for hand joints the model does not have.
 
     every: pose every ``every``-th step and the last one only (a dataset view's thinning).
 
