@@ -13,7 +13,13 @@ from hingelab.episodes.dataset import Dataset
 from hingelab.episodes.synthetic import write_synthetic_episode
 from hingelab.viewers import entities as E
 from hingelab.viewers import view
-from hingelab.viewers.blueprints import DATASET_BLUEPRINT_FILE, EPISODE_BLUEPRINT_FILE, save_blueprints
+from hingelab.viewers.blueprints import (
+    DATASET_BLUEPRINT_FILE,
+    EPISODE_BLUEPRINT_FILE,
+    KINDS,
+    kind_blueprint_file,
+    save_blueprints,
+)
 from test_view_episode import rrd_tables, sorted_by
 
 OBJECTS = ("sphere", "sphere", "cube", "cube", "cube", "cylinder")  # success rates 1/2, 2/3, 0
@@ -40,10 +46,16 @@ def recording(dataset, tmp_path_factory):
 def test_overview_bar_charts_are_the_success_rates(recording):
     tables, index = recording
     expected = index.assign(success=index["success"].astype(float)).groupby("object")["success"].mean()
-    bars = tables["/" + E.SUCCESS_BY_OBJECT].column("BarChart:values").to_pylist()[0][0]  # a tensor
-    assert bars["shape"] == [3]
-    np.testing.assert_allclose(bars["buffer"], expected.sort_index().to_numpy())
-    np.testing.assert_allclose(bars["buffer"], [2 / 3, 0.0, 0.5])  # cube, cylinder, sphere
+    bars = {}  # one named bar per object: {name: (position, rate)}
+    for name in ("cube", "cylinder", "sphere"):
+        table = tables[f"/{E.SUCCESS_BY_OBJECT}/{name}"]
+        values = table.column("BarChart:values").drop_null().to_pylist()[0][0]  # a tensor
+        position = table.column("BarChart:abscissa").drop_null().to_pylist()[0][0]
+        assert values["shape"] == [1]
+        bars[name] = (position["buffer"][0], values["buffer"][0])
+    assert [bars[n][0] for n in ("cube", "cylinder", "sphere")] == [0.0, 1.0, 2.0]  # the summary's rows
+    np.testing.assert_allclose([bars[n][1] for n in expected.sort_index().index], expected.sort_index().to_numpy())
+    np.testing.assert_allclose([bars[n][1] for n in ("cube", "cylinder", "sphere")], [2 / 3, 0.0, 0.5])
     summary = tables["/" + E.SUMMARY].column("TextDocument:text").to_pylist()[0][0]
     assert "| 0 | cube | 3 | 2 | 0.667 |" in summary  # cubes: seeds 2, 4 succeed, 3 fails
 
@@ -75,11 +87,15 @@ def test_every_episode_back_to_back(recording):
     events = sorted_by(tables["/" + E.EVENTS], E.TIMELINE_DATASET_STEP).column("TextLog:text").to_pylist()
     outcomes = [text[0] for text in events]
     assert outcomes == ["success" if s else "failure: timeout" for s in index["success"]]
+    hand = sorted_by(tables[f"/{E.ROBOT}/hand_base"], E.TIMELINE_DATASET_STEP)  # the scene, posed with the clouds
+    assert hand.column(E.TIMELINE_DATASET_STEP).to_pylist() == clouds.column(E.TIMELINE_DATASET_STEP).to_pylist()
+    assert tables[f"/{E.ROBOT}/tool_leg_a"].column("Mesh3D:vertex_positions").drop_null().to_pylist()
 
 
 def test_blueprint_files_are_saved(tmp_path):
     written = save_blueprints(tmp_path)
-    assert [p.name for p in written] == [EPISODE_BLUEPRINT_FILE, DATASET_BLUEPRINT_FILE]
+    assert [p.name for p in written] == [EPISODE_BLUEPRINT_FILE, DATASET_BLUEPRINT_FILE] + [
+        kind_blueprint_file(kind) for kind in KINDS]
     assert all(p.stat().st_size > 1000 for p in written)
 
 

@@ -3,14 +3,17 @@
 Overview (from the index alone, no episode is read):
 
 - ``overview/success_by_object`` and ``overview/success_by_source``: bar charts of the
-  success rate (0..1), bars in the order of the ``overview/summary`` tables;
+  success rate (0..1), one named bar per object or source (``<chart>/<name>``, a one-value
+  ``BarChart`` at its row's position: Rerun's bar charts carry no bar labels, its legend names
+  entities), in the order of the ``overview/summary`` tables;
 - ``overview/return``, ``overview/length``, ``overview/success``: one value per episode
   on the ``episode`` timeline.
 
 Episodes: the same entities as the one-episode view (``entities.py``), all episodes
 concatenated per entity and sent in **one** ``send_columns`` call per entity, on the
 timelines ``episode`` (to step through episodes) and ``dataset_step`` (all steps back
-to back, to replay). ``overview/latent_plane`` holds every step's z of every episode
+to back, to replay); the scene's meshes (``robot_log``) are posed every ``cloud_every`` steps.
+``overview/latent_plane`` holds every step's z of every episode
 (green: successful episodes, red: failed) over the latent plane. Clouds are kept every
 ``cloud_every`` steps (and at each episode's last step) so a 1000-episode recording
 stays small; ``cloud_every=1`` keeps all.
@@ -46,7 +49,9 @@ from hingelab.viewers.rerun_send import (
     send_series,
     send_static_style,
 )
+from hingelab.viewers.robot_log import DatasetRobot
 
+BAR_COLORS = ((90, 150, 220), (245, 160, 30), (40, 180, 90), (200, 80, 160), (150, 110, 60), (120, 120, 120))
 SUCCESS_COLOR = (40, 180, 90)
 FAILURE_COLOR = (220, 60, 60)
 
@@ -81,14 +86,20 @@ def _markdown(table: pd.DataFrame, title: str) -> str:
     return "\n".join(lines) + "\n"
 
 
+def bar_entity(chart: str, name) -> str:
+    """The entity of one named bar: ``<chart>/<name>``, so the bar chart's legend names it."""
+    return f"{chart}/{rr.escape_entity_path_part(str(name))}"
+
+
 def log_overview(rec: rr.RecordingStream, dataset: Dataset) -> None:
     """Bar charts, per-episode return/length/success and the summary tables (see module doc)."""
     index = dataset.index
     parts = [f"# {dataset.card.name}: {len(index)} episodes, source {dataset.card.source}\n"]
     for by, entity in (("object", E.SUCCESS_BY_OBJECT), ("source", E.SUCCESS_BY_SOURCE)):
         table = success_table(index, by)
-        rec.log(entity, rr.BarChart(table["success_rate"].to_numpy(np.float64),
-                                    abscissa=np.arange(len(table), dtype=np.float64)), static=True)
+        for i, (name, rate) in enumerate(zip(table[by], table["success_rate"], strict=True)):
+            rec.log(bar_entity(entity, name), rr.BarChart([float(rate)], abscissa=[float(i)],
+                                                          color=BAR_COLORS[i % len(BAR_COLORS)]), static=True)
         parts.append(_markdown(table, f"success rate by {by} (bar: row)"))
     rec.log(E.SUMMARY, rr.TextDocument("\n".join(parts), media_type="text/markdown"), static=True)
     episode = np.arange(len(index), dtype=np.int64)
@@ -146,6 +157,7 @@ def log_dataset(rec: rr.RecordingStream, dataset: Dataset, cloud_every: int = 10
     paths = dataset.paths()[:max_episodes]
     succeeded = dataset.index["success"].iloc[: len(paths)].fillna(False).to_numpy(bool)
     collected = _Concatenator()
+    robot = DatasetRobot(every=cloud_every)  # the scene's meshes, posed at the steps whose clouds are kept
     trajectories, tip_paths, facts, plane_points, plane_colors = [], [], [], [], []
     offset = clouds = 0
     for number, path in enumerate(tqdm(paths, desc=f"view {dataset.root.name}", unit="episode",
@@ -169,12 +181,14 @@ def log_dataset(rec: rr.RecordingStream, dataset: Dataset, cloud_every: int = 10
             plane_points.append(z)
             color = SUCCESS_COLOR if succeeded[number] else FAILURE_COLOR
             plane_colors.append(np.tile(color, (len(z), 1)))
+        robot.add(episode, number, offset)
         mid = tip_midpoints(episode)
         tip_paths.append(mid if mid is not None else np.zeros((0, 3)))
         facts.append(episode_facts_markdown(episode))
         offset += length
     read_s = time.perf_counter() - started
     collected.send(rec)
+    robot.send(rec)
     first_steps = np.zeros(len(paths), np.int64)  # each episode's first dataset_step
     episode_numbers = np.arange(len(paths), dtype=np.int64)
     if len(paths):
@@ -206,4 +220,4 @@ def _first_steps(collected: _Concatenator, n_episodes: int) -> np.ndarray:
     return first
 
 
-__all__ = ["log_dataset", "log_overview", "success_table", "DatasetLogStats"]
+__all__ = ["log_dataset", "log_overview", "success_table", "bar_entity", "DatasetLogStats"]

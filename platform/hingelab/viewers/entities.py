@@ -3,7 +3,9 @@ loggers (``episode_log``, ``dataset_log``), the blueprints and the tests.
 
 Frames: everything under ``world/`` is in the hand frame ``hand_base`` (metres, the
 MCAP files' frame, see datasets/README.md); ``world/tool`` carries the registered tool
-pose as a transform, so its child ``world/tool/axes`` draws the tool frame.
+pose as a transform, so its child ``world/tool/axes`` draws the tool frame. hand_base is the
+3-D view's root (not MuJoCo's world): the recorded data needs no conversion and stays where it was
+recorded, the hand stays still and the arm and platform (``world/robot``) move around it.
 """
 
 from __future__ import annotations
@@ -25,6 +27,7 @@ TIPS = "world/tips"  # Points3D, 2 per step: tip a, tip b (privileged)
 OBJECT = "world/object"  # Points3D, 1 per step: object position (as observed)
 TARGET = "world/target"  # Points3D, 1 per step: target position
 TIP_PATH = "world/tip_path"  # LineStrips3D (static): the midpoint of the tips over the episode
+ROBOT = "world/robot"  # world/robot/<body>: Mesh3D (static, body frame) + Transform3D per step (body in hand_base)
 CAMERA = "world/camera"  # Transform3D per recorded frame (optical frame in hand_base) + Pinhole (static): frustum
 CAMERA_DEPTH = "world/camera/depth"  # DepthImage, millimetres (trials: every --depth-every step)
 
@@ -36,6 +39,7 @@ LATENT_Z_GOAL = "latent/z_goal"  # Scalars, 2 per step
 PLANE_Z = "latent_plane/z"  # Points2D, 1 per step: the current z on the latent plane
 PLANE_Z_GOAL = "latent_plane/z_goal"  # Points2D, 1 per step
 PLANE_TRAJECTORY = "latent_plane/trajectory"  # LineStrips2D (static in an episode view): z over time
+PLANE_REACHABLE = "latent_plane/reachable"  # LineStrips2D (static): the encoder's latent over the reachable openings
 REWARD = "reward"  # reward/<term> Scalars per term, reward/total their sum
 HINGE_ANGLE = "privileged/hinge_angle"  # Scalars, rad (simulator ground truth)
 SUCCESS = "outcome/success"  # Scalars 0/1 per step (info is_success, else the outcome at the last step)
@@ -45,8 +49,8 @@ FACTS = "episode/facts"  # TextDocument: the episode's metadata (markdown)
 
 # --- a dataset overview (static or on the episode timeline) ---------------------------------------
 OVERVIEW = "overview"
-SUCCESS_BY_OBJECT = "overview/success_by_object"  # BarChart: success rate per object, in SUMMARY's order
-SUCCESS_BY_SOURCE = "overview/success_by_source"  # BarChart: success rate per source
+SUCCESS_BY_OBJECT = "overview/success_by_object"  # <this>/<object>: BarChart, one bar each, in SUMMARY's order
+SUCCESS_BY_SOURCE = "overview/success_by_source"  # <this>/<source>: BarChart, one bar each
 EPISODE_RETURN = "overview/return"  # Scalars on the episode timeline
 EPISODE_LENGTH = "overview/length"  # Scalars on the episode timeline, steps
 EPISODE_SUCCESS = "overview/success"  # Scalars 0/1 on the episode timeline

@@ -21,10 +21,14 @@ COLORS = {
     E.TOOL_CLOUD: (90, 150, 220), E.TIPS: (230, 60, 60), E.OBJECT: (245, 160, 30),
     E.TARGET: (40, 180, 90), E.PLANE_Z: (90, 150, 220), E.PLANE_Z_GOAL: (40, 180, 90),
 }
-# Radii: metres in the 3-D view (an object's marker is about its size); negative = screen
-# points (Rerun's UI points) on the latent plane, whose scale depends on the encoder.
-RADII = {E.TOOL_CLOUD: 0.0012, E.TIPS: 0.003, E.OBJECT: 0.006, E.TARGET: 0.004,
+# Radii: metres in the 3-D view, sized to what they mark: the tips 1.5 mm (the tweezer's pads are
+# a few mm), the object the training sphere's 1 cm radius (episodes record the shape, not the size),
+# the target a 2.5 mm dot; negative = screen points (Rerun's UI points) on the latent plane.
+RADII = {E.TOOL_CLOUD: 0.0012, E.TIPS: 0.0015, E.OBJECT: 0.010, E.TARGET: 0.0025,
          E.PLANE_Z: -6.0, E.PLANE_Z_GOAL: -7.0}
+# Labels shown next to the points: the tips are millimetres apart and their labels would sit on each
+# other (and on the object's); their names stay in the hover text.
+HIDDEN_LABELS = {E.TIPS}
 LINE_RADIUS_UI = -1.0  # lines on the latent plane, screen points
 TEXT_LEVELS = {"success": "INFO", "failure": "WARN", "attempt": "DEBUG"}
 
@@ -83,7 +87,8 @@ def send_static_style(rec: rr.RecordingStream, series: Series) -> None:
         labels = list(series.names) if series.names and len(series.names) == series.values.shape[1] else None
         rec.log(series.entity, rr.Points3D.from_fields(
             colors=[color] if color else None, radii=[RADII.get(series.entity, 0.002)],
-            labels=labels, show_labels=bool(labels) if labels else None), static=True)
+            labels=labels, show_labels=(bool(labels) and series.entity not in HIDDEN_LABELS) if labels else None),
+            static=True)
     elif series.kind == POINTS2D:
         rec.log(series.entity, rr.Points2D.from_fields(
             colors=[color] if color else None, radii=[RADII.get(series.entity, -5.0)],
@@ -93,10 +98,11 @@ def send_static_style(rec: rr.RecordingStream, series: Series) -> None:
 
 
 def send_scene_statics(rec: rr.RecordingStream) -> None:
-    """hand_base as the 3-D view's frame (z up, metres) and the tool frame's axes."""
-    rec.log(E.WORLD, rr.ViewCoordinates.RIGHT_HAND_Z_UP, static=True)
+    """hand_base as the 3-D view's frame (metres; +x up: the hand hangs with its x axis up at the pick scene's
+    home, tips down, so the platform shows below) and the tool frame's axes."""
+    rec.log(E.WORLD, rr.ViewCoordinates.RIGHT_HAND_X_UP, static=True)
     rec.log(E.TOOL_AXES, rr.TransformAxes3D(0.03), static=True)
 
 
 __all__ = ["send_series", "send_static_style", "send_scene_statics", "episode_indexes", "dataset_indexes",
-           "COLORS", "RADII", "LINE_RADIUS_UI"]
+           "COLORS", "RADII", "LINE_RADIUS_UI", "HIDDEN_LABELS"]

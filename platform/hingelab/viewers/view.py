@@ -21,14 +21,16 @@ from pathlib import Path
 import rerun as rr
 
 from hingelab.episodes import read_episode
+from hingelab.episodes import schemas as S
 from hingelab.episodes.card import CARD_FILE
 from hingelab.episodes.dataset import Dataset, open_dataset
 from hingelab.errors import HingelabError
 from hingelab.safe_names import safe_file_name
 from hingelab.viewers import entities as E
-from hingelab.viewers.blueprints import dataset_blueprint, episode_blueprint
+from hingelab.viewers.blueprints import dataset_blueprint, dataset_kind, episode_blueprint
 from hingelab.viewers.dataset_log import DatasetLogStats, log_dataset
 from hingelab.viewers.episode_log import log_episode
+from hingelab.viewers.latent_frame import plane_bounds, reachable_latent_curve
 from hingelab.viewers.web_server import GRPC_PORT, LOOPBACK, WEB_PORT, WebServer, serve_rrd, serving_workdir
 
 
@@ -91,6 +93,15 @@ def _open_recording(name: str, blueprint, save: Path | None) -> rr.RecordingStre
     return rec
 
 
+def _episode_plane_bounds(episode):
+    """The latent plane's frame: the reachable region and the episode's z and z_goal (no latent: the default)."""
+    latent = episode.topics.get(S.TOPIC_LATENT, {})
+    if "z" not in latent:
+        return None
+    goal = episode.topics.get(S.TOPIC_GOAL, {}).get("z_goal")
+    return plane_bounds(reachable_latent_curve(), latent["z"], goal)
+
+
 def view(path, save=None, web: bool = False, cloud_every: int = 10, max_episodes: int | None = None,
          progress: bool = True, bind: str = LOOPBACK, port: int = GRPC_PORT,
          web_port: int = WEB_PORT) -> tuple[ViewResult, rr.RecordingStream]:
@@ -118,11 +129,13 @@ def view(path, save=None, web: bool = False, cloud_every: int = 10, max_episodes
         save = Path(workdir.name) / f"{file_name}.rrd"
     if kind == "episode":
         episode = read_episode(target)  # before opening the sink: a bad file leaves no .rrd behind
-        rec = _open_recording(name, episode_blueprint(), save)
+        kind_of = dataset_kind(episode.metadata.get(S.KEY_SOURCE))
+        rec = _open_recording(name, episode_blueprint(_episode_plane_bounds(episode), kind_of), save)
         log_episode(rec, episode)
         result = ViewResult(kind, name, save, None, 1, episode.length, 0.0)
     else:
-        rec = _open_recording(name, dataset_blueprint(), save)
+        blueprint = dataset_blueprint(plane_bounds(reachable_latent_curve()), dataset_kind(target.card.source))
+        rec = _open_recording(name, blueprint, save)
         stats = log_dataset(rec, target, cloud_every=cloud_every, max_episodes=max_episodes, progress=progress)
         result = ViewResult(kind, name, save, None, stats.episodes, stats.steps, 0.0, stats)
     rec.flush()
