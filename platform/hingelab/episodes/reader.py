@@ -10,7 +10,8 @@ numpy array with one row per message of that topic (per step), plus
   per-chunk compression) without decoding a message;
 - generic (any file whose messages use the contract's schemas, e.g. written by
   another tool): every message is decoded with protobuf and stacked.
-Both give identical arrays (tested).
+Both give identical arrays (tested). Times are episode times: the file's log times minus its
+``log_time_origin_ns`` (schema 6 files log at the episode's wall-clock start; older ones from 0, no origin).
 
 Errors a user can act on (not an MCAP file, cut off, foreign schema, written by a
 newer schema version) raise ``DatasetError`` naming the file and the fix.

@@ -15,7 +15,8 @@ Usage (what a recording wrapper does per 20 Hz control step)::
 File layout (the performance design, see datasets/README.md):
 
 - every step is a set of standard protobuf messages (one per topic), so viewers
-  show every step;
+  show every step, logged at the episode's wall-clock start (``log_time_origin_ns``) plus
+  the step's time; a step with an object, target, tips or platform also logs ``/scene``;
 - steps are buffered in blocks of ``chunk_bytes``; a block is written as MCAP chunks
   holding only ``/tool/points`` (split into equal chunks of at most
   ``cloud_chunk_bytes`` of points, which readers decompress in parallel) and one
