@@ -132,6 +132,7 @@ class EpisodeWriter:
         self.facts[S.KEY_LOG_TIME_ORIGIN] = self.log_time_origin_ns
         # the log time of episode time 0 (the origin) plus the offset; every log time below is it + t
         self.time_offset_ns = self.log_time_origin_ns + round(time_offset_s * 1e9)
+        self._scene = scene_topic.SceneEncoder()
         self._object_extent = None  # the camera's last object extent (3,) m: the scene's object size if none recorded
         self.chunk_bytes = int(chunk_bytes)
         self.flush_every_steps = flush_every_steps
@@ -361,7 +362,7 @@ class EpisodeWriter:
     def _write_scene(self, t: int, object_position, target_position, privileged: Mapping, platform) -> None:
         """/scene: the step's object, target, tips and platform as SceneUpdate entities (``episodes.scene``)."""
         shape = str(self.facts.get(S.KEY_OBJECT_KIND) or self.facts.get(S.KEY_OBJECT) or "")
-        payload = scene_topic.encode_scene_update(
+        payload = self._scene.encode(
             t, object_position=object_position, object_orientation=privileged.get("object_orientation"),
             object_shape=shape, object_size=self._object_size(), target_position=target_position,
             tip_a=privileged.get("tip_a"), tip_b=privileged.get("tip_b"), platform=platform)
