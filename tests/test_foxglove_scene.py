@@ -181,3 +181,17 @@ def _topic_strings(node) -> set[str]:
         for value in node:
             out |= _topic_strings(value)
     return out
+
+
+def test_the_scene_encoder_reusing_its_message_gives_what_a_fresh_one_gives():
+    from hingelab.episodes.scene import SceneEncoder, encode_scene_update
+
+    rng = np.random.default_rng(0)
+    encoder = SceneEncoder()
+    for k in range(6):  # entities come and go (a tip missing, NaN target): the message is rebuilt
+        things = dict(object_position=rng.normal(size=3), object_orientation=rng.normal(size=4),
+                      object_shape=("cube", "tetrahedron")[k % 2], object_size=0.015 + 0.002 * k,
+                      target_position=np.full(3, np.nan) if k == 3 else rng.normal(size=3),
+                      tip_a=rng.normal(size=3), tip_b=None if k == 2 else rng.normal(size=3))
+        assert encoder.encode(10**18 + k, **things) == encode_scene_update(10**18 + k, **things)
+    assert encoder.encode(0) is None
