@@ -431,15 +431,5 @@ class ToolPickEnv(SimRenderMixin, gym.Env):
             "action": None if action is None else np.asarray(action, float), "reward_terms": info["reward_terms"],
             "privileged": self.state, "object_position_hand": self._to_hand(self.state.object_pos_world),
             "target_position_hand": self._to_hand(self.target), "object_estimate": self.object_estimate_record(),
-            "platform_hand": self._platform_hand(),
+            "platform_hand": scripted.platform_in_hand(self.sim.model, self.sim.data, self._hand_body),
         }
-
-    def _platform_hand(self) -> tuple | None:
-        """The platform box in hand_base: (centre (3,) m, rotation (3, 3), size (3,) m full extents), or None."""
-        m, d = self.sim.model, self.sim.data
-        try:
-            g = m.geom("platform").id
-        except KeyError:  # a scene without the platform
-            return None
-        rot_hand = d.xmat[self._hand_body].reshape(3, 3)
-        return (self._to_hand(d.geom_xpos[g]), rot_hand.T @ d.geom_xmat[g].reshape(3, 3), 2.0 * m.geom_size[g])
