@@ -99,8 +99,9 @@ def test_plain_mcap_library_decodes_every_message(dataset):
     assert schemas["/tool/pose"] == "foxglove.PoseInFrame" and schemas["/tf"] == "foxglove.FrameTransform"
     assert schemas["/hand/joints"] == "foxglove.JointStates"
     assert len(clouds) == N_STEPS
+    origin = int(metadata["episode"]["log_time_origin_ns"])  # schema 6: log time = wall-clock origin + episode time
     for k, (log_time, points) in enumerate(clouds):
-        assert log_time == round(k * CONTROL_DT_S * 1e9)
+        assert log_time == origin + round(k * CONTROL_DT_S * 1e9)
         np.testing.assert_array_equal(points, steps[k]["points_hand"])
     # the privileged state is logged at the same log time as the step's cloud
     assert [t for t, _ in privileged] == [t for t, _ in clouds]

@@ -69,6 +69,7 @@ def test_each_trial_is_an_episode_with_its_outcome_and_the_bags_facts(rig):
         assert meta["source"] == "real" and meta["ros2_bag"] == "rig_bag"
         assert (int(meta["ros2_trial_start_ns"]) == trial["start_ns"]
                 and int(meta["ros2_trial_end_ns"]) == trial["end_ns"])
+        assert meta["log_time_origin_ns"] == trial["start_ns"]  # logged at the rig's clock, read from 0
         assert meta["ros2_bag_topics"].split(",") == sorted(info["names"][k] for k in (
             "joints", "points", "tf", "tf_static", "events", "action", "object"))
         assert int(meta["ros2_bag_start_ns"]) <= trial["start_ns"] < trial["end_ns"] <= int(meta["ros2_bag_end_ns"])

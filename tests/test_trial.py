@@ -62,6 +62,16 @@ def test_a_trial_records_camera_cloud_joints_and_outcome(trial_episode):
     assert valid.mean() > 0.3 and 0.5 < np.median(camera.depth[0][valid]) < 3.0
     # the recorded tool cloud lies in the crop box around the tool, in hand_base
     assert np.all(np.abs(episode.points).max(axis=(0, 1)) < 0.2)
+    # /scene (schema 6): every step shows the object, target, tips and the stand-in's platform for Foxglove
+    from foxglove_schemas_protobuf.SceneUpdate_pb2 import SceneUpdate
+    from mcap.reader import make_reader
+
+    with open(path, "rb") as f:
+        scenes = [SceneUpdate.FromString(m.data) for _, _, m in make_reader(f).iter_messages(topics=[S.TOPIC_SCENE])]
+    assert len(scenes) == 12
+    assert all(sorted(e.id for e in u.entities) == sorted(S.SCENE_ENTITIES) for u in scenes)
+    size = next(e for e in scenes[0].entities if e.id == S.SCENE_OBJECT).spheres[0].size
+    assert [size.x, size.y, size.z] == pytest.approx([float(meta["object_size"])] * 3)
 
 
 def test_the_view_shows_the_depth_image_and_the_camera_frustum(trial_episode, tmp_path):

@@ -169,6 +169,7 @@ class RecordingWrapper(gym.Wrapper):
             goal_z=record["goal_z"], reward_terms=record["reward_terms"],
             object_position_hand=record["object_position_hand"], target_position_hand=record["target_position_hand"],
             privileged=privileged_fields(record["privileged"]), transition=transition,
+            platform_hand=platform_pose(record.get("platform_hand")),
         )
         if record.get("object_estimate") is not None:  # the camera's object estimate beside the truth
             self.writer.write_object_estimate(record["privileged"].time, **record["object_estimate"])
@@ -189,6 +190,14 @@ class RecordingWrapper(gym.Wrapper):
         if self.writer is not None and not self.writer.closed:
             self.writer.abort()
         self.writer = None
+
+
+def platform_pose(platform) -> tuple | None:
+    """(centre, rotation (3, 3), size) -> (centre, quaternion xyzw, size) for the writer's /scene, or None."""
+    if platform is None:
+        return None
+    centre, rotation, size = platform
+    return centre, _rotation_to_xyzw(rotation), size
 
 
 def _rotation_to_xyzw(rotation: np.ndarray) -> np.ndarray:

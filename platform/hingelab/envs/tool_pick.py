@@ -431,4 +431,5 @@ class ToolPickEnv(SimRenderMixin, gym.Env):
             "action": None if action is None else np.asarray(action, float), "reward_terms": info["reward_terms"],
             "privileged": self.state, "object_position_hand": self._to_hand(self.state.object_pos_world),
             "target_position_hand": self._to_hand(self.target), "object_estimate": self.object_estimate_record(),
+            "platform_hand": scripted.platform_in_hand(self.sim.model, self.sim.data, self._hand_body),
         }

@@ -2,7 +2,7 @@
 
 Formats (documented in ``datasets/README.md``):
 
-- integers (``seed``, ``length``, ``attempt``, ``schema_version``): decimal, ``"42"``
+- integers (``seed``, ``length``, ``attempt``, ``schema_version``, ``log_time_origin_ns``): decimal, ``"42"``
 - floats (``return``, ``start_time_s``, ``end_time_s``): Python ``repr``, the shortest
   string that round-trips the float64 exactly (``"12.75"``, ``"nan"``, ``"inf"``)
 - booleans (``success``, ``recovered``, ``last_step_success``, ``first_attempt_success``): ``"true"`` / ``"false"``
@@ -22,7 +22,7 @@ import numpy as np
 from hingelab.episodes import schemas as S
 from hingelab.episodes.schemas import DIGEST_COLUMNS
 
-INT_KEYS = frozenset({S.KEY_SEED, S.KEY_LENGTH, S.KEY_ATTEMPT, S.KEY_SCHEMA_VERSION})
+INT_KEYS = frozenset({S.KEY_SEED, S.KEY_LENGTH, S.KEY_ATTEMPT, S.KEY_SCHEMA_VERSION, S.KEY_LOG_TIME_ORIGIN})
 FLOAT_KEYS = frozenset({S.KEY_RETURN, S.KEY_START_TIME, S.KEY_END_TIME})
 BOOL_KEYS = frozenset({S.KEY_SUCCESS, S.KEY_TRUNCATED_FILE, S.KEY_LAST_STEP_SUCCESS, S.KEY_FIRST_ATTEMPT_SUCCESS})
 LIST_KEYS = frozenset({S.KEY_JOINT_NAMES})

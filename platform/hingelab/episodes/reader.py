@@ -10,7 +10,8 @@ numpy array with one row per message of that topic (per step), plus
   per-chunk compression) without decoding a message;
 - generic (any file whose messages use the contract's schemas, e.g. written by
   another tool): every message is decoded with protobuf and stacked.
-Both give identical arrays (tested).
+Both give identical arrays (tested). Times are episode times: the file's log times minus its
+``log_time_origin_ns`` (schema 6 files log at the episode's wall-clock start; older ones from 0, no origin).
 
 Errors a user can act on (not an MCAP file, cut off, foreign schema, written by a
 newer schema version) raise ``DatasetError`` naming the file and the fix.
@@ -44,14 +45,15 @@ from hingelab.episodes.metadata import metadata_digest, parse_metadata
 # Schema versions this reader understands. A newer reader keeps the older ones here and
 # maps old topics/fields onto new names when a version renames them. Version 2 added metadata keys only
 # (``success_verdict``, ``last_step_success``): a version-1 file reads as before, without them.
-SUPPORTED_SCHEMA_VERSIONS = frozenset({1, 2, 3, 4, 5})
+SUPPORTED_SCHEMA_VERSIONS = frozenset({1, 2, 3, 4, 5, 6})
 
 
 @dataclass
 class Episode:
     """One episode as numpy arrays.
 
-    topics: {topic: {field: (T_topic, ...) array}}, each with ``log_time_ns`` (T_topic,) int64.
+    topics: {topic: {field: (T_topic, ...) array}}, each with ``log_time_ns`` (T_topic,) int64: episode time, the
+        file's log time minus its ``log_time_origin_ns`` (schema 6 files log at wall-clock time; older ones from 0).
     final: fields of the observation after the last action (``observation``, ...), or {}.
     metadata: the parsed ``episode`` record (or ``episode_start`` of a cut-off file).
     """
@@ -77,7 +79,7 @@ class Episode:
         return self.topics[S.TOPIC_POINTS]["points"]
 
     def time_s(self, topic: str = S.TOPIC_STEP) -> np.ndarray:
-        """Log times of a topic's messages in seconds (simulated time)."""
+        """Episode times of a topic's messages in seconds (simulated time, from the episode's start)."""
         return self.topics[topic]["log_time_ns"] / 1e9
 
 
@@ -169,7 +171,7 @@ class EpisodeFile:
         return found, all(c.channel_ids == {channel_id} for c in found)
 
     def columns(self) -> dict[str, np.ndarray] | None:
-        """The packed ``/episode/columns`` arrays, or None if the file has none."""
+        """The packed ``/episode/columns`` arrays (``*:log_time_ns`` as episode times), or None if it has none."""
         if S.TOPIC_COLUMNS not in self.channels:
             return None
         chunk_indexes, _ = self.chunks_of(S.TOPIC_COLUMNS)
@@ -178,12 +180,22 @@ class EpisodeFile:
             records = mcap_raw.read_chunk_records(self._stream, chunk_index, validate_crc=self.validate)
             for _, start, end in mcap_raw.message_spans(records, channel_id):
                 message = S.EpisodeColumns.FromString(bytes(records[start:end]))
-                return {c.name: np.frombuffer(c.data, dtype=c.dtype).reshape(tuple(c.shape))
-                        for c in message.columns}
+                columns = {c.name: np.frombuffer(c.data, dtype=c.dtype).reshape(tuple(c.shape))
+                           for c in message.columns}
+                origin = self.time_origin_ns
+                if origin:  # log times -> episode times
+                    for name in [n for n in columns if n.endswith(":log_time_ns")]:
+                        columns[name] = columns[name] - origin
+                return columns
         return None
 
     def clouds(self) -> tuple[np.ndarray, np.ndarray]:
-        """(log_time_ns (T,), points (T, N, 3) float32) of every ``/tool/points`` message.
+        """(episode time ns (T,), points (T, N, 3) float32) of every ``/tool/points`` message."""
+        times, points = self._clouds_log_time()
+        return times - self.time_origin_ns, points
+
+    def _clouds_log_time(self) -> tuple[np.ndarray, np.ndarray]:
+        """(log_time_ns (T,) as stored, points (T, N, 3) float32) of every ``/tool/points`` message.
 
         Fast path (cloud-only chunks with message indexes, as ``EpisodeWriter`` writes
         them): the chunks are decompressed in parallel (``mcap_raw.ChunkBatch``),
@@ -251,8 +263,23 @@ class EpisodeFile:
         order = np.argsort(times, kind="stable")
         return times[order], points[order]
 
+    @property
+    def time_origin_ns(self) -> int:
+        """Wall-clock ns of episode time 0 (``log_time_origin_ns``, schema 6; 0 in older files, whose log times
+        start from 0): a message's log time minus it is its episode time."""
+        records = self.raw_metadata()
+        record = records.get(S.METADATA_EPISODE) or records.get(S.METADATA_EPISODE_START) or {}
+        return int(record.get(S.KEY_LOG_TIME_ORIGIN, 0) or 0)
+
     def iter_messages(self, topics: Iterable[str] | None = None) -> Iterator[tuple[str, int, object]]:
-        """(topic, log_time_ns, decoded protobuf message) in log-time order (mcap's reader)."""
+        """(topic, episode time ns, decoded protobuf message) in log-time order (mcap's reader); the episode
+        time is the log time minus ``time_origin_ns``."""
+        origin = self.time_origin_ns
+        for topic, log_time, message in self._raw_messages(topics):
+            yield topic, log_time - origin, message
+
+    def _raw_messages(self, topics: Iterable[str] | None = None) -> Iterator[tuple[str, int, object]]:
+        """(topic, log time ns as stored, decoded protobuf message) in log-time order."""
         if self._reader is None:
             self._stream.seek(0)
             self._reader = make_reader(self._stream, validate_crcs=self.validate)
@@ -262,7 +289,7 @@ class EpisodeFile:
 
     def _decode_topics(self, topics: Iterable[str] | None = None) -> dict:
         wanted = [t for t in (topics or self.channels) if t in self.channels and t != S.TOPIC_COLUMNS]
-        return stack_messages(self.iter_messages(wanted), self._dtypes())[0]
+        return stack_messages(self._raw_messages(wanted), self._dtypes())[0]
 
     def _dtypes(self) -> dict[str, dict]:
         return {t: self.channel_info(t, S.CHANNEL_DTYPES_KEY) for t in self.channels}
@@ -304,7 +331,7 @@ def stack_messages(messages: Iterable[tuple[str, int, object]],
                 dtype = (step_dtypes or {}).get(name)
                 final[name] = value.astype(dtype) if dtype else value
             continue
-        if topic == S.TOPIC_TF:  # viewer copy of /tool/pose: no arrays of its own
+        if topic in S.VIEWER_TOPICS:  # viewer copies (/tf, /scene): no arrays of their own
             continue
         fields = codec.cast_fields(codec.decode_message(topic, message), dtypes.get(topic))
         topic_rows = rows.setdefault(topic, {"log_time_ns": []})
@@ -378,7 +405,8 @@ def _read_episode(path, topics, generic: bool, validate: bool) -> Episode:
                                             if t != S.TOPIC_COLUMNS and (wanted is None or t in wanted)]),
                 episode_file._dtypes(),
             )
-            arrays.pop(S.TOPIC_TF, None)
+            for topic in S.VIEWER_TOPICS:
+                arrays.pop(topic, None)
         else:
             arrays, final = columns_to_topics(columns)
             points_wanted = wanted is None or S.TOPIC_POINTS in wanted

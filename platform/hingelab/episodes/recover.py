@@ -147,9 +147,10 @@ def recover_episode(path, out_path) -> dict:
                            or found.metadata.get(S.METADATA_EPISODE_START) or {})
     reward = arrays.get(S.TOPIC_STEP, {}).get("reward")
     last_ns = max((m.log_time for m in messages), default=0)
+    origin_ns = int(facts.get(S.KEY_LOG_TIME_ORIGIN, 0) or 0)  # schema 6: log times are wall clock
     facts.update({
         S.KEY_LENGTH: steps, S.KEY_RETURN: float(reward.sum()) if reward is not None else 0.0,
-        S.KEY_TRUNCATED_FILE: found.cut_at is not None, S.KEY_END_TIME: last_ns / 1e9,
+        S.KEY_TRUNCATED_FILE: found.cut_at is not None, S.KEY_END_TIME: max(last_ns - origin_ns, 0) / 1e9,
     })
     if found.cut_at is not None and not closed:
         facts.update({S.KEY_SUCCESS: False,

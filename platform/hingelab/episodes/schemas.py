@@ -20,6 +20,7 @@ from foxglove_schemas_protobuf.Point3InFrame_pb2 import Point3InFrame
 from foxglove_schemas_protobuf.PointCloud_pb2 import PointCloud
 from foxglove_schemas_protobuf.PoseInFrame_pb2 import PoseInFrame
 from foxglove_schemas_protobuf.RawImage_pb2 import RawImage
+from foxglove_schemas_protobuf.SceneUpdate_pb2 import SceneUpdate
 from google.protobuf import descriptor_pb2, descriptor_pool, timestamp_pb2
 from google.protobuf.message_factory import GetMessageClass
 
@@ -37,7 +38,12 @@ from google.protobuf.message_factory import GetMessageClass
 #   5: metadata keys ``object_noise`` and ``object_noise_model_sha256`` (the camera's error drawn from a fitted model,
 #      ``object_noise="fitted:NAME"``), whose episodes also carry /object/estimate (``estimator`` "fitted:NAME",
 #      no points). Older files have neither key and read as before.
-SCHEMA_VERSION = 5
+#   6: log (and publish) times start at the episode's wall-clock start: log time = ``log_time_origin_ns`` (metadata,
+#      ns since the Unix epoch) + episode time; readers subtract it, so arrays keep episode-relative times (older files
+#      have no key: origin 0). Topic /scene (foxglove.SceneUpdate): the object, target, tips and platform for
+#      Foxglove's 3-D panel, a viewer copy of /object/position, /target/position and /sim/privileged with no arrays
+#      of its own. Older files have neither and read as before.
+SCHEMA_VERSION = 6
 
 # --- frames -------------------------------------------------------------------
 FRAME_HAND = "hand_base"  # the SVH hand's base frame; every position below is in it
@@ -68,6 +74,12 @@ CAMERA_TOPICS = (TOPIC_DEPTH, TOPIC_CAMERA_CALIBRATION, TOPIC_CAMERA_POSE)
 # The camera's object estimate (schema 4; only where ``object_perception`` names an estimator)
 TOPIC_OBJECT_ESTIMATE = "/object/estimate"  # hingelab.ObjectEstimate, metres, hand_base
 TOPIC_OBJECT_POINTS = "/object/points"  # foxglove.PointCloud, the object's visible points (N varies), hand_base
+# Foxglove's 3-D panel does not draw Point3InFrame: the scene's objects as SceneUpdate entities (schema 6)
+TOPIC_SCENE = "/scene"  # foxglove.SceneUpdate, hand_base: entities SCENE_ENTITIES, metres; a viewer copy, no arrays
+SCENE_OBJECT, SCENE_TARGET, SCENE_TIP_A, SCENE_TIP_B, SCENE_PLATFORM = "object", "target", "tip_a", "tip_b", "platform"
+SCENE_ENTITIES = (SCENE_OBJECT, SCENE_TARGET, SCENE_TIP_A, SCENE_TIP_B, SCENE_PLATFORM)  # entity ids, stable
+# Viewer copies of other topics: written as messages only, never read into arrays or columns
+VIEWER_TOPICS = (TOPIC_TF, TOPIC_SCENE)
 # Columns of /episode/columns under this name hold the CRC32 of each metadata record (MCAP metadata
 # records carry no CRC; the columns' chunk does): "<this>:<record name>", uint32 (metadata_digest).
 DIGEST_COLUMNS = "/episode/metadata_crc32"
@@ -99,7 +111,8 @@ KEY_FAILURE_REASON = "failure_reason"
 KEY_TRUNCATED_FILE = "recovered"  # "true" if the file was salvaged from a cut-off write
 KEY_EPISODE_ID = "episode_id"
 KEY_SCHEMA_VERSION = "schema_version"
-KEY_START_TIME = "start_time_s"
+KEY_START_TIME = "start_time_s"  # episode time of the first step, seconds (not wall clock: see KEY_LOG_TIME_ORIGIN)
+KEY_LOG_TIME_ORIGIN = "log_time_origin_ns"  # (v6) wall-clock ns (Unix epoch) of episode time 0; log time = it + t
 KEY_END_TIME = "end_time_s"
 KEY_CREATED = "created"
 KEY_HINGELAB_VERSION = "hingelab_version"
@@ -297,6 +310,7 @@ TOPIC_TYPES = {
     TOPIC_ARM_JOINTS: JointStates,
     TOPIC_OBJECT_ESTIMATE: ObjectEstimate,
     TOPIC_OBJECT_POINTS: PointCloud,
+    TOPIC_SCENE: SceneUpdate,
 }
 
 # Schema names a hingelab episode may carry; anything else is a foreign schema.
@@ -305,5 +319,5 @@ KNOWN_SCHEMA_NAMES = frozenset(cls.DESCRIPTOR.full_name for cls in TOPIC_TYPES.v
 __all__ = [name for name in dir() if name.isupper()] + [
     "ToolLatent", "Action", "LatentGoal", "RewardTerms", "PrivilegedState", "Step", "ObjectEstimate", "Column",
     "EpisodeColumns", "PointCloud", "PoseInFrame", "FrameTransform", "JointStates",
-    "Point3InFrame", "PackedElementField", "verdict_description",
+    "Point3InFrame", "PackedElementField", "SceneUpdate", "verdict_description",
 ]

@@ -15,7 +15,8 @@ Usage (what a recording wrapper does per 20 Hz control step)::
 File layout (the performance design, see datasets/README.md):
 
 - every step is a set of standard protobuf messages (one per topic), so viewers
-  show every step;
+  show every step, logged at the episode's wall-clock start (``log_time_origin_ns``) plus
+  the step's time; a step with an object, target, tips or platform also logs ``/scene``;
 - steps are buffered in blocks of ``chunk_bytes``; a block is written as MCAP chunks
   holding only ``/tool/points`` (split into equal chunks of at most
   ``cloud_chunk_bytes`` of points, which readers decompress in parallel) and one
@@ -43,6 +44,7 @@ import datetime as _dt
 import json
 import os
 import re
+import time
 import uuid
 from collections.abc import Mapping
 from pathlib import Path
@@ -51,6 +53,7 @@ import numpy as np
 from mcap_protobuf.schema import register_schema
 
 from hingelab.episodes import codec, mcap_raw
+from hingelab.episodes import scene as scene_topic
 from hingelab.episodes import schemas as S
 from hingelab.episodes.card import CARD_FILE, EPISODES_DIR, load_card
 from hingelab.episodes.metadata import digest_columns, format_metadata
@@ -80,7 +83,10 @@ class EpisodeWriter:
         dataset_dir: a dataset folder made by ``create_dataset`` (it has dataset.json).
         source, task, object, seed, attempt: episode facts for the ``episode`` record.
         config_hash: hash of the producing config; default: the dataset card's.
-        time_offset_s: added to every step time; log time = (offset + t) in ns.
+        time_offset_s: added to every step time: episode time = offset + t (``start_time_s`` is the offset).
+        log_time_origin_ns: wall-clock ns (Unix epoch) of episode time 0; every log and publish time is
+            this + episode time, so viewers (Foxglove) show when the episode ran. Default: now
+            (``time.time_ns()`` at construction). Recorded as ``log_time_origin_ns``; readers subtract it.
         joint_names: names of the 9 hand DoF on ``/hand/joints``.
         action_level: ``"low"`` (9-D joint deltas) or ``"high"`` (5-D), recorded on ``/action``.
         chunk_bytes: block size; a block becomes its cloud chunks and one chunk of the rest.
@@ -100,7 +106,8 @@ class EpisodeWriter:
 
     def __init__(self, dataset_dir, *, source: str, task: str = "", object: str = "",
                  seed: int | None = None, attempt: int = 1, config_hash: str | None = None,
-                 time_offset_s: float = 0.0, joint_names=S.SVH_JOINT_NAMES, action_level: str = "",
+                 time_offset_s: float = 0.0, log_time_origin_ns: int | None = None,
+                 joint_names=S.SVH_JOINT_NAMES, action_level: str = "",
                  episode_id: str | None = None, chunk_bytes: int = 4 << 20, compression: str = "zstd",
                  cloud_compression: str | None = None, cloud_chunk_bytes: int = 320 << 10,
                  flush_every_steps: int | None = None, keep_partial_on_error: bool = False,
@@ -121,7 +128,12 @@ class EpisodeWriter:
             **code_version(), **dict(extra_metadata or {}),
         }
         self.joint_names = tuple(joint_names)
-        self.time_offset_ns = round(time_offset_s * 1e9)
+        self.log_time_origin_ns = time.time_ns() if log_time_origin_ns is None else int(log_time_origin_ns)
+        self.facts[S.KEY_LOG_TIME_ORIGIN] = self.log_time_origin_ns
+        # the log time of episode time 0 (the origin) plus the offset; every log time below is it + t
+        self.time_offset_ns = self.log_time_origin_ns + round(time_offset_s * 1e9)
+        self._scene = scene_topic.SceneEncoder()
+        self._object_extent = None  # the camera's last object extent (3,) m: the scene's object size if none recorded
         self.chunk_bytes = int(chunk_bytes)
         self.flush_every_steps = flush_every_steps
         self.keep_partial_on_error = keep_partial_on_error
@@ -190,7 +202,7 @@ class EpisodeWriter:
         # length = the steps: an env recording's reset record (no transition) is not one
         steps = self.transitions if self.transitions else self.length
         facts.update({S.KEY_LENGTH: steps, S.KEY_RETURN: self._reward_sum, S.KEY_SUCCESS: False,
-                      S.KEY_END_TIME: ((self._last_ns or self.time_offset_ns) / 1e9)})
+                      S.KEY_END_TIME: ((self._last_ns or self.time_offset_ns) - self.log_time_origin_ns) / 1e9})
         facts.update({k: v for k, v in self._outcome.items() if v is not None})
         records = {S.METADATA_EPISODE_START: self._start_record, S.METADATA_EPISODE: format_metadata(facts)}
         self._write_columns(digest_columns(records))  # the records' CRCs, where the chunk's CRC covers them
@@ -223,7 +235,8 @@ class EpisodeWriter:
                    joint_position=None, joint_velocity=None, latent_z=None, latent_z_smoothed=None,
                    action=None, goal_z=None, reward_terms: Mapping[str, float] | None = None,
                    object_position_hand=None, target_position_hand=None,
-                   privileged: Mapping | None = None, transition: Mapping | None = None) -> None:
+                   privileged: Mapping | None = None, transition: Mapping | None = None,
+                   platform_hand=None) -> None:
         """Log one control step at simulated time ``time_s`` (seconds). Every argument is optional.
 
         points_hand: (N, 3) float32 metres, hand_base. tool_pose_hand: (position (3,) m,
@@ -236,6 +249,8 @@ class EpisodeWriter:
         contact_count, table_collision} in hand_base, logged at this step's time.
         transition: {observation: (D,) array or {observation, achieved_goal, desired_goal},
         action, reward, terminated, truncated, info: {name: scalar}}.
+        platform_hand: (centre (3,) m, orientation (4,) xyzw, size (3,) m) of the platform in hand_base, for /scene.
+        A step with an object, target, tips or platform also logs them on /scene (``episodes.scene``).
         """
         t = self.time_offset_ns + round(time_s * 1e9)
         if self._last_ns is not None and t < self._last_ns:
@@ -277,6 +292,7 @@ class EpisodeWriter:
         if privileged is not None:
             fields = _present(**privileged)
             self._emit(S.TOPIC_PRIVILEGED, t, codec.encode_fields(S.PrivilegedState, t, **fields), **fields)
+        self._write_scene(t, object_position_hand, target_position_hand, privileged or {}, platform_hand)
         if transition is not None:
             self._write_transition(t, transition)
         self.length += 1
@@ -305,6 +321,8 @@ class EpisodeWriter:
         the estimate), ``flag`` (why not), ``true_position`` (3,) the simulator's truth (None on a rig); the
         visible points (N, 3) hand_base on /object/points when given (messages only: N varies by frame)."""
         t = self.time_offset_ns + round(time_s * 1e9)
+        if np.all(np.isfinite(extent)) and np.all(np.asarray(extent, float) > 0):
+            self._object_extent = np.asarray(extent, float)
         fields = _present(position=np.asarray(position, float), extent=np.asarray(extent, float),
                           n_points=np.uint32(n_points), fresh=np.bool_(fresh),
                           true_position=None if true_position is None else np.asarray(true_position, float))
@@ -340,6 +358,26 @@ class EpisodeWriter:
         self._reward_sum += reward
         self.transitions += 1
         self._emit(S.TOPIC_STEP, t, payload, **fields)
+
+    def _write_scene(self, t: int, object_position, target_position, privileged: Mapping, platform) -> None:
+        """/scene: the step's object, target, tips and platform as SceneUpdate entities (``episodes.scene``)."""
+        shape = str(self.facts.get(S.KEY_OBJECT_KIND) or self.facts.get(S.KEY_OBJECT) or "")
+        payload = self._scene.encode(
+            t, object_position=object_position, object_orientation=privileged.get("object_orientation"),
+            object_shape=shape, object_size=self._object_size(), target_position=target_position,
+            tip_a=privileged.get("tip_a"), tip_b=privileged.get("tip_b"), platform=platform)
+        if payload is not None:
+            self._emit(S.TOPIC_SCENE, t, payload)
+
+    def _object_size(self):
+        """The object's width (m): the recorded ``object_size``, else the camera's extent (3,), else 2 cm."""
+        try:
+            size = float(self.facts.get("object_size"))
+        except (TypeError, ValueError):
+            size = float("nan")
+        if np.isfinite(size) and size > 0:
+            return size
+        return self._object_extent if self._object_extent is not None else scene_topic.DEFAULT_OBJECT_SIZE_M
 
     # --- internals -----------------------------------------------------------------------
     def _field(self, topic: str, name: str, value, column: bool = True) -> None:
@@ -400,7 +438,7 @@ class EpisodeWriter:
         columns = {column_name(topic, name): np.stack(values) for (topic, name), values in self._columns.items()}
         columns.update(extra or {})
         for topic, times in self._log_times.items():
-            if topic != S.TOPIC_TF:  # viewer copy of /tool/pose, not an array topic
+            if topic not in S.VIEWER_TOPICS:  # viewer copies (/tf, /scene), not array topics
                 columns[column_name(topic, "log_time_ns")] = np.asarray(times, dtype=np.int64)
         for name, value in self._final.items():
             columns[column_name(S.TOPIC_STEP, "final." + name)] = value[None]

@@ -38,7 +38,7 @@ from scipy.spatial.transform import Rotation
 from tqdm import tqdm
 
 from hingelab.analysis.pick_table import FAILURE_REASONS, pick_rates
-from hingelab.envs.recording import object_metadata, object_perception_metadata, privileged_fields
+from hingelab.envs.recording import object_metadata, object_perception_metadata, platform_pose, privileged_fields
 from hingelab.episodes import EpisodeWriter, create_dataset
 from hingelab.episodes import schemas as S
 from hingelab.errors import ConfigError
@@ -58,6 +58,7 @@ from hingelab.seeds import STRIDE, TRIALS_BASE, trial_seed
 from hingelab.sim import names
 from hingelab.sim.mesh_objects import object_label
 from hingelab.sim.object_families import episode_record
+from hingelab.sim.scripted import platform_in_hand
 
 FLUSH_EVERY = 20  # steps: what a crash can lose at most
 ANSWERS = {"s": "success", "success": "success", "f": "failure", "failure": "failure", "a": "abort", "abort": "abort"}
@@ -102,15 +103,16 @@ def _record_step(writer, robot: Robot, readings: RobotReadings, step: Step, t: f
     pose = None
     if sample is not None:
         pose = (sample.position[0], Rotation.from_matrix(sample.rotation[0]).as_quat())
-    privileged = None
+    privileged = platform = None
     if hasattr(robot, "sim"):  # the stand-in knows the truth; a real rig does not
         privileged = privileged_fields(robot.sim.reader.read(robot.sim.data))
+        platform = platform_pose(platform_in_hand(robot.sim.model, robot.sim.data, robot.sim.reader.hand_body))
     writer.write_step(t, points_hand=step.cloud, tool_pose_hand=pose, joint_position=readings.hand_position,
                       joint_velocity=readings.hand_velocity,
                       latent_z=None if sample is None else sample.z[0],
                       latent_z_smoothed=None if sample is None else sample.z_smoothed[0],
                       action=step.action, goal_z=step.z_goal, object_position_hand=step.object_hand,
-                      target_position_hand=step.target_hand, privileged=privileged)
+                      target_position_hand=step.target_hand, privileged=privileged, platform_hand=platform)
     writer.write_arm_joints(t, robot.arm_joint_names, readings.arm_position, readings.arm_velocity)
     if getattr(robot, "object_perception", TRUTH) != TRUTH:
         _record_object_estimate(writer, robot, readings, t)

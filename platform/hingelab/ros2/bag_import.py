@@ -632,7 +632,7 @@ def _write_episode(bag, trial: Trial, index: int, out, names, joints: _Joints, c
     seed = seed if isinstance(seed, int) and not isinstance(seed, bool) else index
     kept = {"ros2_exported_episode_id": str(exported["episode_id"])} if exported.get("episode_id") else {}
     writer = EpisodeWriter(out, source=SOURCE, task=TASK, object=str(exported.get("object") or ""), seed=seed,
-                           attempt=trial.attempts,
+                           attempt=trial.attempts, log_time_origin_ns=int(trial.start_ns),  # the rig's clock
                            action_level="high" if action_dim == 5 else ("low" if action_dim == 9 else ""),
                            extra_metadata={
                                "ros2_bag": bag.name, "ros2_bag_path": str(bag.path.resolve()),

@@ -128,6 +128,18 @@ def platform_center(model: mujoco.MjModel) -> np.ndarray:
     return model.geom_pos[model.geom("platform").id][:2].copy()
 
 
+def platform_in_hand(model: mujoco.MjModel, data: mujoco.MjData, hand_body: int) -> tuple | None:
+    """The platform box in hand_base: (centre (3,) m, rotation (3, 3), size (3,) m full extents), or None
+    for a scene without one. ``hand_body``: hand_base's body id."""
+    try:
+        g = model.geom("platform").id
+    except KeyError:
+        return None
+    rot_hand = data.xmat[hand_body].reshape(3, 3)
+    centre = rot_hand.T @ (data.geom_xpos[g] - data.xpos[hand_body])
+    return centre, rot_hand.T @ data.geom_xmat[g].reshape(3, 3), 2.0 * model.geom_size[g]
+
+
 @dataclass
 class LiftResult:
     lifted_m: float
