@@ -17,7 +17,8 @@ def _episodes_by_seed(root):
     return [read_episode(root / "episodes" / f) for f in index["file"]]
 
 
-def _same_episodes(a_root, b_root, n: int, volatile=("episode_id", "wall_time", "created")) -> None:
+def _same_episodes(a_root, b_root, n: int,
+                   volatile=("episode_id", "wall_time", "created", "log_time_origin_ns")) -> None:
     a, b = _episodes_by_seed(a_root), _episodes_by_seed(b_root)
     assert len(a) == len(b) == n
     for x, y in zip(a, b):
