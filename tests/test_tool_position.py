@@ -130,6 +130,8 @@ def test_the_tool_position_verdict_counts_paired_episodes_and_can_say_the_error_
     free = D.summarize(_rows({D.OBSERVED: [1, 0, 1], D.NO_ERROR: [1, 0, 1], D.ANCHORED: [1, 1, 1]}))
     assert D.verdict(free).startswith("The calibration error costs no first-attempt picks here (net +0 of 3")
     assert "slip 1" in free[0]["misses"]
+    clean = D.summarize(_rows({D.OBSERVED: [1, 1], D.NO_ERROR: [1, 1], D.ANCHORED: [1, 1]}))
+    assert D.verdict(clean).startswith("The observed arm picks all 2 at the first attempt")
 
 
 def test_diagnose_tool_position_runs_the_three_arms_on_the_same_seeds(tmp_path, capsys, monkeypatch):
