@@ -43,6 +43,7 @@ def test_help_imports_no_heavy_library():
 def test_names_mirror_the_registries():
     """The names ``--help`` lists without loading the library are the registries' own."""
     from hingelab.cli import names
+    from hingelab.envs.tool_pick import TOOL_POSITIONS
     from hingelab.episodes.export import EXPORTERS
     from hingelab.perception import object_noise_model
     from hingelab.perception.object_estimate import ESTIMATORS
@@ -61,6 +62,7 @@ def test_names_mirror_the_registries():
                                                                       object_noise_model.DEFAULT_MODEL)
     assert names.BASELINES == {level: baseline_names(level) for level in ("low", "high")}
     assert names.ROBOTS == tuple(ROBOTS)
+    assert names.TOOL_POSITIONS == TOOL_POSITIONS
     assert names.NOISE_LEVELS == noise_tolerance.DEFAULT_LEVELS
     assert names.BIAS_LEVELS == bias_tolerance.DEFAULT_LEVELS
 

@@ -23,7 +23,7 @@ from pathlib import Path
 
 from hingelab.arguments import finite_float
 from hingelab.cli import eval_perception
-from hingelab.cli.names import BASELINES
+from hingelab.cli.names import BASELINES, TOOL_POSITIONS
 from hingelab.cli.options import add_max_mesh_mb, add_object_noise, add_object_perception, add_ray_argument
 from hingelab.errors import ConfigError
 from hingelab.folder_lock import folder_lock
@@ -100,7 +100,7 @@ def add_parser(subparsers) -> None:
                            "training) or the rendered depth camera through the camera cloud pipeline")
     add_object_perception(high, "; the estimators need --perception camera")
     add_object_noise(high)
-    high.add_argument("--tool-position", choices=("observed", "anchored"), default=None,
+    high.add_argument("--tool-position", choices=TOOL_POSITIONS, default=None,
                       help="the tool position the policy observes: observed (the tracked one, the paper's; it carries "
                            "the clouds' per-episode calibration error) or anchored (the nominal in-hand position plus "
                            "the tracked change since the episode's first frame); default: what the checkpoint was "

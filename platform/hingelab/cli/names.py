@@ -25,5 +25,7 @@ BASELINES = {"low": ("hold-still", "synergy"),
 # hingelab.rollouts.noise_tolerance.DEFAULT_LEVELS and bias_tolerance.DEFAULT_LEVELS: diagnose's levels
 NOISE_LEVELS = (0.02, 0.05, 0.1, 0.2, 0.3)
 BIAS_LEVELS = (0.01, 0.025, 0.05)
+# hingelab.envs.tool_pick.TOOL_POSITIONS: eval high's and trial's --tool-position
+TOOL_POSITIONS = ("observed", "anchored")
 # hingelab.robot.interface.ROBOTS (hingelab.robot.stand_in registers sim)
 ROBOTS = ("sim",)

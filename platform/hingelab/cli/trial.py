@@ -8,7 +8,7 @@ import sys
 from pathlib import Path
 
 from hingelab.arguments import finite_float
-from hingelab.cli.names import ROBOTS
+from hingelab.cli.names import ROBOTS, TOOL_POSITIONS
 from hingelab.cli.options import add_max_mesh_mb, add_object_perception
 from hingelab.folder_lock import folder_lock
 from hingelab.out_dir import check_out
@@ -53,7 +53,7 @@ def add_parser(subparsers) -> None:
                         "~0.2 MB each)")
     p.add_argument("--max-steps", type=int, default=200, help="steps per trial (default 200, 10 s at 20 Hz)")
     add_object_perception(p, " (the stand-in, --robot sim: a real rig's estimate is its own)")
-    p.add_argument("--tool-position", choices=("observed", "anchored"), default=None,
+    p.add_argument("--tool-position", choices=TOOL_POSITIONS, default=None,
                    help="the tool position the high level observes: observed (the tracked one; it carries the "
                         "camera's hand-eye error) or anchored (the nominal in-hand position plus the tracked change "
                         "since the trial's first frame); default: what the policy was trained on")

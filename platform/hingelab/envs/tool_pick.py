@@ -105,6 +105,19 @@ OBJECT_NOISE_M = 0.002
 # position plus the change since the episode's first frame (the true in-hand start, 1-2 mm from nominal, unseen).
 OBSERVED, ANCHORED = "observed", "anchored"
 TOOL_POSITIONS = (OBSERVED, ANCHORED)
+
+
+def check_tool_position(value: str, where: str = "tool position") -> str:
+    """``value`` if it is one of ``TOOL_POSITIONS``, else a one-line ConfigError starting with ``where``."""
+    if value not in TOOL_POSITIONS:
+        raise ConfigError(f"{where} {value!r} is unknown; choose one of {', '.join(TOOL_POSITIONS)}")
+    return value
+
+
+def anchored_tool_pose(pose: np.ndarray, anchor: np.ndarray, nominal) -> np.ndarray:
+    """``pose`` (position, Euler angles) with its position moved to ``nominal`` plus its change since ``anchor``
+    (the first frame's position): the ``"anchored"`` tool position."""
+    return np.concatenate([np.asarray(nominal, float) + pose[:3] - anchor, pose[3:]])
 ALPHA = TOOL_STATE_ALPHA  # smoothing of t and theta (the paper smooths the high-level tool state too)
 
 
@@ -119,10 +132,7 @@ class ToolPickEnv(SimRenderMixin, gym.Env):
                  terminate_on_drop: bool = True, observe_extent: bool = False, perception: str = "synthesized",
                  object_perception: str = TRUTH, object_noise: str = GAUSSIAN, object_noise_model: str | None = None,
                  pick_set_weights: dict | None = None, tool_position: str = OBSERVED):
-        if tool_position not in TOOL_POSITIONS:
-            raise ConfigError(f"{self.env_name} tool_position {tool_position!r} is unknown; choose one of "
-                              f"{', '.join(TOOL_POSITIONS)}")
-        self.tool_position = tool_position
+        self.tool_position = check_tool_position(tool_position, f"{self.env_name} tool_position")
         # a family draws a new object at each reset (the model is rebuilt for it); until then its seed-0 draw
         self.object_family = ObjectFamily.parse(object, size) if is_family(object) else None
         if pick_set_weights is not None:  # more of the sets a policy misses (its failures' share of training)
@@ -333,8 +343,7 @@ class ToolPickEnv(SimRenderMixin, gym.Env):
         """The tool's position and Euler angles the policy observes (``tool_position``)."""
         if self.tool_position == OBSERVED:
             return self._tool_pose
-        nominal = np.asarray(self.perception.tool_state.prior[1], float)
-        return np.concatenate([nominal + self._tool_pose[:3] - self._tool_anchor, self._tool_pose[3:]])
+        return anchored_tool_pose(self._tool_pose, self._tool_anchor, self.perception.tool_state.prior[1])
 
     def _observe_object(self) -> None:
         """The camera's object estimate on this step's frame (``object_perception`` an estimator), or drawn from the

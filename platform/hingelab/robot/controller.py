@@ -27,7 +27,7 @@ from pathlib import Path
 import numpy as np
 
 from hingelab.envs.low_level import PolicyLowLevel
-from hingelab.envs.tool_pick import ALPHA, ANCHORED, TARGET_HEIGHT, TOOL_POSITIONS
+from hingelab.envs.tool_pick import ALPHA, ANCHORED, TARGET_HEIGHT, anchored_tool_pose, check_tool_position
 from hingelab.errors import ConfigError
 from hingelab.perception.camera_cloud import ToolCloudConfig, tool_cloud_from_frame
 from hingelab.perception.encoder import load_encoder
@@ -112,9 +112,8 @@ class HierarchicalController:
 
     def __init__(self, high_level, encoder=None, cloud_config: ToolCloudConfig = ToolCloudConfig(),
                  tool_position: str = "observed"):
-        if tool_position not in TOOL_POSITIONS:
-            raise ConfigError(f"tool position {tool_position!r} is unknown; choose one of {', '.join(TOOL_POSITIONS)}")
-        self.tool_position = tool_position  # as ToolPick-v0's: "anchored" drops the hand-eye error's constant
+        # as ToolPick-v0's: "anchored" drops the hand-eye error's constant
+        self.tool_position = check_tool_position(tool_position)
         self.encoder = encoder or load_encoder()
         self.high_level = high_level
         self.observe_extent = high_level.observe_extent
@@ -155,8 +154,7 @@ class HierarchicalController:
         self._fresh = False
         tool_pose = self._tool_pose
         if self.tool_position == ANCHORED:
-            nominal = np.asarray(self.tool_state.prior[1], float)
-            tool_pose = np.concatenate([nominal + tool_pose[:3] - self._tool_anchor, tool_pose[3:]])
+            tool_pose = anchored_tool_pose(tool_pose, self._tool_anchor, self.tool_state.prior[1])
         z_bar = sample.z_smoothed[0]
         centre = (readings.object_centre if readings.object_centre is not None
                   else self.target_world - [0, 0, TARGET_HEIGHT])

@@ -39,6 +39,7 @@ from tqdm import tqdm
 
 from hingelab.analysis.pick_table import FAILURE_REASONS, pick_rates
 from hingelab.envs.recording import object_metadata, object_perception_metadata, platform_pose, privileged_fields
+from hingelab.envs.tool_pick import check_tool_position
 from hingelab.episodes import EpisodeWriter, create_dataset
 from hingelab.episodes import schemas as S
 from hingelab.errors import ConfigError
@@ -78,8 +79,8 @@ class TrialConfig:
 
     def __post_init__(self):
         check_object_perception(self.object_perception)
-        if self.tool_position not in (None, "observed", "anchored"):
-            raise ConfigError(f"tool position {self.tool_position!r} is unknown; choose observed or anchored")
+        if self.tool_position is not None:
+            check_tool_position(self.tool_position)
         if self.trials < 1 or self.max_steps < 1 or self.depth_every < 1:
             raise ConfigError(f"--trials, the step limit and --depth-every must be at least 1: {asdict(self)}")
 

@@ -188,23 +188,24 @@ def evaluate_high(policy=None, *, out, baseline: str | None = None, object: str 
     tool_position = tool_position or "observed"
     # a bad object or low level: an error before files
     check_object_perception_with(object_perception, perception)  # before building an env
-    noise = {} if object_noise == "gaussian" and object_noise_model is None else {
+    # the env's settings that differ from its defaults: recorded only then, so older evaluations resume unchanged
+    changed = {} if object_noise == "gaussian" and object_noise_model is None else {
         "object_noise": object_noise, "object_noise_model": object_noise_model}
-    if tool_position != "observed":  # recorded only when it differs, as the noise: older evaluations resume unchanged
-        noise["tool_position"] = tool_position
+    if tool_position != "observed":
+        changed["tool_position"] = tool_position
     H.make_eval_env(object, size, low_level, observe_extent=extent, perception=perception,
-                    object_perception=object_perception, **noise).close()
+                    object_perception=object_perception, **changed).close()
     config = {"policy": label, "object": object, "size": size, "episodes": episodes, "low_level": low_level,
               "observe_extent": extent, "seeds": f"{H.SEED_BASE} + seed * {H.SEED_STRIDE} + episode"}
     if perception != "synthesized":  # recorded only when it differs: older evaluations resume unchanged
         config["perception"] = perception
     if object_perception != "truth":  # the same: recorded only when it differs
         config["object_perception"] = object_perception
-    config.update(noise)  # the same
+    config.update(changed)
     if name is None:
         name = f"eval-high-{baseline or Path(policy).stem}" + (f"-{perception}" if perception != "synthesized" else "")
         name += f"-object-{object_perception}" if object_perception != "truth" else ""
-        name += f"-object-noise-{object_noise.replace(':', '-')}" if "object_noise" in noise else ""
+        name += f"-object-noise-{object_noise.replace(':', '-')}" if "object_noise" in changed else ""
         name += f"-tool-{tool_position}" if tool_position != "observed" else ""
     journal = _start(out, config, seed, resume, name, "high_level_evaluation",
                      description or f"hingelab eval high: {label} on ToolPick-v0, {object} {size * 100:g} cm")
@@ -212,7 +213,7 @@ def evaluate_high(policy=None, *, out, baseline: str | None = None, object: str 
                    "extra_metadata": {"policy": label, "low_level": low_level, "perception": perception,
                                       **({"tool_position": tool_position} if tool_position != "observed" else {})},
                    "perception": perception,
-                   **({"object_perception": object_perception} if object_perception != "truth" else {}), **noise}
+                   **({"object_perception": object_perception} if object_perception != "truth" else {}), **changed}
     with stop_cleanly_on_a_full_disk(out, journal, episodes, command):
         if ray:
             rows = evaluate_high_on_ray(episodes, seed, env_options, out, None if baseline else policy, baseline,
@@ -225,7 +226,7 @@ def evaluate_high(policy=None, *, out, baseline: str | None = None, object: str 
             finally:
                 env.close()
     table = H.success_table(rows, object, size)
-    noted = f" (object noise {object_noise})" if "object_noise" in noise else ""
+    noted = f" (object noise {object_noise})" if "object_noise" in changed else ""
     noted += f" ({tool_position} tool position)" if tool_position != "observed" else ""
     rows.to_csv(out / "episodes.csv", index=False)
     journal.finish()

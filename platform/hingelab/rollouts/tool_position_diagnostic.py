@@ -28,7 +28,7 @@ from tqdm import tqdm
 
 from hingelab.envs import TOOL_PICK_ID
 from hingelab.errors import ConfigError
-from hingelab.policies.high_level import SHIPPED_HIGH_LEVEL, observes_extent
+from hingelab.policies.high_level import SHIPPED_HIGH_LEVEL, observes_extent, trained_tool_position
 from hingelab.policies.loading import load_policy
 from hingelab.policies.policy import ModelPolicy
 from hingelab.rollouts.high_level import FailureReasonWrapper
@@ -57,7 +57,7 @@ def diagnose(checkpoint=None, object: str = "tetrahedron", size: float = 0.015, 
         raise ConfigError(f"give --episodes >= 1, not {episodes}")
     model = load_policy(checkpoint or SHIPPED_HIGH_LEVEL, level="high")
     provenance = getattr(model, "hingelab_provenance", None) or {}
-    if (provenance.get("env_kwargs") or {}).get("tool_position", "observed") != "observed":
+    if trained_tool_position(model) != "observed":
         raise ConfigError(f"{checkpoint} was trained on the anchored tool position; this check compares arms of a "
                           "policy trained on the observed one")
     low_level = provenance.get("low_level", "policy")
