@@ -5,9 +5,10 @@ from pathlib import Path
 
 import pytest
 
+from hingelab import out_dir
 from hingelab.cli.main import main
 from hingelab.errors import ConfigError
-from hingelab.out_dir import check_out, check_out_file
+from hingelab.out_dir import DATASET, REPORT, RUN, check_out, check_out_file
 
 # each command with OUT where its output goes; the inputs need not exist: the output is checked first
 WRITERS = {
@@ -27,6 +28,7 @@ WRITERS = {
     "diagnose noise": ["diagnose", "noise", "--episodes", "1", "--out", "OUT"],
     "sweep": ["sweep", "no_such_sweep.toml", "--out", "OUT"],
     "reproduce": ["reproduce", "--out", "OUT"],
+    "bench": ["bench", "sim", "--allow-dirty", "--out", "OUT"],
 }
 FILE_WRITERS = {  # outputs that are files: a folder there is refused, and a path under a file
     "view --save": ["view", "no_such_dataset", "--save", "OUT"],
@@ -73,10 +75,64 @@ def test_file_outputs_refuse_a_folder_and_a_path_under_a_file(tmp_path, capsys, 
 
 
 def test_check_out_accepts_new_and_existing_folders_and_leaves_nothing(tmp_path):
-    assert check_out(tmp_path / "new" / "deeper") == tmp_path / "new" / "deeper"
-    assert check_out(tmp_path) == tmp_path
+    assert check_out(tmp_path / "new" / "deeper", DATASET) == tmp_path / "new" / "deeper"
+    assert check_out(tmp_path, RUN) == tmp_path
     assert check_out_file(tmp_path / "x.rrd") == tmp_path / "x.rrd"
     assert list(tmp_path.iterdir()) == []
     (tmp_path / "f").write_text("")
     with pytest.raises(ConfigError, match="is a file"):
-        check_out(tmp_path / "f" / "sub")
+        check_out(tmp_path / "f" / "sub", REPORT)
+
+
+@pytest.mark.parametrize("command", list(WRITERS))
+def test_a_folder_of_other_files_is_one_line_and_untouched(tmp_path, capsys, command):
+    """The one rule for a non-empty --out: only the command's own kind of folder; a thesis is nobody's."""
+    out = tmp_path / "mine"
+    out.mkdir()
+    (out / "thesis.docx").write_bytes(b"keep me")
+    err = _one_line_error([str(out) if w == "OUT" else w for w in WRITERS[command]], capsys)
+    assert "is not empty" in err and "thesis.docx" in err and str(out) in err, err
+    assert [p.name for p in out.iterdir()] == ["thesis.docx"]
+    assert (out / "thesis.docx").read_bytes() == b"keep me"
+
+
+@pytest.mark.parametrize("command", ["report", "train high", "generate heuristic", "sweep"])
+def test_another_commands_folder_is_refused_by_name(tmp_path, capsys, command):
+    out = tmp_path / "a_run"
+    out.mkdir()
+    (out / "run.json").write_text("{}")  # a run folder, even one whose files a report could hold
+    argv = [str(out) if w == "OUT" else w for w in WRITERS[command]]
+    if command == "train high":
+        (out / "run.json").unlink()
+        (out / "dataset.json").write_text("{}")
+        assert "holds a dataset" in _one_line_error(argv, capsys)
+    else:
+        assert "holds a run (run.json)" in _one_line_error(argv, capsys)
+
+
+def test_own_kinds_pass_the_check(tmp_path):
+    (tmp_path / "dataset" / "episodes").mkdir(parents=True)
+    (tmp_path / "dataset" / "notes.txt").write_text("")
+    check_out(tmp_path / "dataset", DATASET)  # the command's own policy decides (e.g. --resume) from here
+    (tmp_path / "report" / "sub").mkdir(parents=True)
+    for name in ("picks.md", "picks.csv", "README.md", "frame.png", ".hingelab.lock"):
+        (tmp_path / "report" / name).write_text("")
+    check_out(tmp_path / "report", REPORT)
+    (tmp_path / "report" / "model.zip").write_text("")
+    with pytest.raises(ConfigError, match="model.zip, which is not a report"):
+        check_out(tmp_path / "report", REPORT)
+    (tmp_path / "empty_but_locked").mkdir()
+    (tmp_path / "empty_but_locked" / ".hingelab.lock").write_text("")
+    check_out(tmp_path / "empty_but_locked", out_dir.NEW)
+
+
+def test_the_markers_are_the_writers_file_names():
+    from hingelab.episodes.card import CARD_FILE
+    from hingelab.sweeps.reproduce import STATE_FILE
+    from hingelab.sweeps.runner import SWEEP_TOML
+    from hingelab.training.run_folder import CONFIG_FILE, RUN_FILE
+
+    assert out_dir.DATASET.markers == (CARD_FILE, "episodes")
+    assert out_dir.RUN.markers == (CONFIG_FILE, RUN_FILE)
+    assert out_dir.SWEEP.markers == (SWEEP_TOML,)
+    assert out_dir.REPRODUCTION.markers == (STATE_FILE,)

@@ -282,8 +282,9 @@ def test_the_one_line_errors(tmp_path, capsys):
     taken.mkdir()
     (taken / "something").write_text("x")
     assert main(["reproduce", "--out", str(taken), "--scale", "tiny"]) == 1
-    assert capsys.readouterr().err.strip() == (f"hingelab: error: {taken} is not empty; give a new or empty --out "
-                                               "(or --resume a reproduction there)")
+    assert capsys.readouterr().err.strip() == (f"hingelab: error: --out {taken} exists and is not empty: it holds "
+                                               "something, which is not a reproduction; give a new or empty folder "
+                                               "for the reproduction")
     assert main(["reproduce", "--out", str(tmp_path / "none"), "--resume"]) == 1
     err = capsys.readouterr().err.strip()
     assert err.startswith("hingelab: error: --resume: ") and "holds no reproduction (reproduce.json is missing)" in err

@@ -85,3 +85,22 @@ def test_a_buffer_of_another_shape_or_a_damaged_file_is_refused(tmp_path):
     (tmp_path / "cut.npz").write_bytes(raw[: len(raw) // 2])
     with pytest.raises(ConfigError, match="cut.npz is not a readable replay buffer"):
         load_buffer(ReplayBuffer(10, box, box), tmp_path / "cut.npz")
+
+
+def test_non_finite_numbers_round_trip_as_strict_json():
+    """A NaN statistic in a checkpoint's state comes back bit for bit, and the text is JSON (no bare NaN)."""
+    import json
+    import math
+    from collections import deque
+
+    from hingelab.training.resume_state import dumps, loads
+
+    doc = {"mean": float("nan"), "bounds": [1.0, float("inf")], "rewards": deque([float("-inf"), 2.0]),
+           "array": np.array([np.nan, 1.5, -np.inf], dtype=np.float32), "scalar": np.float32("nan")}
+    text = dumps(doc)
+    json.loads(text, parse_constant=lambda name: pytest.fail(f"bare {name} in the state"))
+    back = loads(text)
+    assert math.isnan(back["mean"]) and back["bounds"] == [1.0, math.inf]
+    assert back["rewards"][0] == -math.inf and back["rewards"][1] == 2.0
+    assert back["array"].dtype == np.float32 and np.array_equal(back["array"], doc["array"], equal_nan=True)
+    assert back["scalar"].dtype == np.float32 and np.isnan(back["scalar"])

@@ -11,7 +11,8 @@ write episodes the episodes expected against those found, duplicated and lost. T
 - ``train low`` killed (SIGKILL, after a checkpoint and a few episodes past it) and resumed, against an
   uninterrupted run of the same settings, episode for episode;
 - seeds -1, 2**32 and 10**14 on the commands that take one;
-- ``--out`` as an existing file and under ``/proc``, on every kind of command that writes;
+- ``--out`` as an existing file, under ``/proc`` and a folder of someone else's files, on every kind of
+  command that writes;
 - a 1 GB sparse mesh file as ``--object mesh:PATH``;
 - a dangling ``.mcap`` symlink and a symlink loop inside a dataset (``datasets verify``, ``info``,
   ``index``, ``report``);
@@ -181,6 +182,16 @@ def _out_under_proc(s: ProbeRun, command: str) -> None:
     s.hingelab(*_writers(s, str(PROC_OUT))[command](), expect=(1,))
 
 
+def _out_holds_other_files(s: ProbeRun, command: str) -> None:
+    s.out.mkdir()
+    thesis = s.out / "thesis.docx"
+    thesis.write_bytes(b"somebody's work: it must stay as it is")
+    s.hingelab(*_writers(s, "out")[command](), expect=(1,))
+    held = sorted(p.name for p in s.out.iterdir())
+    if held != ["thesis.docx"] or thesis.read_bytes() != b"somebody's work: it must stay as it is":
+        s.problem(f"--out now holds {held}")
+
+
 # ---------------------------------------------------------------------------------------- bounded inputs
 def _huge_mesh(s: ProbeRun) -> None:
     mesh = s.input_dir / "huge.stl"
@@ -226,6 +237,9 @@ PROBES: list[Probe] = [
       for command in WRITERS),
     *(Probe(f"--out under /proc: {command}", P(_out_under_proc, command=command), quick=command == "report")
       for command in WRITERS),
+    *(Probe(f"--out a folder of other files: {command}", P(_out_holds_other_files, command=command),
+            quick=command == "train low")
+      for command in WRITERS if command != "view --save"),
     Probe("1 GB sparse mesh as --object mesh:PATH", _huge_mesh, quick=True),
     Probe("dangling .mcap symlink and a symlink loop: verify, info, index, report", _dangling_symlinks),
     Probe("the same ROS 2 bag imported twice into one --out", _import_twice),

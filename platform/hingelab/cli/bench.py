@@ -15,6 +15,7 @@ from pathlib import Path
 from hingelab.bench import BENCHMARKS, table_dir
 from hingelab.bench.freshness import HistoryUnavailable, report
 from hingelab.errors import ConfigError, HingelabError
+from hingelab.out_dir import REPORT, check_out
 from hingelab.paths import ANALYSIS_DIR, REPO_ROOT
 from hingelab.provenance import code_version, require_clean_for
 
@@ -83,6 +84,7 @@ def run(args: argparse.Namespace) -> int:
             raise ConfigError("--encoder is an option of `hingelab bench perception` only")
         options["encoder"] = args.encoder
     # before the run, not after: a long benchmark must not end in a refusal
+    check_out(args.out or table_dir(args.name), REPORT)
     require_clean_for(args.out or table_dir(args.name), args.allow_dirty, f"hingelab bench {args.name}")
     code_version()  # the version as the run starts (cached)
     table = module.run(quick=args.quick, **options)

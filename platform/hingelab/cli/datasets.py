@@ -10,7 +10,7 @@ from hingelab.cli.names import EXPORT_FORMATS, OBJECT_ESTIMATORS, OBJECT_FROM_CL
 from hingelab.cli.options import add_on_corrupt
 from hingelab.errors import ConfigError
 from hingelab.folder_lock import folder_lock
-from hingelab.out_dir import check_out, check_out_file
+from hingelab.out_dir import DATASET, MINARI_ROOT, NEW, check_out, check_out_file
 from hingelab.paths import DATASETS_DIR
 
 
@@ -202,7 +202,7 @@ def run_export(args: argparse.Namespace) -> int:
     from hingelab.episodes.export import EXPORTERS, export_dataset  # on run: the parser stays light (hingelab.cli)
     from hingelab.ros2 import bag_export  # noqa: F401  (registers the ros2 export format)
 
-    check_out(args.out)
+    check_out(args.out, MINARI_ROOT if args.format == "minari" else NEW)  # minari: a datasets root
     if args.format not in EXPORTERS:
         raise ConfigError(f"--format {args.format}: not an export format; choose one of {', '.join(EXPORTERS)}")
     dataset = _open(args.dir)
@@ -220,7 +220,7 @@ def run_import_ros2(args: argparse.Namespace) -> int:
     from hingelab.ros2.object_from_cloud import check_estimator
     from hingelab.ros2.topics import topic_names
 
-    check_out(args.out)
+    check_out(args.out, DATASET)
     topic_names(args.topic)  # a malformed --topic is refused before anything is read
     if args.object_from_cloud is not None:
         check_estimator(args.object_from_cloud)

@@ -11,6 +11,7 @@ import json
 import time
 from pathlib import Path
 
+from hingelab.json_text import finite_or_null, strict_dumps
 from hingelab.out_dir import check_out_file
 from hingelab.seeds import seed_argument
 
@@ -53,7 +54,9 @@ def run(args: argparse.Namespace) -> int:
     total = time.perf_counter() - started
     if args.out:
         args.out.parent.mkdir(parents=True, exist_ok=True)
-        args.out.write_text(json.dumps(results, indent=2, default=float) + "\n")
+        # a measurement that could not be made (NaN) is null: the file stays JSON
+        plain = finite_or_null(json.loads(json.dumps(results, default=float)))
+        args.out.write_text(strict_dumps(plain, args.out, indent=2) + "\n")
     where = f" Measurements written to {args.out}." if args.out else ""
     print(f"demo finished in {total:.1f} s: {len(STEPS)} step(s) ran on the shipped scene and defaults.{where}")
     return 0

@@ -17,7 +17,7 @@ from pathlib import Path
 
 from hingelab.arguments import finite_float
 from hingelab.cli.names import BIAS_LEVELS, NOISE_LEVELS
-from hingelab.out_dir import check_out
+from hingelab.out_dir import REPORT, check_out
 from hingelab.provenance import code_version, require_clean_for
 from hingelab.seeds import seed_argument
 from hingelab.tasks import HIGH_LEVEL_ACTION_NAMES
@@ -173,7 +173,7 @@ def _command(args, verb: str, options: list[str]) -> str:
 def run_reward(args: argparse.Namespace) -> int:
     from hingelab.rollouts import reward_diagnostic  # on run: the parser stays light (hingelab.cli)
 
-    check_out(args.out)
+    check_out(args.out, REPORT)
     require_clean_for(args.out, args.allow_dirty, "hingelab diagnose reward")
     rows = reward_diagnostic.diagnose(args.episodes, args.seed, args.gamma, args.object, args.size,
                                       progress=not args.no_progress)
@@ -192,7 +192,7 @@ def run_reward(args: argparse.Namespace) -> int:
 def run_residual(args: argparse.Namespace) -> int:
     from hingelab.rollouts import residual_diagnostic  # on run: the parser stays light (hingelab.cli)
 
-    check_out(args.out)
+    check_out(args.out, REPORT)
     require_clean_for(args.out, args.allow_dirty, "hingelab diagnose residual")
     rows, gamma = residual_diagnostic.diagnose(args.checkpoint, args.object, args.size, args.episodes, args.seed,
                                                args.gamma, progress=not args.no_progress)
@@ -210,7 +210,7 @@ def run_residual(args: argparse.Namespace) -> int:
 def run_tool_position(args: argparse.Namespace) -> int:
     from hingelab.rollouts import tool_position_diagnostic as D  # on run: the parser stays light (hingelab.cli)
 
-    check_out(args.out)
+    check_out(args.out, REPORT)
     require_clean_for(args.out, args.allow_dirty, "hingelab diagnose tool-position")
     rows = D.diagnose(args.checkpoint, args.object, args.size, args.episodes, args.seed, progress=not args.no_progress)
     summary = D.summarize(rows)
@@ -229,7 +229,7 @@ def run_tool_position(args: argparse.Namespace) -> int:
 def run_bias(args: argparse.Namespace) -> int:
     from hingelab.rollouts import bias_tolerance  # on run: the parser stays light (hingelab.cli)
 
-    check_out(args.out)
+    check_out(args.out, REPORT)
     require_clean_for(args.out, args.allow_dirty, "hingelab diagnose bias")
     rows = bias_tolerance.measure(args.checkpoint, args.episodes, args.levels, args.dimensions, args.seed,
                                   args.object, args.size, progress=not args.no_progress)
@@ -247,7 +247,7 @@ def run_bias(args: argparse.Namespace) -> int:
 def run_noise(args: argparse.Namespace) -> int:
     from hingelab.rollouts import noise_tolerance  # on run: the parser stays light (hingelab.cli)
 
-    check_out(args.out)
+    check_out(args.out, REPORT)
     require_clean_for(args.out, args.allow_dirty, "hingelab diagnose noise")
     rows = noise_tolerance.measure(args.episodes, args.levels, args.seed, args.object, args.size,
                                    progress=not args.no_progress)
@@ -263,7 +263,7 @@ def run_noise(args: argparse.Namespace) -> int:
 def run_object_estimate(args: argparse.Namespace) -> int:
     from hingelab.rollouts import object_estimate_errors  # on run: the parser stays light (hingelab.cli)
 
-    check_out(args.out)
+    check_out(args.out, REPORT)
     require_clean_for(args.out, args.allow_dirty, "hingelab diagnose object-estimate")
     rows, picture = object_estimate_errors.measure(args.placements, args.frames, args.seed,
                                                    progress=not args.no_progress)
@@ -283,7 +283,7 @@ def run_object_estimate(args: argparse.Namespace) -> int:
 def run_grasp(args: argparse.Namespace) -> int:
     from hingelab.rollouts import grasp_offsets  # on run: the parser stays light (hingelab.cli)
 
-    check_out(args.out)
+    check_out(args.out, REPORT)
     require_clean_for(args.out, args.allow_dirty, "hingelab diagnose grasp")
     ranges = grasp_offsets.reference_ranges(grasp_offsets.episode_rows(args.reference))
     rows = [row for root in args.datasets for row in grasp_offsets.episode_rows(root)]
@@ -299,7 +299,7 @@ def run_grasp(args: argparse.Namespace) -> int:
 def run_object_noise_fit(args: argparse.Namespace) -> int:
     from hingelab.rollouts import object_noise_fit  # on run: the parser stays light (hingelab.cli)
 
-    check_out(args.out)
+    check_out(args.out, REPORT)
     require_clean_for(args.out, args.allow_dirty, "hingelab diagnose object-noise-fit")
     options = ["--frames", str(args.frames), "--seed", str(args.seed)]
     path, model, table = object_noise_fit.fit_and_report(args.frames, args.out, args.seed,
@@ -315,7 +315,7 @@ def run_object_noise_fit(args: argparse.Namespace) -> int:
 def run_grasp_observability(args: argparse.Namespace) -> int:
     from hingelab.rollouts import grasp_observability  # on run: the parser stays light (hingelab.cli)
 
-    check_out(args.out)
+    check_out(args.out, REPORT)
     require_clean_for(args.out, args.allow_dirty, "hingelab diagnose grasp-observability")
     rows = grasp_observability.measure(args.datasets, args.seed)
     options = [str(d) for d in args.datasets] + ["--seed", str(args.seed)]

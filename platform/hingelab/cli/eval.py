@@ -27,7 +27,7 @@ from hingelab.cli.names import BASELINES, TOOL_POSITIONS
 from hingelab.cli.options import add_max_mesh_mb, add_object_noise, add_object_perception, add_ray_argument
 from hingelab.errors import ConfigError
 from hingelab.folder_lock import folder_lock
-from hingelab.out_dir import check_out
+from hingelab.out_dir import DATASET, check_out
 from hingelab.seeds import seed_argument
 
 
@@ -126,7 +126,7 @@ def check_baseline(name: str | None, level: str) -> None:
 def run_low(args: argparse.Namespace) -> int:
     from hingelab.rollouts.evaluation import evaluate_low  # on run: the parser stays light (hingelab.cli)
 
-    check_out(args.out)
+    check_out(args.out, DATASET)
     check_baseline(args.baseline, "low")
     with folder_lock(args.out, args.argv):
         result = evaluate_low(args.checkpoint, out=args.out, baseline=args.baseline, episodes=args.episodes,
@@ -140,7 +140,7 @@ def run_low(args: argparse.Namespace) -> int:
 def run_high(args: argparse.Namespace) -> int:
     from hingelab.rollouts.evaluation import evaluate_high  # on run: the parser stays light (hingelab.cli)
 
-    check_out(args.out)
+    check_out(args.out, DATASET)
     check_baseline(args.baseline, "high")
     with folder_lock(args.out, args.argv):
         result = evaluate_high(args.checkpoint, out=args.out, baseline=args.baseline, object=args.object,

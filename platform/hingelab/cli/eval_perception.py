@@ -9,13 +9,13 @@ the camera's 256-point cloud over the synthesized cloud of the same pose).
 from __future__ import annotations
 
 import argparse
-import json
 from pathlib import Path
 
 import numpy as np
 
 from hingelab.errors import ConfigError
-from hingelab.out_dir import check_out
+from hingelab.json_text import strict_dumps
+from hingelab.out_dir import REPORT, check_out
 from hingelab.provenance import code_version, require_clean_for
 from hingelab.seeds import seed_argument
 
@@ -46,7 +46,7 @@ def run(args: argparse.Namespace) -> int:
     )
     from hingelab.perception.clouds import CloudRealism, CloudSynthesizer
 
-    check_out(args.out)
+    check_out(args.out, REPORT)
     if args.episodes < 1 or args.steps <= GapConfig.warmup_steps:
         raise ConfigError(f"--episodes must be >= 1 and --steps > {GapConfig.warmup_steps}")
     require_clean_for(args.out, args.allow_dirty, "hingelab eval perception")
@@ -67,9 +67,10 @@ def run(args: argparse.Namespace) -> int:
     args.out.mkdir(parents=True, exist_ok=True)
     rows.to_csv(args.out / "gap_steps.csv", index=False)
     summary.to_csv(args.out / "gap.csv", index=False)
-    (args.out / "gap.json").write_text(json.dumps({
+    (args.out / "gap.json").write_text(strict_dumps({
         "made_by": "hingelab eval perception", "episodes": config.episodes, "steps": config.steps,
-        "seed": config.seed, "warmup_steps": config.warmup_steps, **code_version()}, indent=1) + "\n")
+        "seed": config.seed, "warmup_steps": config.warmup_steps, **code_version()},
+        args.out / "gap.json", indent=1) + "\n")
     if snapshot:
         draw_frame(snapshot, args.out / "camera_frame.png")
     print(summary.round(4).to_string(index=False))

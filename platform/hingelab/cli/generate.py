@@ -16,7 +16,7 @@ from pathlib import Path
 
 from hingelab.arguments import finite_float
 from hingelab.folder_lock import folder_lock
-from hingelab.out_dir import check_out
+from hingelab.out_dir import DATASET, check_out
 from hingelab.paths import DATASETS_DIR
 from hingelab.perception.cloud_dataset_config import CloudDatasetConfig
 from hingelab.seeds import seed_argument
@@ -77,7 +77,7 @@ def run_clouds(args: argparse.Namespace) -> int:
         generate_cloud_dataset,  # on run: the parser stays light (hingelab.cli)
     )
 
-    check_out(args.out)
+    check_out(args.out, DATASET)
     config = CloudDatasetConfig(n_clouds=args.n, clouds_per_episode=args.per_episode, seed=args.seed,
                                 noise_std_m=args.noise, noise_std_max_m=args.noise_max,
                                 removal_fraction=args.removal)

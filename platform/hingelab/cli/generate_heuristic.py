@@ -8,7 +8,7 @@ from pathlib import Path
 from hingelab.arguments import add_oversubscribe, check_processes, finite_float, positive_int
 from hingelab.cli.options import add_max_mesh_mb, add_object_noise, add_ray_argument
 from hingelab.folder_lock import folder_lock
-from hingelab.out_dir import check_out
+from hingelab.out_dir import DATASET, check_out
 from hingelab.paths import DATASETS_DIR
 from hingelab.rollouts.heuristic_config import HeuristicRunConfig
 from hingelab.seeds import seed_argument
@@ -62,7 +62,7 @@ def run_heuristic(args: argparse.Namespace) -> int:
         timed,
     )
 
-    check_out(args.out)
+    check_out(args.out, DATASET)
     check_processes(args.workers, "--workers", args.allow_oversubscribe)
     workers = max(1, min(args.workers, args.episodes))  # a worker without an episode would only load the simulator
     config = HeuristicRunConfig(episodes=args.episodes, object=args.object, size=args.size, mass=args.mass,

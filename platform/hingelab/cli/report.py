@@ -11,7 +11,7 @@ from pathlib import Path
 from hingelab.arguments import finite_float
 from hingelab.cli.options import add_on_corrupt
 from hingelab.errors import ConfigError
-from hingelab.out_dir import check_out
+from hingelab.out_dir import REPORT, check_out
 from hingelab.provenance import require_clean_for
 
 
@@ -142,7 +142,7 @@ def run_runs(args: argparse.Namespace) -> int:
 def run(args: argparse.Namespace) -> int:
     from hingelab.analysis import build_report  # on run: the parser stays light (hingelab.cli)
 
-    check_out(args.out)
+    check_out(args.out, REPORT)
     if args.picks:
         return run_picks(args)
     if args.pool:

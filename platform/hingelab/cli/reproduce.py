@@ -6,7 +6,7 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from hingelab.out_dir import check_out
+from hingelab.out_dir import REPRODUCTION, check_out
 from hingelab.sweeps.reproduce_plan import SCALES, describe_plan, plan_stages
 
 
@@ -54,7 +54,7 @@ def add_parser(subparsers) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    check_out(args.out)
+    check_out(args.out, REPRODUCTION)
     if args.plan:
         print(describe_plan(plan_stages(args.out, args.scale or "shipped"), args.out.resolve()))
         return 0

@@ -9,7 +9,7 @@ from pathlib import Path
 from hingelab.arguments import positive_int
 from hingelab.errors import ConfigError
 from hingelab.folder_lock import folder_lock
-from hingelab.out_dir import check_out
+from hingelab.out_dir import SWEEP, check_out
 
 
 def add_parser(subparsers) -> None:
@@ -50,7 +50,7 @@ def run(args: argparse.Namespace) -> int:
     from hingelab.sweeps.runner import run_sweep, summary  # on run: the parser stays light (hingelab.cli)
     from hingelab.sweeps.spec import load_sweep
 
-    check_out(args.out)
+    check_out(args.out, SWEEP)
     if args.address is not None and args.cpus is not None:
         raise ConfigError("--cpus sizes a local Ray; a cluster joined with --address has its own CPUs")
     spec = load_sweep(args.sweep_file)  # every trial's command line checked before anything starts

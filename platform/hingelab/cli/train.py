@@ -19,7 +19,7 @@ from hingelab.cli.options import add_max_mesh_mb
 from hingelab.errors import ConfigError
 from hingelab.folder_lock import folder_lock
 from hingelab.learners import registry
-from hingelab.out_dir import check_out, check_out_file
+from hingelab.out_dir import RUN, check_out, check_out_file
 from hingelab.paths import refuse_to_replace_shipped
 from hingelab.perception.encoder_config import EncoderConfig, TrainEncoderConfig
 from hingelab.seeds import seed_argument
@@ -88,7 +88,7 @@ def run_policy(args: argparse.Namespace) -> int:
         out = paths.REPO_ROOT / default
     else:
         out = args.out
-    check_out(out)
+    check_out(out, RUN)
     refuse_to_replace_shipped(out, args.force)
     if args.resume:
         from hingelab.training.run_folder import resumed_config  # on run: the parser stays light (hingelab.cli)

@@ -11,7 +11,7 @@ from hingelab.arguments import finite_float
 from hingelab.cli.names import ROBOTS, TOOL_POSITIONS
 from hingelab.cli.options import add_max_mesh_mb, add_object_perception
 from hingelab.folder_lock import folder_lock
-from hingelab.out_dir import check_out
+from hingelab.out_dir import DATASET, check_out
 from hingelab.seeds import STRIDE, TRIALS_BASE, seed_argument
 
 
@@ -64,7 +64,7 @@ def add_parser(subparsers) -> None:
 def run(args: argparse.Namespace) -> int:
     from hingelab.robot.trial import TrialConfig, run_trial_session  # on run: the parser stays light (hingelab.cli)
 
-    check_out(args.out)
+    check_out(args.out, DATASET)
     config = TrialConfig(object=args.object, size=args.size, trials=args.trials, seed=args.seed,
                          max_steps=args.max_steps, depth_every=args.depth_every, operator=args.operator,
                          object_perception=args.object_perception, tool_position=args.tool_position)

@@ -18,7 +18,6 @@ file says it too). A secondary verdict the env reports (ToolShape-v0's
 from __future__ import annotations
 
 import dataclasses
-import json
 from pathlib import Path
 
 import gymnasium as gym
@@ -28,6 +27,7 @@ import numpy as np
 from hingelab.episodes import EpisodeWriter
 from hingelab.episodes import schemas as S
 from hingelab.episodes.card import load_card
+from hingelab.json_text import strict_dumps
 from hingelab.sim import names
 
 SVH_JOINTS = list(names.HAND_ACTUATORS)
@@ -67,7 +67,8 @@ def reward_metadata(env: gym.Env) -> dict[str, str]:
     config = getattr(env.unwrapped, "reward_config", None)
     if config is None or not dataclasses.is_dataclass(config):
         return {}
-    return {S.KEY_REWARD_CONFIG: json.dumps(dataclasses.asdict(config), sort_keys=True)}
+    text = strict_dumps(dataclasses.asdict(config), "the episode's reward config", sort_keys=True)
+    return {S.KEY_REWARD_CONFIG: text}
 
 
 def object_metadata(record: dict | None) -> dict:
@@ -75,7 +76,8 @@ def object_metadata(record: dict | None) -> dict:
     kind, its draw as JSON and its size, which replaces the size cap; {} for a fixed object (None)."""
     if record is None:
         return {}
-    return {S.KEY_OBJECT_KIND: record["kind"], S.KEY_OBJECT_DRAW: json.dumps(record, sort_keys=True),
+    draw = strict_dumps(record, "the episode's object draw", sort_keys=True)
+    return {S.KEY_OBJECT_KIND: record["kind"], S.KEY_OBJECT_DRAW: draw,
             "object_size": record["size_m"]}
 
 

@@ -43,6 +43,7 @@ from pathlib import Path
 import numpy as np
 
 from hingelab.errors import ConfigError
+from hingelab.json_text import strict_dumps
 from hingelab.paths import ANALYSIS_DIR
 from hingelab.perception.object_estimate import ESTIMATORS, TemporalFilter
 from hingelab.sim.rig_camera import RIG_VIEW, camera_world_position
@@ -168,7 +169,7 @@ def fit(rows: list[dict], source: dict | None = None, seed: int = 0, code_versio
 def save(model: dict, path: Path) -> Path:
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
-    path.write_text(json.dumps(model, indent=1) + "\n")
+    path.write_text(strict_dumps(model, path, indent=1) + "\n")
     return path
 
 

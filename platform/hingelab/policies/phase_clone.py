@@ -30,6 +30,7 @@ import torch
 from torch import nn
 
 from hingelab.errors import ConfigError
+from hingelab.json_text import finite_or_null, strict_dumps
 from hingelab.seeds import preserved_global_rngs
 
 PHASES = ("open", "above", "descend", "close", "carry")  # the heuristic's (hingelab.heuristic.controller)
@@ -129,7 +130,7 @@ class PhaseClone:
                 "hingelab_provenance": self.hingelab_provenance}
         tmp = path.with_name(path.name + ".tmp")
         with zipfile.ZipFile(tmp, "w", zipfile.ZIP_DEFLATED) as archive:
-            archive.writestr(META_FILE, json.dumps(meta, indent=1, default=str))
+            archive.writestr(META_FILE, strict_dumps(finite_or_null(meta), path, indent=1, default=str))
             archive.writestr(WEIGHTS_FILE, weights.getvalue())
         tmp.replace(path)  # a crash mid-write leaves the previous file
 

@@ -40,6 +40,7 @@ import torch
 from torch import nn
 
 from hingelab.errors import ConfigError
+from hingelab.json_text import finite_or_null, strict_dumps
 from hingelab.policies.phase_clone import (
     ACTION_DIM,
     MAX_PHASE_STEPS,
@@ -242,7 +243,7 @@ class ResidualPolicy:
                               "layer_norm": bool(critic["layer_norm"])}
         tmp = path.with_name(path.name + ".tmp")
         with zipfile.ZipFile(tmp, "w", zipfile.ZIP_DEFLATED) as archive:
-            archive.writestr(META_FILE, json.dumps(meta, indent=1, default=str))
+            archive.writestr(META_FILE, strict_dumps(finite_or_null(meta), path, indent=1, default=str))
             archive.writestr(BASE_FILE, self.base_bytes)
             archive.writestr(ACTOR_FILE, _npz(actor_state))
             if critic is not None:

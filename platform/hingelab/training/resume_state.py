@@ -18,6 +18,7 @@ Nothing here unpickles: ``np.load(allow_pickle=False)`` reads the buffer, ``json
 from __future__ import annotations
 
 import json
+import math
 import random
 import zipfile
 from collections import deque
@@ -33,18 +34,32 @@ COUNTERS = ("pos", "full")  # the buffer's scalars that change as it fills; the 
 META_KEY = "__meta__"  # the buffer's counters and object arrays, as JSON bytes inside the npz
 
 
+def _finite(value):
+    """``value`` with each NaN or infinity (at any depth) as ``{"__float__": "nan" | "inf" | "-inf"}``: the state
+    is exact JSON (``allow_nan=False``) and still comes back bit for bit (a NaN reward statistic included)."""
+    if isinstance(value, float) and not math.isfinite(value):
+        return {"__float__": repr(value)}
+    if isinstance(value, dict):
+        return {k: _finite(v) for k, v in value.items()}
+    if isinstance(value, (list, tuple)):
+        return [_finite(v) for v in value]
+    return value
+
+
 def _plain(value):
     """``json.dumps`` default: NumPy scalars and arrays tagged with their dtype, deques as lists."""
     if isinstance(value, np.generic):  # the dtype kept: a float32 reward term stays float32
-        return {"__scalar__": value.item(), "dtype": str(value.dtype)}
+        return {"__scalar__": _finite(value.item()), "dtype": str(value.dtype)}
     if isinstance(value, np.ndarray):
-        return {"__ndarray__": value.tolist(), "dtype": str(value.dtype)}
+        return {"__ndarray__": _finite(value.tolist()), "dtype": str(value.dtype)}
     if isinstance(value, deque):
-        return list(value)
+        return _finite(list(value))
     raise TypeError(f"{type(value).__name__} is not stored in a plain checkpoint")
 
 
 def _unplain(doc: dict):
+    if set(doc) == {"__float__"}:
+        return float(doc["__float__"])
     if set(doc) == {"__ndarray__", "dtype"}:
         return np.asarray(doc["__ndarray__"], dtype=doc["dtype"])
     if set(doc) == {"__scalar__", "dtype"}:
@@ -53,7 +68,7 @@ def _unplain(doc: dict):
 
 
 def dumps(doc) -> str:
-    return json.dumps(doc, default=_plain)
+    return json.dumps(_finite(doc), default=_plain, allow_nan=False)
 
 
 def loads(text: str):

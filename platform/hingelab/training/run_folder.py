@@ -171,7 +171,7 @@ class RunFolder:
         doc = {"config": self.config.to_dict(), "seed": self.config.seed, "env_id": self.config.env_id,
                **(extra or {}), **code_version(), "created": time.strftime("%Y-%m-%dT%H:%M:%S%z")}
         (self.path / CONFIG_FILE).write_text(strict_dumps(doc, self.path / CONFIG_FILE, indent=2))
-        (self.path / RUN_FILE).write_text(json.dumps({"name": self.name}))
+        (self.path / RUN_FILE).write_text(strict_dumps({"name": self.name}, self.path / RUN_FILE))
 
     def record_run_fact(self, key: str, value) -> None:
         """Add ``key`` to config.json (JSON), e.g. the datasets that filled the replay buffer, known only
