@@ -327,6 +327,9 @@ def test_a_simulated_episode_exports_as_a_ros2_bag_and_imports_back(random_pick_
         counts = {c.topic: c.msgcount for c in reader.connections}
         events = [reader.deserialize(raw, c.msgtype).data for c, _, raw in reader.messages(
             connections=[c for c in reader.connections if c.topic == "/trial/event"])]
+        start_ns = reader.start_time
+    # stamped from the episode's wall-clock start (schema 6), so a bag viewer does not date it 1970
+    assert start_ns == int(original.metadata["log_time_origin_ns"]) > 10**18
     assert counts["/tool/points"] == len(original.points) and counts["/joint_states"] == len(
         original.topics["/hand/joints"]["log_time_ns"])
     assert events[0] == "start" and events[-1] == "end"

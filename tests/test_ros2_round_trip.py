@@ -149,8 +149,10 @@ def test_a_stand_in_trial_keeps_its_depth_images_camera_info_and_camera_mount(st
     for _, msg in bag["/tf"][1]:
         tree.add(msg, False)
     tree.finish()
+    origin = int(read_episode(path).metadata["log_time_origin_ns"])  # the bag is stamped at the wall-clock start
+    assert origin > 10**18  # after 2001, not 1970
     for j, t in enumerate(camera.log_time_ns):  # the camera in the hand through the tree, as recorded
-        rot, pos, _ = tree.lookup("hand_base", "camera_depth_optical", int(t))
+        rot, pos, _ = tree.lookup("hand_base", "camera_depth_optical", origin + int(t))
         np.testing.assert_allclose(pos, camera.position[j], atol=1e-4)
         np.testing.assert_allclose(rot, camera.rotation[j], atol=1e-4)
     assert {"/arm/joints"} <= set(read_episode(path).topics)

@@ -35,8 +35,9 @@ Standard-typed topics hold no NaN: a step without a sample (an imported episode'
 first message, a joint without a reading) is left out, as the rig left it out; hingelab_msgs fields keep the
 episode's values, NaN included (a real trial's reward).
 
-Bag time = the episode's log time plus ``ros2_trial_start_ns`` for imported episodes (the
-rig's own clock back), 0 otherwise; every message is stamped (header and log time) at its step.
+Bag time = the episode's time plus its wall-clock start, ``log_time_origin_ns`` (schema 6; for imported episodes
+``ros2_trial_start_ns``, the rig's own clock back; 0 for files older than schema 6); every message is stamped
+(header and log time) at its step.
 ``hingelab datasets import-ros2 OUT/<id>`` imports such a bag back with no ``--topic`` flag: it takes
 ``/tool/points`` as the tool cloud (``topics.py``, kind ``tool_points``) and the seed and object from
 ``/hingelab/episode``.
@@ -142,7 +143,9 @@ def export_episode(episode, folder: Path) -> int:
     """Write one episode as the rosbag2 folder ``folder``; returns the number of messages written."""
     ts = get_typestore(Stores.ROS2_HUMBLE)
     T = ts.types
-    base = int(episode.metadata.get("ros2_trial_start_ns", 0) or 0)
+    # the episode's wall-clock start (schema 6; an imported episode's is its trial's start on the rig's clock),
+    # so that a bag of a simulated episode is not dated 1970; 0 for older files, which have none
+    base = int(episode.metadata.get(S.KEY_LOG_TIME_ORIGIN) or episode.metadata.get("ros2_trial_start_ns") or 0)
     topics = episode.topics
     messages = []  # (t ns, order, topic, message)
 
