@@ -28,6 +28,7 @@ BENCHMARKS = {
     "ensemble": "hingelab.bench.ensemble",
     "cluster": "hingelab.bench.cluster",
     "reliability": "hingelab.bench.reliability",
+    "help": "hingelab.bench.help",
 }
 
 # name -> its tables' folder under analysis/, where it is not bench/ (written there, and looked for by --stale)
