@@ -11,7 +11,8 @@ PLATFORM = Path(__file__).resolve().parents[1] / "platform"
 HEAVY = ("torch", "mujoco", "stable_baselines3", "ray", "pandas")
 # every verb, the sub-commands with flags of their own, and train's levels (their flags come from the learners)
 HELP_LINES = [[], ["generate", "clouds"], ["generate", "heuristic"], ["train"], ["train", "encoder"], ["train", "low"],
-              ["train", "high"], ["train", "flat"], ["train", "high", "--learner", "phase-clone"], ["sweep"],
+              ["train", "high"], ["train", "flat"], ["train", "high", "--learner", "phase-clone"],
+              ["train", "high", "--learner", "residual-sac"], ["sweep"],
               ["reproduce"], ["eval", "low"], ["eval", "high"], ["eval", "perception"], ["trial"],
               ["diagnose", "bias"], ["compose", "low"], ["view"], ["report"], ["datasets", "export"],
               ["datasets", "import-ros2"], ["checkpoints", "convert"], ["bench"], ["demo"]]

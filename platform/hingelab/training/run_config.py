@@ -63,16 +63,21 @@ def _json_object(text: str) -> dict:
     return value
 
 
+def _declared_default(f):
+    return f.default_factory() if f.default is MISSING and f.default_factory is not MISSING else f.default
+
+
 def add_config_arguments(parser: argparse.ArgumentParser, config_class, skip: tuple = (),
                          title: str | None = None) -> None:
-    """One flag per field of ``config_class`` (those with ``cli=True``, not in ``skip``)."""
-    defaults = config_class()
+    """One flag per field of ``config_class`` (those with ``cli=True``, not in ``skip``), with its declared default:
+    the config is not built, so a ``--help`` runs none of its checks (a residual's reads its base checkpoint, torch
+    and all: seconds)."""
     group = parser.add_argument_group(title) if title else parser
     for f in fields(config_class):
         meta = f.metadata
         if not meta.get("cli", True) or f.name in skip:
             continue
-        default = getattr(defaults, f.name)
+        default = _declared_default(f)
         help_text = meta.get("help", "")
         kwargs: dict[str, Any] = {"dest": f.name}
         if isinstance(default, bool):
