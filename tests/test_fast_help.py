@@ -8,7 +8,7 @@ import sys
 from pathlib import Path
 
 PLATFORM = Path(__file__).resolve().parents[1] / "platform"
-HEAVY = ("torch", "mujoco", "stable_baselines3", "ray", "pandas")
+HEAVY = ("torch", "mujoco", "stable_baselines3", "ray", "pandas", "numpy", "gymnasium")
 # every verb, the sub-commands with flags of their own, and train's levels (their flags come from the learners)
 HELP_LINES = [[], ["generate", "clouds"], ["generate", "heuristic"], ["train"], ["train", "encoder"], ["train", "low"],
               ["train", "high"], ["train", "flat"], ["train", "high", "--learner", "phase-clone"],
@@ -76,3 +76,28 @@ def test_eval_baseline_checked_in_one_line(tmp_path, capsys):
     err = capsys.readouterr().err.strip()
     assert err.count("\n") == 0 and "scripted-feedback" in err
     assert not (tmp_path / "out").exists()
+
+
+REGISTRATION = """
+import sys
+import hingelab
+assert "gymnasium" not in sys.modules and "numpy" not in sys.modules, "import hingelab loaded Gymnasium"
+{first}
+import gymnasium as gym
+ids = ("hingelab/ToolShape-v0", "hingelab/ToolPick-v0", "hingelab/ToolPickFlat-v0")
+print(all(i in gym.registry for i in ids), gym.spec("hingelab/ToolShape-v0").max_episode_steps)
+"""
+
+
+def test_the_envs_are_registered_however_gymnasium_is_imported():
+    """``import hingelab`` leaves Gymnasium (and NumPy) unloaded; the envs are registered as Gymnasium's import
+    ends, whether it is imported as the package, through a submodule, or before hingelab."""
+    env = {**os.environ, "PYTHONPATH": str(PLATFORM), "MUJOCO_GL": "no-such-backend"}
+    for first in ("", "from gymnasium.envs.registration import registry", "import gymnasium.spaces"):
+        done = subprocess.run([sys.executable, "-c", REGISTRATION.format(first=first)], capture_output=True,
+                              text=True, env=env, timeout=120)
+        assert done.returncode == 0, done.stderr
+        assert done.stdout.split() == ["True", "50"], (first, done.stdout)
+    before = "import gymnasium as gym\nimport hingelab\nprint('hingelab/ToolPick-v0' in gym.registry)"
+    done = subprocess.run([sys.executable, "-c", before], capture_output=True, text=True, env=env, timeout=120)
+    assert done.returncode == 0 and done.stdout.strip() == "True", done.stderr

@@ -21,6 +21,6 @@ def _default_gl_backend() -> None:
 _default_gl_backend()
 
 
-from hingelab.tasks import register_envs  # noqa: E402  (after the GL backend: it must precede mujoco)
+from hingelab.tasks import register_envs_with_gymnasium  # noqa: E402  (after the GL backend: before mujoco)
 
-register_envs()
+register_envs_with_gymnasium()  # now if Gymnasium is imported, else when it is: `hingelab --help` never loads it

@@ -16,6 +16,11 @@ from pathlib import Path
 
 from hingelab.errors import ConfigError
 
+# the mesh files of --object mesh:PATH (hingelab.sim.mesh_objects), here so that the parser's --max-mesh-mb
+# needs no NumPy (a fast --help)
+DEFAULT_MAX_MESH_MB = 200.0  # a mesh file above this is refused before it is read (trimesh holds several copies)
+MAX_MESH_MB_ENV = "HINGELAB_MAX_MESH_MB"
+
 
 class FileTooLargeError(ConfigError):
     """A file above the size a reader accepts (a limit the user can raise), refused before it is read."""

@@ -43,8 +43,6 @@ import argparse
 import random
 from contextlib import contextmanager
 
-import numpy as np
-
 SEED_BOUND = 2**32  # a --seed is below this (and not negative)
 STRIDE = 100_003  # episodes per block (a prime: blocks of neighbouring seeds do not line up)
 SEED_LIMIT = 1_000  # the --seed values the plan keeps apart ...
@@ -117,6 +115,7 @@ def preserved_global_rngs():
     builds networks (whose initial weights are drawn, then overwritten) and stable-baselines3 reseeds the
     generators when it sets a model up, and a run that loads one after seeding must train what its seed
     says, whether or not the process loaded it before."""
+    import numpy as np  # here, not at the top: the parser's --seed type comes from this module (fast --help)
     import torch  # only the callers that load torch models come here; the seed plan itself is light
 
     states = random.getstate(), np.random.get_state(), torch.random.get_rng_state()

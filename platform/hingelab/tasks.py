@@ -4,14 +4,16 @@ ToolPick-v0's action and observation that policies are trained and checked again
 The envs (``hingelab.envs``) implement them; policies, rollouts and learners read them from here,
 so a layer below the envs (``hingelab.policies``) can check a checkpoint against a task without
 importing the env. ``register_envs`` registers the ids with Gymnasium by entry-point strings
-(``import hingelab`` calls it): the env classes load on the first ``gymnasium.make``.
+(``import hingelab`` arranges it: at once if Gymnasium is already imported, else as Gymnasium's import ends,
+so that a command that never touches Gymnasium, ``hingelab --help``, does not pay for it and NumPy): the env
+classes load on the first ``gymnasium.make``.
 """
 
 from __future__ import annotations
 
-import gymnasium as gym
-import numpy as np
-from gymnasium import spaces
+import importlib.abc
+import importlib.util
+import sys
 
 TOOL_SHAPE_ID = "hingelab/ToolShape-v0"
 TOOL_PICK_ID = "hingelab/ToolPick-v0"
@@ -39,12 +41,15 @@ def observation_dim(observe_extent: bool = False) -> int:
 FLAT_FINGERS = 9  # ToolPickFlat-v0 moves the 9 SVH channels itself (no latent goal, no low level)
 
 
-def task_spaces(env_id: str, observe_extent: bool = False) -> tuple[gym.Space, gym.Space] | None:
+def task_spaces(env_id: str, observe_extent: bool = False) -> tuple | None:
     """(observation_space, action_space) of the task ``env_id`` (what its env sets), None for another id.
 
     Only ``observe_extent`` (ToolPick-v0, ToolPickFlat-v0) changes a space; the envs take their
     spaces from here, so an export can state them without building an env.
     """
+    import numpy as np
+    from gymnasium import spaces
+
     box = spaces.Box
     if env_id == TOOL_SHAPE_ID:
         observation = spaces.Dict({
@@ -63,6 +68,8 @@ def task_spaces(env_id: str, observe_extent: bool = False) -> tuple[gym.Space, g
 
 
 def register_envs() -> None:
+    import gymnasium as gym
+
     if TOOL_SHAPE_ID not in gym.registry:
         gym.register(id=TOOL_SHAPE_ID, entry_point="hingelab.envs.tool_shape:ToolShapeEnv",
                      max_episode_steps=TOOL_SHAPE_EPISODE_STEPS)
@@ -73,7 +80,37 @@ def register_envs() -> None:
         gym.register(id=TOOL_PICK_FLAT_ID, entry_point="hingelab.envs.tool_pick_flat:ToolPickFlatEnv")
 
 
+class _RegisterAfterGymnasium(importlib.abc.MetaPathFinder):
+    """A one-shot import hook: finds ``gymnasium`` as the other finders do and registers the envs as soon as the
+    package has run (``gymnasium.envs.registration`` is loaded by then)."""
+
+    def find_spec(self, name, path=None, target=None):
+        if name != "gymnasium":
+            return None
+        if self in sys.meta_path:
+            sys.meta_path.remove(self)
+        spec = importlib.util.find_spec(name)
+        if spec is None or spec.loader is None or not hasattr(spec.loader, "exec_module"):
+            return spec
+        run = spec.loader.exec_module
+
+        def run_then_register(module):
+            run(module)
+            register_envs()
+
+        spec.loader.exec_module = run_then_register
+        return spec
+
+
+def register_envs_with_gymnasium() -> None:
+    """Register the envs now if Gymnasium is imported, else when it is (``import hingelab`` calls this)."""
+    if "gymnasium" in sys.modules:
+        register_envs()
+    elif not any(isinstance(f, _RegisterAfterGymnasium) for f in sys.meta_path):
+        sys.meta_path.insert(0, _RegisterAfterGymnasium())
+
+
 __all__ = ["TOOL_SHAPE_ID", "TOOL_PICK_ID", "TOOL_PICK_FLAT_ID", "TOOL_SHAPE_EPISODE_STEPS",
            "TOOL_SHAPE_SUCCESS_GAP_MM", "Z_SCALE", "MAX_SPEED", "OBSERVED_OBJECT", "TARGET_HEIGHT", "TOOL_STATE_ALPHA",
            "HIGH_LEVEL_ACTION_SHAPE", "LOW_LEVEL_ACTION_SHAPE", "LOW_LEVEL_OBSERVATION_DIM", "FLAT_FINGERS",
-           "observation_dim", "register_envs", "task_spaces"]
+           "observation_dim", "register_envs", "register_envs_with_gymnasium", "task_spaces"]

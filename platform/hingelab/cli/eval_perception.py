@@ -11,8 +11,6 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-import numpy as np
-
 from hingelab.errors import ConfigError
 from hingelab.json_text import strict_dumps
 from hingelab.out_dir import REPORT, check_out
@@ -89,6 +87,7 @@ def draw_frame(snapshot: dict, path: Path) -> None:
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
+    import numpy as np  # on run: the parser stays light (hingelab.cli)
 
     frame = snapshot["frame"]
     mask = frame.tool_mask

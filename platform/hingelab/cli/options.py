@@ -5,9 +5,9 @@ from __future__ import annotations
 import argparse
 import os
 
+from hingelab.bounded_reads import DEFAULT_MAX_MESH_MB, MAX_MESH_MB_ENV
 from hingelab.cli.names import OBJECT_NOISE_GAUSSIAN, OBJECT_NOISE_MODEL, OBJECT_PERCEPTIONS
 from hingelab.paths import REPO_ROOT
-from hingelab.sim.mesh_objects import DEFAULT_MAX_MESH_MB, MAX_MESH_MB_ENV
 
 
 def add_on_corrupt(p) -> None:

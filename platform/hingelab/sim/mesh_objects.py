@@ -23,13 +23,11 @@ from pathlib import Path
 
 import numpy as np
 
-from hingelab.bounded_reads import check_file_size, unreadable_reason
+from hingelab.bounded_reads import DEFAULT_MAX_MESH_MB, MAX_MESH_MB_ENV, check_file_size, unreadable_reason
 from hingelab.errors import ConfigError
 
 MESH_PREFIX = "mesh:"
 MESH_SUFFIXES = (".stl", ".obj", ".ply")
-DEFAULT_MAX_MESH_MB = 200.0  # a mesh file above this is refused before it is read (trimesh holds several copies)
-MAX_MESH_MB_ENV = "HINGELAB_MAX_MESH_MB"
 FIX = "give an STL, OBJ or PLY file of a solid object (at least 4 non-coplanar vertices)"
 
 
