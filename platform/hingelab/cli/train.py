@@ -88,8 +88,8 @@ def run_policy(args: argparse.Namespace) -> int:
         out = paths.REPO_ROOT / default
     else:
         out = args.out
+    refuse_to_replace_shipped(out, args.force)  # first: under assets/, --force is the fix to name
     check_out(out, RUN)
-    refuse_to_replace_shipped(out, args.force)
     if args.resume:
         from hingelab.training.run_folder import resumed_config  # on run: the parser stays light (hingelab.cli)
 
