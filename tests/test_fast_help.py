@@ -91,9 +91,10 @@ print(all(i in gym.registry for i in ids), gym.spec("hingelab/ToolShape-v0").max
 
 def test_the_envs_are_registered_however_gymnasium_is_imported():
     """``import hingelab`` leaves Gymnasium (and NumPy) unloaded; the envs are registered as Gymnasium's import
-    ends, whether it is imported as the package, through a submodule, or before hingelab."""
+    ends, whether it is imported as the package, through a submodule, after a mere look-up, or before hingelab."""
     env = {**os.environ, "PYTHONPATH": str(PLATFORM), "MUJOCO_GL": "no-such-backend"}
-    for first in ("", "from gymnasium.envs.registration import registry", "import gymnasium.spaces"):
+    looked_up = "import importlib.util\nassert importlib.util.find_spec('gymnasium') is not None"
+    for first in ("", "from gymnasium.envs.registration import registry", "import gymnasium.spaces", looked_up):
         done = subprocess.run([sys.executable, "-c", REGISTRATION.format(first=first)], capture_output=True,
                               text=True, env=env, timeout=120)
         assert done.returncode == 0, done.stderr

@@ -5,7 +5,7 @@ The envs (``hingelab.envs``) implement them; policies, rollouts and learners rea
 so a layer below the envs (``hingelab.policies``) can check a checkpoint against a task without
 importing the env. ``register_envs`` registers the ids with Gymnasium by entry-point strings
 (``import hingelab`` arranges it: at once if Gymnasium is already imported, else as Gymnasium's import ends,
-so that a command that never touches Gymnasium, ``hingelab --help``, does not pay for it and NumPy): the env
+so that a command that never touches Gymnasium, ``hingelab --help``, pays for neither it nor NumPy): the env
 classes load on the first ``gymnasium.make``.
 """
 
@@ -81,21 +81,26 @@ def register_envs() -> None:
 
 
 class _RegisterAfterGymnasium(importlib.abc.MetaPathFinder):
-    """A one-shot import hook: finds ``gymnasium`` as the other finders do and registers the envs as soon as the
-    package has run (``gymnasium.envs.registration`` is loaded by then)."""
+    """An import hook: finds ``gymnasium`` as the other finders do, and registers the envs as soon as the package
+    has run (``gymnasium.envs.registration`` is loaded by then), then leaves. It stays until then, so a spec that
+    is only looked up (``importlib.util.find_spec("gymnasium")``) and never run does not use it up."""
 
     def find_spec(self, name, path=None, target=None):
         if name != "gymnasium":
             return None
-        if self in sys.meta_path:
-            sys.meta_path.remove(self)
-        spec = importlib.util.find_spec(name)
+        sys.meta_path.remove(self)  # the other finders, without coming back here
+        try:
+            spec = importlib.util.find_spec(name)
+        finally:
+            sys.meta_path.insert(0, self)
         if spec is None or spec.loader is None or not hasattr(spec.loader, "exec_module"):
             return spec
         run = spec.loader.exec_module
 
         def run_then_register(module):
             run(module)
+            if self in sys.meta_path:
+                sys.meta_path.remove(self)
             register_envs()
 
         spec.loader.exec_module = run_then_register
