@@ -132,3 +132,21 @@ def test_journal_rows_and_reproduce_state_write_nan_as_null_so_any_json_reader_p
     write_state(tmp_path, {"stages": {"encoder": {"r2": math.nan, "done": True}}})
     text = (tmp_path / "reproduce.json").read_text()
     assert json.loads(text)["stages"]["encoder"] == {"r2": None, "done": True} and "NaN" not in text
+
+
+def test_exported_episode_metadata_is_strict_json_even_from_an_episode_holding_nan():
+    # Episodes written before JSON was strict can hold NaN in their metadata; the ROS 2 String and the
+    # LeRobot/Minari attributes carry it as null.
+    import numpy as np
+    from rosbags.typesys import Stores, get_typestore
+
+    from hingelab.episodes.export_source import metadata_json
+    from hingelab.ros2.episode_messages import episode_message
+
+    def strict(text):
+        return json.loads(text, parse_constant=lambda name: pytest.fail(f"{name} in {text}"))
+
+    metadata = {"seed": 4, "final_distance": math.nan, "returns": [1.0, np.float64("inf")], "object": "sphere"}
+    expected = {"seed": 4, "final_distance": None, "returns": [1.0, None], "object": "sphere"}
+    assert strict(metadata_json(metadata)) == expected
+    assert strict(episode_message(get_typestore(Stores.ROS2_HUMBLE), metadata).data) == expected

@@ -51,4 +51,10 @@ def strict_dumps(doc, where, **kwargs) -> str:
                           "(give finite values)") from exc
 
 
-__all__ = ["finite_or_null", "strict_dumps"]
+def metadata_dumps(metadata: dict) -> str:
+    """An episode's metadata as export text (a ROS 2 String, a LeRobot or Minari attribute): NaN and infinity as
+    null (an episode written before JSON was strict may hold them), other objects as their ``str``."""
+    return json.dumps(finite_or_null(metadata), default=str, sort_keys=True, allow_nan=False)
+
+
+__all__ = ["finite_or_null", "metadata_dumps", "strict_dumps"]

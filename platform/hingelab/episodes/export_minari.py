@@ -129,7 +129,11 @@ def dataset_spaces(schema: ExportSchema, env: dict | None) -> tuple[gym.Space, g
 
 
 def spaces(schema: ExportSchema, env: dict | None = None) -> tuple[str, str]:
-    """(observation_space, action_space) serialized as ``minari.serialization.serialize_space`` does."""
+    """(observation_space, action_space) serialized as ``minari.serialization.serialize_space`` does.
+
+    These strings keep ``Infinity`` for unbounded boxes: that is Minari's own encoding (its ``deserialize_space``
+    reads them back with ``json.loads``), and the metadata file that holds them stays strict JSON because they
+    are string values in it."""
     observation, action, _ = dataset_spaces(schema, env)
     return json.dumps(serialize_space(observation)), json.dumps(serialize_space(action))
 

@@ -36,7 +36,6 @@ from __future__ import annotations
 
 import dataclasses
 import inspect
-import json
 from collections.abc import Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -51,6 +50,7 @@ from hingelab.episodes.errors import DatasetError
 from hingelab.episodes.export_trial import is_trial, trial_fields, trial_step
 from hingelab.episodes.reader import EpisodeFile, read_episode
 from hingelab.episodes.writer import EpisodeWriter
+from hingelab.json_text import metadata_dumps
 from hingelab.tasks import register_envs
 
 OBS_KEYS = ("observation", "achieved_goal", "desired_goal")  # a flat observation, or a goal env's dict
@@ -403,7 +403,7 @@ def write_back(root, meta: dict, observations: dict[str, np.ndarray], final: dic
 
 
 def metadata_json(metadata: dict) -> str:
-    return json.dumps(metadata, default=str, sort_keys=True)
+    return metadata_dumps(metadata)
 
 
 __all__ = ["ExportEpisode", "ExportLog", "ExportSchema", "Field", "OBS_KEYS", "align_clouds", "align_episode",

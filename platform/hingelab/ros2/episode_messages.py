@@ -17,13 +17,13 @@ reads) with one ``layout.dim`` whose label names the values in order (``action_n
 
 from __future__ import annotations
 
-import json
 import re
 
 import numpy as np
 from rosbags.typesys import get_types_from_msg
 
 from hingelab.episodes import schemas as S
+from hingelab.json_text import metadata_dumps
 from hingelab.sim.names import HAND_ACTUATORS
 
 EPISODE_TOPIC = "/hingelab/episode"
@@ -51,7 +51,7 @@ def action_message(ts, values, names: list[str]):
 
 
 def episode_message(ts, metadata: dict):
-    return ts.types["std_msgs/msg/String"](data=json.dumps(metadata, default=str, sort_keys=True))
+    return ts.types["std_msgs/msg/String"](data=metadata_dumps(metadata))
 
 
 def field_name(column: str) -> str:
