@@ -6,6 +6,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 from mcap.writer import Writer
+from rerun.chunk import RrdReader
 
 from hingelab.cli.main import main
 from hingelab.episodes import create_dataset
@@ -65,6 +66,12 @@ def test_per_episode_series_and_latent_plane(recording):
     returns = sorted_by(tables["/" + E.EPISODE_RETURN], E.TIMELINE_EPISODE)
     assert returns.column(E.TIMELINE_EPISODE).to_pylist() == list(range(len(LENGTHS)))
     np.testing.assert_allclose(np.ravel(returns.column("Scalars:scalars").to_pylist()), index["return"])
+    # on dataset_step too, at each episode's middle step: inside the episodes' own span, never at an edge
+    lengths = index["length"].to_numpy()  # in the recording's order of episodes
+    starts = np.concatenate([[0], np.cumsum(lengths)[:-1]])
+    on_steps = sorted_by(tables["/" + E.EPISODE_RETURN], E.TIMELINE_DATASET_STEP)
+    assert on_steps.column(E.TIMELINE_DATASET_STEP).to_pylist() == (starts + (lengths - 1) // 2).tolist()
+    np.testing.assert_allclose(np.ravel(on_steps.column("Scalars:scalars").to_pylist()), index["return"])
     lengths = sorted_by(tables["/" + E.EPISODE_LENGTH], E.TIMELINE_EPISODE)
     assert np.ravel(lengths.column("Scalars:scalars").to_pylist()).tolist() == index["length"].astype(float).tolist()
     plane = tables["/" + E.ALL_LATENTS].column("Points2D:positions").to_pylist()
@@ -97,6 +104,13 @@ def test_blueprint_files_are_saved(tmp_path):
     assert [p.name for p in written] == [EPISODE_BLUEPRINT_FILE, DATASET_BLUEPRINT_FILE] + [
         kind_blueprint_file(kind) for kind in KINDS]
     assert all(p.stat().st_size > 1000 for p in written)
+    # each layout opens on the timeline its series are drawn against (not whichever the viewer picks)
+    for name, timeline in ((EPISODE_BLUEPRINT_FILE, E.TIMELINE_STEP), (DATASET_BLUEPRINT_FILE, E.TIMELINE_DATASET_STEP),
+                           (kind_blueprint_file("trial"), E.TIMELINE_DATASET_STEP)):
+        reader = RrdReader(tmp_path / name)
+        chunks = reader.stream(store=reader.blueprints()[0]).to_chunks()
+        panel = [chunk.to_record_batch().to_pylist() for chunk in chunks if str(chunk.entity_path) == "/time_panel"]
+        assert [row["TimePanelBlueprint:timeline"] for rows in panel for row in rows] == [[timeline]], name
 
 
 def one_line_error(capsys) -> str:

@@ -49,6 +49,7 @@ SCENE_EYE = rrb.EyeControls3D(kind="Orbital", position=(-0.01, 0.35, 0.44), look
                               eye_up=(1.0, 0.0, 0.0))
 # The latent plane shows z in [-3, 3]^2: the VAE's prior is N(0, I), so nearly all latents fall inside.
 LATENT_BOUNDS = rrb.VisualBounds2D(x_range=[-3.0, 3.0], y_range=[-3.0, 3.0])
+SUCCESS_RANGE = (-0.1, 1.1)  # the 0/1 success points inside the plot, not on its edges
 
 
 def _latent_bounds(bounds) -> rrb.VisualBounds2D:
@@ -119,7 +120,8 @@ def _episode_views(latent_bounds=None, kind: str = "generic") -> rrb.Container:
 def episode_blueprint(latent_bounds=None, kind: str = GENERIC) -> rrb.Blueprint:
     """Layout of a one-episode recording (see the module docstring); ``latent_bounds``: (x_range, y_range)
     of the latent plane (``latent_frame.plane_bounds``), default the prior's [-3, 3]^2; ``kind``: ``KINDS``."""
-    return rrb.Blueprint(_episode_views(latent_bounds, kind), rrb.TimePanel(state="collapsed"),
+    return rrb.Blueprint(_episode_views(latent_bounds, kind),
+                         rrb.TimePanel(state="collapsed", timeline=E.TIMELINE_STEP),
                          rrb.BlueprintPanel(state="collapsed"), rrb.SelectionPanel(state="collapsed"))
 
 
@@ -128,10 +130,12 @@ def _overview_views(latent_bounds=None) -> rrb.Container:
         rrb.BarChartView(name="success rate by object", origin=E.SUCCESS_BY_OBJECT),
         rrb.BarChartView(name="success rate by source", origin=E.SUCCESS_BY_SOURCE),
     )
+    # one point per episode at its middle dataset_step (the layout's timeline; scrub `episode` for numbers)
     per_episode = rrb.Vertical(
         rrb.TimeSeriesView(name="return per episode", origin=E.EPISODE_RETURN),
         rrb.TimeSeriesView(name="length per episode (steps)", origin=E.EPISODE_LENGTH),
-        rrb.TimeSeriesView(name="success per episode", origin=E.EPISODE_SUCCESS),
+        rrb.TimeSeriesView(name="success per episode (1: success)", origin=E.EPISODE_SUCCESS,
+                           axis_y=rrb.archetypes.ScalarAxis(range=SUCCESS_RANGE)),
     )
     plane = rrb.Spatial2DView(name="all latents (green: success, red: failure)", origin=E.ALL_LATENTS,
                               visual_bounds=_latent_bounds(latent_bounds))
@@ -144,8 +148,10 @@ def _overview_views(latent_bounds=None) -> rrb.Container:
 def dataset_blueprint(latent_bounds=None, kind: str = GENERIC) -> rrb.Blueprint:
     """Layout of a dataset recording (see the module docstring); ``latent_bounds``, ``kind`` as
     ``episode_blueprint``'s."""
+    # dataset_step: the episodes' series back to back, and the overview's per-episode points among them
     return rrb.Blueprint(rrb.Tabs(_overview_views(latent_bounds), _episode_views(latent_bounds, kind), active_tab=0),
-                         rrb.TimePanel(state="collapsed"), rrb.BlueprintPanel(state="collapsed"),
+                         rrb.TimePanel(state="collapsed", timeline=E.TIMELINE_DATASET_STEP),
+                         rrb.BlueprintPanel(state="collapsed"),
                          rrb.SelectionPanel(state="collapsed"))
 
 

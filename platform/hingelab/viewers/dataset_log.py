@@ -7,7 +7,9 @@ Overview (from the index alone, no episode is read):
   ``BarChart`` at its row's position: Rerun's bar charts carry no bar labels, its legend names
   entities), in the order of the ``overview/summary`` tables;
 - ``overview/return``, ``overview/length``, ``overview/success``: one value per episode
-  on the ``episode`` timeline.
+  on the ``episode`` timeline and, for the episodes the recording holds, on ``dataset_step`` at the
+  episode's middle step (the dataset layout opens on ``dataset_step``, so these plots and the
+  episodes' series share one timeline, and no point sits on a plot's edge).
 
 Episodes: the same entities as the one-episode view (``entities.py``), all episodes
 concatenated per entity and sent in **one** ``send_columns`` call per entity, on the
@@ -92,7 +94,7 @@ def bar_entity(chart: str, name) -> str:
 
 
 def log_overview(rec: rr.RecordingStream, dataset: Dataset) -> None:
-    """Bar charts, per-episode return/length/success and the summary tables (see module doc)."""
+    """Bar charts and the summary tables (see module doc); the per-episode series: ``log_per_episode``."""
     index = dataset.index
     parts = [f"# {dataset.card.name}: {len(index)} episodes, source {dataset.card.source}\n"]
     for by, entity in (("object", E.SUCCESS_BY_OBJECT), ("source", E.SUCCESS_BY_SOURCE)):
@@ -102,13 +104,23 @@ def log_overview(rec: rr.RecordingStream, dataset: Dataset) -> None:
                                                           color=BAR_COLORS[i % len(BAR_COLORS)]), static=True)
         parts.append(_markdown(table, f"success rate by {by} (bar: row)"))
     rec.log(E.SUMMARY, rr.TextDocument("\n".join(parts), media_type="text/markdown"), static=True)
+
+
+def log_per_episode(rec: rr.RecordingStream, index: pd.DataFrame, middle_steps: np.ndarray | None = None) -> None:
+    """Return, length and success of every episode of ``index`` on the ``episode`` timeline; the first
+    ``len(middle_steps)`` (the episodes the recording holds) also on ``dataset_step`` at those steps."""
+    held = 0 if middle_steps is None else len(middle_steps)
     episode = np.arange(len(index), dtype=np.int64)
-    timeline = [rr.TimeColumn(E.TIMELINE_EPISODE, sequence=episode)]
     for entity, column, name in ((E.EPISODE_RETURN, "return", "return"), (E.EPISODE_LENGTH, "length", "length"),
                                  (E.EPISODE_SUCCESS, "success", "success")):
         values = index[column].astype("float64").fillna(np.nan).to_numpy()
         rec.log(entity, rr.SeriesPoints(names=[name], marker_sizes=[3.0]), static=True)
-        rec.send_columns(entity, indexes=timeline, columns=rr.Scalars.columns(scalars=values))
+        if held:
+            rec.send_columns(entity, indexes=dataset_indexes(episode[:held], np.asarray(middle_steps, np.int64)),
+                             columns=rr.Scalars.columns(scalars=values[:held]))
+        if held < len(index):
+            rec.send_columns(entity, indexes=[rr.TimeColumn(E.TIMELINE_EPISODE, sequence=episode[held:])],
+                             columns=rr.Scalars.columns(scalars=values[held:]))
 
 
 class _Concatenator:
@@ -160,8 +172,10 @@ def log_dataset(rec: rr.RecordingStream, dataset: Dataset, cloud_every: int = 10
     robot = DatasetRobot(every=cloud_every)  # the scene's meshes, posed at the steps whose clouds are kept
     trajectories, tip_paths, facts, plane_points, plane_colors = [], [], [], [], []
     offset = clouds = 0
+    middle_steps = np.zeros(len(paths), np.int64)  # each episode's middle dataset_step (a skipped one: its place)
     for number, path in enumerate(tqdm(paths, desc=f"view {dataset.root.name}", unit="episode",
                                        disable=not progress)):
+        middle_steps[number] = offset
         episode = dataset.read_checked(path)
         if episode is None:  # --on-corrupt skip
             continue
@@ -185,10 +199,12 @@ def log_dataset(rec: rr.RecordingStream, dataset: Dataset, cloud_every: int = 10
         mid = tip_midpoints(episode)
         tip_paths.append(mid if mid is not None else np.zeros((0, 3)))
         facts.append(episode_facts_markdown(episode))
+        middle_steps[number] = offset + max(length - 1, 0) // 2
         offset += length
     read_s = time.perf_counter() - started
     collected.send(rec)
     robot.send(rec)
+    log_per_episode(rec, dataset.index, middle_steps)
     first_steps = np.zeros(len(paths), np.int64)  # each episode's first dataset_step
     episode_numbers = np.arange(len(paths), dtype=np.int64)
     if len(paths):
@@ -220,4 +236,4 @@ def _first_steps(collected: _Concatenator, n_episodes: int) -> np.ndarray:
     return first
 
 
-__all__ = ["log_dataset", "log_overview", "success_table", "bar_entity", "DatasetLogStats"]
+__all__ = ["log_dataset", "log_overview", "log_per_episode", "success_table", "bar_entity", "DatasetLogStats"]
