@@ -35,6 +35,13 @@ def add_parser(subparsers) -> None:
                         "network interface's address lets every machine that reaches it read the data)")
     p.add_argument("--port", type=int, default=9876, help="--web: the gRPC port (default 9876)")
     p.add_argument("--web-viewer-port", type=int, default=9090, help="--web: the web viewer's port (default 9090)")
+    p.add_argument("--screenshot", type=Path, default=None, metavar="FILE.png",
+                   help="serve the recording to Rerun's web viewer on this machine, open it in headless "
+                        "Chromium (needs `chromium` on PATH, or HINGELAB_CHROMIUM=PATH) and save a 1600x1000 "
+                        "PNG once the view has stopped changing; then stop serving")
+    p.add_argument("--screenshot-timeout", type=float, default=240.0, metavar="S",
+                   help="--screenshot: the longest wait for the view to settle, seconds (WebGL runs in "
+                        "software; default 240)")
     p.add_argument("--cloud-every", type=int, default=10, metavar="K",
                    help="dataset view: keep every K-th tool cloud of each episode (1 = all; default 10)")
     p.add_argument("--max-episodes", type=int, default=None, metavar="N",
@@ -54,6 +61,8 @@ def run(args: argparse.Namespace) -> int:
 
     if args.save is not None and args.web:
         raise ConfigError("give either --save FILE.rrd or --web, not both")
+    if args.screenshot is not None:
+        return _screenshot(args, view)
     if args.web:
         warning = bind_warning(args.bind, args.port, args.web_viewer_port)
         if warning:
@@ -83,4 +92,32 @@ def run(args: argparse.Namespace) -> int:
             result.server.stop()
     else:
         print(f"Logged {what} in {result.seconds:.2f} s to a spawned Rerun viewer.")
+    return 0
+
+
+def _screenshot(args: argparse.Namespace, view) -> int:
+    from hingelab.viewers.screenshot import capture_page, chromium_executable, free_port
+    from hingelab.viewers.web_server import LOOPBACK
+
+    if args.save is not None or args.web:
+        raise ConfigError("--screenshot serves the recording itself: leave out --save and --web")
+    if args.screenshot.suffix.lower() != ".png":
+        raise ConfigError(f"--screenshot {args.screenshot}: the file must end in .png")
+    if not args.screenshot_timeout > 0:
+        raise ConfigError(f"--screenshot-timeout must be a positive number of seconds, not {args.screenshot_timeout}")
+    check_out_file(args.screenshot, "--screenshot")
+    chromium_executable()  # before logging: no Chromium is one line, not a wasted recording
+    result, _ = view(args.path, web=True, cloud_every=args.cloud_every, max_episodes=args.max_episodes,
+                     bind=LOOPBACK, port=free_port(), web_port=free_port())
+    try:
+        shot = capture_page(result.url, args.screenshot, timeout_s=args.screenshot_timeout)
+    finally:
+        result.server.stop()
+    what = (f"{result.episodes} episode{'s' if result.episodes != 1 else ''} "
+            f"({result.steps} steps) of {result.kind} {result.name!r}")
+    print(f"Logged {what}; Rerun's web viewer drawn in headless Chromium and saved to {args.screenshot} "
+          f"({shot['bytes'] / 1024:.0f} KiB, {shot['seconds']:.0f} s, {shot['captures']} captures).")
+    if not shot["settled"]:
+        print(f"warning: the view was still changing after {args.screenshot_timeout:.0f} s; the file holds the "
+              "last capture (raise --screenshot-timeout on a busy machine)", file=sys.stderr)
     return 0

@@ -26,6 +26,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
+import rerun as rr
 import rerun.blueprint as rrb
 
 from hingelab.viewers import entities as E
@@ -121,20 +122,33 @@ def episode_blueprint(latent_bounds=None, kind: str = GENERIC) -> rrb.Blueprint:
     """Layout of a one-episode recording (see the module docstring); ``latent_bounds``: (x_range, y_range)
     of the latent plane (``latent_frame.plane_bounds``), default the prior's [-3, 3]^2; ``kind``: ``KINDS``."""
     return rrb.Blueprint(_episode_views(latent_bounds, kind),
-                         rrb.TimePanel(state="collapsed", timeline=E.TIMELINE_STEP),
+                         rrb.TimePanel(state="collapsed", timeline=E.TIMELINE_STEP, play_state="paused"),
                          rrb.BlueprintPanel(state="collapsed"), rrb.SelectionPanel(state="collapsed"))
 
 
-def _overview_views(latent_bounds=None) -> rrb.Container:
+def _per_episode_axis(extent) -> rrb.archetypes.TimeAxis | None:
+    """The per-episode plots' x axis: all ``extent`` = (episodes, steps) of the recording on ``dataset_step``
+    with a margin on each side (Rerun's default is a window of about 1,000 around the time cursor, and a
+    visible time range does not move it; the range is in steps, so on timeline ``episode`` zoom out)."""
+    if extent is None:
+        return None
+    last = max(extent[1] - 1, 0)
+    pad = max(1, round(0.02 * last))
+    return rrb.archetypes.TimeAxis(view_range=rr.TimeRange(start=rrb.TimeRangeBoundary.absolute(seq=-pad),
+                                                           end=rrb.TimeRangeBoundary.absolute(seq=last + pad)))
+
+
+def _overview_views(latent_bounds=None, extent=None) -> rrb.Container:
     bars = rrb.Vertical(
         rrb.BarChartView(name="success rate by object", origin=E.SUCCESS_BY_OBJECT),
         rrb.BarChartView(name="success rate by source", origin=E.SUCCESS_BY_SOURCE),
     )
     # one point per episode at its middle dataset_step (the layout's timeline; scrub `episode` for numbers)
+    axis_x = _per_episode_axis(extent)
     per_episode = rrb.Vertical(
-        rrb.TimeSeriesView(name="return per episode", origin=E.EPISODE_RETURN),
-        rrb.TimeSeriesView(name="length per episode (steps)", origin=E.EPISODE_LENGTH),
-        rrb.TimeSeriesView(name="success per episode (1: success)", origin=E.EPISODE_SUCCESS,
+        rrb.TimeSeriesView(name="return per episode", origin=E.EPISODE_RETURN, axis_x=axis_x),
+        rrb.TimeSeriesView(name="length per episode (steps)", origin=E.EPISODE_LENGTH, axis_x=axis_x),
+        rrb.TimeSeriesView(name="success per episode (1: success)", origin=E.EPISODE_SUCCESS, axis_x=axis_x,
                            axis_y=rrb.archetypes.ScalarAxis(range=SUCCESS_RANGE)),
     )
     plane = rrb.Spatial2DView(name="all latents (green: success, red: failure)", origin=E.ALL_LATENTS,
@@ -145,12 +159,14 @@ def _overview_views(latent_bounds=None) -> rrb.Container:
     )
 
 
-def dataset_blueprint(latent_bounds=None, kind: str = GENERIC) -> rrb.Blueprint:
+def dataset_blueprint(latent_bounds=None, kind: str = GENERIC, extent: tuple[int, int] | None = None) -> rrb.Blueprint:
     """Layout of a dataset recording (see the module docstring); ``latent_bounds``, ``kind`` as
-    ``episode_blueprint``'s."""
+    ``episode_blueprint``'s; ``extent``: (episodes, steps) the recording holds, so that the per-episode plots
+    show them all (default: Rerun's window around the time cursor)."""
     # dataset_step: the episodes' series back to back, and the overview's per-episode points among them
-    return rrb.Blueprint(rrb.Tabs(_overview_views(latent_bounds), _episode_views(latent_bounds, kind), active_tab=0),
-                         rrb.TimePanel(state="collapsed", timeline=E.TIMELINE_DATASET_STEP),
+    tabs = rrb.Tabs(_overview_views(latent_bounds, extent), _episode_views(latent_bounds, kind), active_tab=0)
+    return rrb.Blueprint(tabs,
+                         rrb.TimePanel(state="collapsed", timeline=E.TIMELINE_DATASET_STEP, play_state="paused"),
                          rrb.BlueprintPanel(state="collapsed"),
                          rrb.SelectionPanel(state="collapsed"))
 

@@ -134,7 +134,9 @@ def view(path, save=None, web: bool = False, cloud_every: int = 10, max_episodes
         log_episode(rec, episode)
         result = ViewResult(kind, name, save, None, 1, episode.length, 0.0)
     else:
-        blueprint = dataset_blueprint(plane_bounds(reachable_latent_curve()), dataset_kind(target.card.source))
+        held = target.index.iloc[: len(target.paths()[:max_episodes])]  # the episodes the recording will hold
+        blueprint = dataset_blueprint(plane_bounds(reachable_latent_curve()), dataset_kind(target.card.source),
+                                      extent=(len(held), int(held["length"].fillna(0).sum())))
         rec = _open_recording(name, blueprint, save)
         stats = log_dataset(rec, target, cloud_every=cloud_every, max_episodes=max_episodes, progress=progress)
         result = ViewResult(kind, name, save, None, stats.episodes, stats.steps, 0.0, stats)
