@@ -317,7 +317,9 @@ def test_drift_weight_charges_the_tools_true_drift_beyond_5mm(tiny_run):
     from hingelab.training.buffer_fill import read_transitions, relabel_rewards
 
     env = gym.make("hingelab/ToolShape-v0", drift_weight=400.0, goal_sampling="reachable").unwrapped
-    env.reset(seed=3)
+    _, info = env.reset(seed=3)
+    # the reset's terms are the steps' (0 each): a recorded field has a row for every message
+    assert info["reward_terms"] == {"goal": 0.0, "effort_tool": 0.0, "effort_fingers": 0.0, "drift": 0.0}
     drift_terms = []
     for k in range(30):
         # squeeze and release hard: the tool moves in the hand

@@ -175,3 +175,18 @@ def test_cli_view_saves_a_recording(episode_path, tmp_path, capsys):
     out = capsys.readouterr().out
     assert str(rrd) in out and "1 episode" in out
     assert sorted_by(rrd_tables(rrd)["/" + E.TOOL_CLOUD], E.TIMELINE_STEP).num_rows == read_episode(episode_path).length
+
+
+def test_a_reward_term_missing_from_the_reset_message_is_drawn_at_its_own_steps(episode_path):
+    # low-level episodes recorded before the reset carried the drift term have one row fewer of it
+    from hingelab.episodes import schemas as S
+    from hingelab.viewers.episode_series import episode_series
+
+    episode = read_episode(episode_path)
+    reward = episode.topics[S.TOPIC_REWARD]
+    reward["drift"] = -np.arange(1.0, len(reward["log_time_ns"]))  # none at the reset
+    series = {s.entity: s for s in episode_series(episode)}
+    drift = series[f"{E.REWARD}/drift"]
+    assert all(len(s.values) == len(s.time_ns) == len(s.step) for s in series.values())
+    np.testing.assert_array_equal(drift.time_ns, reward["log_time_ns"][1:])
+    np.testing.assert_array_equal(series[f"{E.REWARD}/total"].time_ns, reward["log_time_ns"])

@@ -184,7 +184,10 @@ class ToolShapeEnv(SimRenderMixin, gym.Env):
         self.sample = self.perception.observe(self.sim)
         self._settled_count = 0  # the window holds the steps' latents; at reset, the verdict reads this one
         obs = self._observation()
-        info = self._info(terms={"goal": 0.0, "effort_tool": 0.0, "effort_fingers": 0.0})
+        terms = {"goal": 0.0, "effort_tool": 0.0, "effort_fingers": 0.0}
+        if self.reward_config.use_effort and self.reward_config.c4 > 0:
+            terms["drift"] = 0.0  # the steps' terms, so that every recorded field has a row per message
+        info = self._info(terms=terms)
         self.last_record = self._record(None, 0.0, info)
         return obs, info
 

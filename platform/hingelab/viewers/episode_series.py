@@ -150,7 +150,10 @@ def episode_series(episode: Episode, with_clouds: bool = True) -> list[Series]:
     reward = topics.get(S.TOPIC_REWARD, {})
     for name, values in reward.items():
         if name != "log_time_ns":
-            out.append(_series(f"{E.REWARD}/{name}", SCALARS, values, reward["log_time_ns"], names=(name,)))
+            # a term the reset's message lacks (drift, in low-level episodes recorded before it was added
+            # there) has fewer rows than the topic: they are its last messages'
+            times = reward["log_time_ns"][len(reward["log_time_ns"]) - len(values):]
+            out.append(_series(f"{E.REWARD}/{name}", SCALARS, values, times, names=(name,)))
     times, success, attempt = step_outcome(episode)
     out.append(_series(E.SUCCESS, SCALARS, success, times, names=("success",)))
     out.append(_series(E.ATTEMPT, SCALARS, attempt, times, names=("attempt",)))
