@@ -80,15 +80,25 @@ class _DevTools:
         self.socket = connect(pages[0]["webSocketDebuggerUrl"], max_size=None, open_timeout=10)
         self.calls = 0
 
-    def call(self, method: str, **params) -> dict:
+    def call(self, method: str, timeout_s: float = 120.0, **params) -> dict:
+        from websockets.exceptions import ConnectionClosed
+
         self.calls += 1
-        self.socket.send(json.dumps({"id": self.calls, "method": method, "params": params}))
-        while True:
-            message = json.loads(self.socket.recv(timeout=60))
-            if message.get("id") == self.calls:
-                if "error" in message:
-                    raise ScreenshotError(f"Chromium refused {method}: {message['error'].get('message')}")
-                return message.get("result", {})
+        try:
+            self.socket.send(json.dumps({"id": self.calls, "method": method, "params": params}))
+            while True:  # events and older answers until this call's
+                message = json.loads(self.socket.recv(timeout=timeout_s))
+                if message.get("id") == self.calls:
+                    break
+        except ConnectionClosed as exc:
+            raise ScreenshotError(f"Chromium closed its DevTools connection during {method} ({exc}); did it "
+                                  "crash? Try again, or a smaller --max-episodes") from None
+        except TimeoutError:
+            raise ScreenshotError(f"Chromium did not answer {method} within {timeout_s:.0f} s (a heavy view drawn "
+                                  "in software on a busy machine; raise --screenshot-timeout)") from None
+        if "error" in message:
+            raise ScreenshotError(f"Chromium refused {method}: {message['error'].get('message')}")
+        return message.get("result", {})
 
     def close(self) -> None:
         self.socket.close()
@@ -114,7 +124,8 @@ def capture_page(url: str, out: Path, window: tuple[int, int] = WINDOW, timeout_
                 time.sleep(FIRST_CAPTURE_S)
                 previous, same, settled, captures = None, 0, False, 0
                 while True:
-                    png = base64.b64decode(page.call("Page.captureScreenshot", format="png")["data"])
+                    left = max(60.0, timeout_s - (time.monotonic() - started))
+                    png = base64.b64decode(page.call("Page.captureScreenshot", timeout_s=left, format="png")["data"])
                     captures += 1
                     same = same + 1 if png == previous else 1
                     if same >= SETTLED_AFTER:
