@@ -109,14 +109,14 @@ def log_overview(rec: rr.RecordingStream, dataset: Dataset) -> None:
 def log_per_episode(rec: rr.RecordingStream, index: pd.DataFrame, middle_steps: np.ndarray | None = None) -> None:
     """Return, length and success of every episode of ``index`` on the ``episode`` timeline; the first
     ``len(middle_steps)`` (the episodes the recording holds) also on ``dataset_step`` at those steps."""
-    held = 0 if middle_steps is None else len(middle_steps)
+    held = 0 if middle_steps is None else min(len(middle_steps), len(index))
     episode = np.arange(len(index), dtype=np.int64)
     for entity, column, name in ((E.EPISODE_RETURN, "return", "return"), (E.EPISODE_LENGTH, "length", "length"),
                                  (E.EPISODE_SUCCESS, "success", "success")):
         values = index[column].astype("float64").fillna(np.nan).to_numpy()
         rec.log(entity, rr.SeriesPoints(names=[name], marker_sizes=[3.0]), static=True)
         if held:
-            rec.send_columns(entity, indexes=dataset_indexes(episode[:held], np.asarray(middle_steps, np.int64)),
+            rec.send_columns(entity, indexes=dataset_indexes(episode[:held], np.asarray(middle_steps[:held], np.int64)),
                              columns=rr.Scalars.columns(scalars=values[:held]))
         if held < len(index):
             rec.send_columns(entity, indexes=[rr.TimeColumn(E.TIMELINE_EPISODE, sequence=episode[held:])],
