@@ -6,6 +6,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 from mcap.writer import Writer
+from rerun.blueprint.components import PlayState
 from rerun.chunk import RrdReader
 
 from hingelab.cli.main import main
@@ -109,8 +110,13 @@ def test_blueprint_files_are_saved(tmp_path):
                            (kind_blueprint_file("trial"), E.TIMELINE_DATASET_STEP)):
         reader = RrdReader(tmp_path / name)
         chunks = reader.stream(store=reader.blueprints()[0]).to_chunks()
-        panel = [chunk.to_record_batch().to_pylist() for chunk in chunks if str(chunk.entity_path) == "/time_panel"]
-        assert [row["TimePanelBlueprint:timeline"] for rows in panel for row in rows] == [[timeline]], name
+        rows = [row for chunk in chunks if str(chunk.entity_path) == "/time_panel"
+                for row in chunk.to_record_batch().to_pylist()]
+        assert [row["TimePanelBlueprint:timeline"] for row in rows if "TimePanelBlueprint:timeline" in row] == [
+            [timeline]], name
+        paused = PlayState.Paused.value  # paused: the per-episode plots keep their range, not follow a cursor
+        assert [row["TimePanelBlueprint:play_state"] for row in rows if "TimePanelBlueprint:play_state" in row] == [
+            [paused]], name
 
 
 def one_line_error(capsys) -> str:
@@ -177,3 +183,19 @@ def test_foxglove_layout_names_contract_topics():
     assert {"/tool/latent.z[0]", "/tool/latent.z_smoothed[1]", "/sim/privileged.hinge_angle",
             "/reward/terms.total"} <= set(paths)
     assert {path.split(".")[0] for path in paths} <= set(S.TOPIC_TYPES)
+
+
+def test_the_per_episode_plots_span_the_recording(tmp_path):
+    # Rerun's default x range is a window of about 1,000 around the cursor: the plots get the recording's span
+    from hingelab.viewers.blueprints import dataset_blueprint
+
+    def view_ranges(blueprint):
+        path = tmp_path / "layout.rbl"
+        blueprint.save(E.APPLICATION_ID, path)
+        reader = RrdReader(path)
+        return [row["TimeAxis:view_range"] for chunk in reader.stream(store=reader.blueprints()[0]).to_chunks()
+                for row in chunk.to_record_batch().to_pylist() if "TimeAxis:view_range" in row]
+
+    steps = 5260  # 50 episodes of about 105 steps: a 2 % margin each side
+    assert view_ranges(dataset_blueprint(extent=(50, steps))) == [[{"start": -105, "end": steps - 1 + 105}]] * 3
+    assert view_ranges(dataset_blueprint()) == []
