@@ -20,7 +20,8 @@ def add_parser(subparsers) -> None:
             "Log an episode (tool cloud, tool frame, tips, object and target in hand_base; hand joints; "
             "latent z and z_goal; reward terms; success and attempt markers, on the simulated timeline) "
             "or a dataset (success per object and source, returns, lengths, all latents, every episode "
-            "on an 'episode' timeline) to Rerun, laid out by the blueprints in viewers/. Without a "
+            "back to back on a 'dataset_step' timeline, and on 'episode' to step through them) to Rerun, laid "
+            "out by the blueprints in viewers/. Without a "
             "display the recording is saved as ./NAME.rrd (open it later with `rerun NAME.rrd`)."
         ),
     )
