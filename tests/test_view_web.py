@@ -10,13 +10,7 @@ from pathlib import Path
 import pytest
 
 from hingelab.viewers import view
-from hingelab.viewers.web_server import bind_warning, is_loopback
-
-
-def _free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
+from hingelab.viewers.web_server import bind_warning, free_port, is_loopback
 
 
 def _listening_addresses(port: int) -> set[str]:
@@ -44,7 +38,7 @@ def episode_file(random_pick_dataset) -> Path:
 
 @pytest.mark.skipif(not Path("/proc/net/tcp").exists(), reason="reads Linux's socket table")
 def test_web_view_listens_on_loopback_only(episode_file):
-    port, web_port = _free_port(), _free_port()
+    port, web_port = free_port(), free_port()
     result, _ = view(episode_file, web=True, port=port, web_port=web_port, progress=False)
     try:
         assert _listening_addresses(port) == {"127.0.0.1"}

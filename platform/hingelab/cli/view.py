@@ -97,8 +97,8 @@ def run(args: argparse.Namespace) -> int:
 
 
 def _screenshot(args: argparse.Namespace, view) -> int:
-    from hingelab.viewers.screenshot import capture_page, chromium_executable, free_port
-    from hingelab.viewers.web_server import LOOPBACK
+    from hingelab.viewers.screenshot import capture_page, chromium_executable
+    from hingelab.viewers.web_server import LOOPBACK, free_port
 
     if args.save is not None or args.web:
         raise ConfigError("--screenshot serves the recording itself: leave out --save and --web")

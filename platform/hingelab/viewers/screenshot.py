@@ -13,7 +13,6 @@ import base64
 import json
 import os
 import shutil
-import socket
 import subprocess
 import tempfile
 import time
@@ -21,6 +20,7 @@ import urllib.request
 from pathlib import Path
 
 from hingelab.errors import HingelabError
+from hingelab.viewers.web_server import free_port
 
 WINDOW = (1600, 1000)  # px
 FIRST_CAPTURE_S = 15.0  # the viewer's wasm loads before anything is drawn
@@ -51,13 +51,6 @@ def chromium_executable() -> str:
             return found
     raise ScreenshotError("--screenshot needs Chromium, and none is on PATH (tried " + ", ".join(CHROMIUM_NAMES)
                           + "); install it (Debian: apt-get install chromium) or set HINGELAB_CHROMIUM=PATH")
-
-
-def free_port() -> int:
-    """A TCP port on 127.0.0.1 that nothing listens on now."""
-    with socket.socket() as sock:
-        sock.bind(("127.0.0.1", 0))
-        return sock.getsockname()[1]
 
 
 class _DevTools:
@@ -151,4 +144,4 @@ def capture_page(url: str, out: Path, window: tuple[int, int] = WINDOW, timeout_
     return {"settled": settled, "captures": captures, "seconds": time.monotonic() - started, "bytes": len(png)}
 
 
-__all__ = ["ScreenshotError", "capture_page", "chromium_executable", "free_port"]
+__all__ = ["ScreenshotError", "capture_page", "chromium_executable"]

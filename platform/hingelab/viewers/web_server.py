@@ -103,6 +103,13 @@ class WebServer:
             self.workdir = None
 
 
+def free_port() -> int:
+    """A TCP port on 127.0.0.1 that nothing listens on now."""
+    with socket.socket() as sock:
+        sock.bind((LOOPBACK, 0))
+        return sock.getsockname()[1]
+
+
 def _listening(address: str, port: int) -> bool:
     host = "::1" if address == "::" else ("127.0.0.1" if address == "0.0.0.0" else address)
     try:
@@ -145,5 +152,5 @@ def serving_workdir() -> tempfile.TemporaryDirectory:
     return tempfile.TemporaryDirectory(prefix="hingelab-view-")
 
 
-__all__ = ["GRPC_PORT", "LOOPBACK", "WEB_PORT", "WebServeError", "WebServer", "bind_warning", "is_loopback",
-           "rerun_executable", "serve_rrd", "serving_workdir"]
+__all__ = ["GRPC_PORT", "LOOPBACK", "WEB_PORT", "WebServeError", "WebServer", "bind_warning", "free_port",
+           "is_loopback", "rerun_executable", "serve_rrd", "serving_workdir"]
