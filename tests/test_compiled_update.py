@@ -92,7 +92,7 @@ def test_unsupported_models_are_refused_with_the_reason():
     with pytest.raises(ValueError, match="fixed ent_coef"):
         FastSAC("MultiInputPolicy", dummy_goal_env(), policy_kwargs=dict(NET), ent_coef=0.1, update="compiled",
                 device="cpu")
-    with pytest.raises(ValueError, match="'eager' or 'compiled'"):
+    with pytest.raises(ValueError, match="'eager', 'compiled', 'fused'"):
         FastSAC("MultiInputPolicy", dummy_goal_env(), policy_kwargs=dict(NET), update="jit", device="cpu")
 
 
@@ -128,9 +128,9 @@ def test_bench_table_says_when_sbx_was_not_installed():
     assert any(note.startswith(f"{SBX}: not measured: sbx is not installed") for note in table.notes)
 
 
-def test_train_commands_take_the_compiled_update_and_refuse_what_it_cannot_run():
-    """`train low|high|flat --update compiled` reaches FastSAC (the update's arithmetic is tested above);
-    configs it cannot run are refused in one line at the door, before a run folder exists."""
+def test_train_commands_take_the_compiled_and_fused_updates_and_refuse_what_they_cannot_run():
+    """`train low|high|flat --update compiled|fused` reaches FastSAC (the updates' arithmetic is tested above and
+    in test_fused_update); configs they cannot run are refused in one line at the door, before a run folder exists."""
     from hingelab.errors import ConfigError
     from hingelab.learners.residual.config import ResidualSACConfig
     from hingelab.learners.sac.high_level_config import FlatTrainConfig, HighLevelTrainConfig
@@ -138,12 +138,13 @@ def test_train_commands_take_the_compiled_update_and_refuse_what_it_cannot_run()
     from hingelab.learners.sac.run import sac_arguments
 
     assert "update" not in sac_arguments(LowLevelTrainConfig())  # eager: FastSAC's default, saved zips unchanged
-    for config in (LowLevelTrainConfig(update="compiled"), HighLevelTrainConfig(update="compiled", prior=False),
-                   FlatTrainConfig(update="compiled")):
-        assert sac_arguments(config)["update"] == "compiled"
-    for kwargs, reason in (({"algorithm": "sac"}, "fast_sac's"), ({"ent_coef": "0.1"}, "--ent-coef auto"),
-                           ({"demo_bc_weight": 1.0}, "no BC term")):
-        with pytest.raises(ConfigError, match=reason):
-            LowLevelTrainConfig(update="compiled", **kwargs)
-    with pytest.raises(ConfigError, match="its own update"):
-        ResidualSACConfig(update="compiled")
+    for update in ("compiled", "fused"):
+        for config in (LowLevelTrainConfig(update=update), HighLevelTrainConfig(update=update, prior=False),
+                       FlatTrainConfig(update=update)):
+            assert sac_arguments(config)["update"] == update
+        for kwargs, reason in (({"algorithm": "sac"}, "fast_sac's"), ({"ent_coef": "0.1"}, "--ent-coef auto"),
+                               ({"demo_bc_weight": 1.0}, "no BC term")):
+            with pytest.raises(ConfigError, match=f"--update {update} cannot run this config: .*{reason}"):
+                LowLevelTrainConfig(update=update, **kwargs)
+        with pytest.raises(ConfigError, match="its own update"):
+            ResidualSACConfig(update=update)

@@ -14,6 +14,12 @@ glibc's heap, differ between them):
 - ``FastSAC compiled + configure_torch``: the same with ``update="compiled"``, each gradient step
   one ``torch.compile``d function (``hingelab.learners.sac.compiled_update``; its compilation is
   part of the untimed warm-up);
+- ``FastSAC fused + configure_torch``: the same with ``update="fused"``, the gradients written out
+  by hand into buffers made once (``hingelab.learners.sac.fused_update``; no compilation);
+- ``matmuls of one update``: a diagnostic, not an update: the fused update's matrix products
+  alone (the same shapes and layouts, one after another, into buffers made once). At this
+  machine's matrix-product rate it is the least time any torch update of this algorithm can
+  take, so its ratio to SBX says whether the target (>= SBX) is reachable here at all;
 - ``SBX SAC``: the JAX SAC of ``sbx-rl`` (the bench extra), its update jitted by XLA, on one
   XLA thread (``XLA_FLAGS`` set in its process before JAX loads): the compiled baseline. Only at
   1 thread, and only when ``sbx`` is installed; without it the bench says so and runs the others.
@@ -53,7 +59,8 @@ from hingelab.bench.table import BenchTable
 from hingelab.learners.sac.fast_sac import FastSAC, configure_torch
 
 # the code this benchmark measures (the bench's own module is added by hingelab.bench.measured_paths)
-MEASURES = ("platform/hingelab/learners/sac/fast_sac.py", "platform/hingelab/learners/sac/compiled_update.py")
+MEASURES = ("platform/hingelab/learners/sac/fast_sac.py", "platform/hingelab/learners/sac/compiled_update.py",
+            "platform/hingelab/learners/sac/fused_update.py")
 
 SEED = 0
 BATCH_SIZE = 256
@@ -69,10 +76,14 @@ ARMS: dict[str, tuple[str, str, bool]] = {
     OURS: ("ours", "FastSAC", True),
 }
 COMPILED = "FastSAC compiled + configure_torch"
+FUSED = "FastSAC fused + configure_torch"
+MATMULS = "matmuls of one update"
 SBX = "SBX SAC"
 #: arms beyond the three above: arm -> (role, algorithm, hingelab's process settings, thread settings (None: all))
 EXTRA_ARMS: dict[str, tuple[str, str, bool, tuple[int, ...] | None]] = {
     COMPILED: ("ours, compiled update", "FastSAC-compiled", True, None),
+    FUSED: ("ours, update by hand", "FastSAC-fused", True, None),
+    MATMULS: ("diagnostic: the fused update's matrix products alone", "matmuls", True, (1,)),
     SBX: ("compiled baseline (JAX, XLA)", "SBX", False, (1,)),
 }
 #: one XLA thread (set before JAX loads): SBX's rate "on one core", as the torch arms' 1 thread
@@ -136,6 +147,36 @@ def update_rate(model: Any, n_updates: int, batch_size: int = BATCH_SIZE,
     start = clock()
     model.train(gradient_steps=n_updates, batch_size=batch_size)
     return n_updates / (clock() - start)
+
+
+class UpdateMatmuls:
+    """The matrix products of one fused SAC update on the bench's shapes (``train`` runs them, as a model's
+    ``train`` runs updates): actor 2 x 256 on 2B rows, n critics 2 x 256 as stacks; the products of the
+    target, the critic loss and its backward, the actor loss through the critics and the actor's backward.
+    Operands and outputs are made once, as the fused update's buffers are."""
+
+    def __init__(self, batch: int = BATCH_SIZE, obs_dim: int = 30, action_dim: int = 9, hidden: int = 256,
+                 critics: int = 2):
+        b, d, a, h, n = batch, obs_dim, action_dim, hidden, critics
+        r = lambda *shape: th.randn(shape)  # noqa: E731
+        actor_products = [(r(2 * b, d), r(h, d).t()), (r(2 * b, h), r(h, h).t()), (r(2 * b, h), r(2 * a, h).t())]
+        critic_forward = [(r(n, b, d + a), r(n, h, d + a).transpose(1, 2)), (r(n, b, h), r(n, h, h).transpose(1, 2)),
+                          (r(n, b, h), r(n, 1, h).transpose(1, 2))]
+        critic_backward = [(r(n, b, 1).transpose(1, 2), r(n, b, h)), (r(n, b, 1), r(n, 1, h)),
+                           (r(n, b, h).transpose(1, 2), r(n, b, h)), (r(n, b, h), r(n, h, h)),
+                           (r(n, b, h).transpose(1, 2), r(n, b, d + a))]
+        actor_loss_backward = [(r(n, b, 1), r(n, 1, h)), (r(n, b, h), r(n, h, h)), (r(n, b, h), r(n, h, a))]
+        actor_backward = [(r(b, 2 * a).t(), r(b, h)), (r(b, 2 * a), r(2 * a, h)), (r(b, h).t(), r(b, h)),
+                          (r(b, h), r(h, h)), (r(b, h).t(), r(b, d))]
+        products = [*actor_products, *critic_forward * 3, *critic_backward, *actor_loss_backward, *actor_backward]
+        self.products = [(x, y, th.empty(*x.shape[:-1], y.shape[-1])) for x, y in products]
+        self.flops = sum(2 * x.shape[-2] * x.shape[-1] * y.shape[-1] * (x.shape[0] if x.dim() == 3 else 1)
+                         for x, y, _ in self.products)
+
+    def train(self, gradient_steps: int, batch_size: int = BATCH_SIZE) -> None:
+        for _ in range(gradient_steps):
+            for x, y, out in self.products:
+                (th.bmm if x.dim() == 3 else th.mm)(x, y, out=out)
 
 
 # --- where one update goes -------------------------------------------------------------------
@@ -203,6 +244,10 @@ def _build_model(algorithm: str) -> Any:
         return make_filled_model(SBXSAC)
     if algorithm == "FastSAC-compiled":
         return make_filled_model(FastSAC, update="compiled")
+    if algorithm == "FastSAC-fused":
+        return make_filled_model(FastSAC, update="fused")
+    if algorithm == "matmuls":
+        return UpdateMatmuls()
     return make_filled_model(FastSAC if algorithm == "FastSAC" else SAC)
 
 
@@ -324,9 +369,19 @@ def build_table(block_rates: dict[int, dict[str, list[float]]], profile: dict[st
             ratios[f"updates/s {COMPILED} / {BASELINE}, {per}"] = median[COMPILED] / median[BASELINE]
             ratios[f"updates/s {COMPILED} / {OURS}, {per} (the compiled update alone)"] = (
                 median[COMPILED] / median[OURS])
+        if FUSED in median:
+            ratios[f"updates/s {FUSED} / {BASELINE}, {per}"] = median[FUSED] / median[BASELINE]
+            ratios[f"updates/s {FUSED} / {OURS}, {per} (the update by hand alone)"] = median[FUSED] / median[OURS]
+            if COMPILED in median:
+                ratios[f"updates/s {FUSED} / {COMPILED}, {per}"] = median[FUSED] / median[COMPILED]
         if SBX in median:
             if COMPILED in median:
                 ratios[f"updates/s {COMPILED} / {SBX}, {per} (target: >= 1.0)"] = median[COMPILED] / median[SBX]
+            if FUSED in median:
+                ratios[f"updates/s {FUSED} / {SBX}, {per} (target: >= 1.0)"] = median[FUSED] / median[SBX]
+            if MATMULS in median:
+                ratios[f"{MATMULS} per s / {SBX} updates/s, {per} (the most any torch update can reach: "
+                       "its matrix products alone)"] = median[MATMULS] / median[SBX]
             ratios[f"updates/s {OURS} / {SBX}, {per}"] = median[OURS] / median[SBX]
             ratios[f"updates/s {BASELINE} / {SBX}, {per}"] = median[BASELINE] / median[SBX]
     if 1 in block_rates and "SB3 SAC + configure_torch" in block_rates[1]:
@@ -348,6 +403,9 @@ def build_table(block_rates: dict[int, dict[str, list[float]]], profile: dict[st
         "machine only",
         f"{COMPILED}: FastSAC(update='compiled'), hingelab.learners.sac.compiled_update; torch.compile's "
         "compilation (tens of seconds) is in the untimed warm-up, as SBX's jit is",
+        f"{FUSED}: FastSAC(update='fused'), hingelab.learners.sac.fused_update: no compilation",
+        f"{MATMULS}: {UpdateMatmuls().flops / 1e6:.0f} MFLOP of matrix products per update (bench.sac.UpdateMatmuls), "
+        "its rate a sequence's; MFLOP/s = that times its rate",
     ]
     if config.get("sbx"):
         notes.append(f"{SBX}: sbx.SAC with the same nets, batch and buffer, 1 thread only (XLA reads its thread "
@@ -371,8 +429,9 @@ def build_table(block_rates: dict[int, dict[str, list[float]]], profile: dict[st
         for part in profile[arms[0]]:
             notes.append(f"  {part}: " + " / ".join(f"{profile[arm][part]:.2f}" for arm in arms))
     notes.append("why each change is faster, and an ablation: analysis/bench/history/sac_updates.md")
-    return BenchTable(name="sac", title="SAC gradient updates per second: hingelab's FastSAC (eager and compiled) "
-                      "vs bare stable-baselines3 SAC and SBX", columns=COLUMNS, rows=rows, ratios=ratios, notes=notes,
+    title = ("SAC gradient updates per second: hingelab's FastSAC (eager, compiled and fused) vs bare "
+             "stable-baselines3 SAC and SBX")
+    return BenchTable(name="sac", title=title, columns=COLUMNS, rows=rows, ratios=ratios, notes=notes,
                       config={**config, "block_rates": {str(t): r for t, r in block_rates.items()},
                               "profile_ms_per_update": profile})
 
@@ -382,7 +441,7 @@ def run(quick: bool = False) -> BenchTable:
     rounds = 3 if quick else 7
     n_updates = 20 if quick else 200
     profile_updates = 20 if quick else 200
-    arms_run = [*ARMS, COMPILED]
+    arms_run = [*ARMS, COMPILED, FUSED, MATMULS]
     sbx_version = jax_version = None
     if sbx_available():
         from importlib.metadata import version

@@ -17,7 +17,7 @@ from hingelab.training.config_parts import RunSettings
 from hingelab.training.run_config import option
 
 ALGORITHMS = ("sac", "fast_sac")
-UPDATES = ("eager", "compiled")  # FastSAC's update (hingelab.learners.sac.compiled_update)
+UPDATES = ("eager", "compiled", "fused")  # FastSAC's update (hingelab.learners.sac.fast_sac.UPDATES)
 
 
 @dataclass(frozen=True)
@@ -45,9 +45,10 @@ class SACTrainConfig(RunSettings):
     ent_coef: str = option("auto", "entropy coefficient: auto (tuned to -dim(action) entropy) or a number")
     algorithm: str = option("fast_sac", "fast_sac: the same SAC updates, faster; sac: plain stable-baselines3",
                             choices=ALGORITHMS)
-    update: str = option("eager", "fast_sac's gradient step: eager, or compiled (one torch.compile'd function: the "
-                                  "same algorithm, faster after a compilation of tens of seconds; needs ent_coef "
-                                  "auto and no BC term)", choices=UPDATES)
+    update: str = option("eager", "fast_sac's gradient step: eager; compiled (one torch.compile'd function, after a "
+                                  "compilation of tens of seconds); or fused (the gradients written out by hand "
+                                  "into buffers made once, critics as one stacked network); the same algorithm "
+                                  "each; compiled and fused need ent_coef auto and no BC term", choices=UPDATES)
     # bookkeeping
     eval_every: int = option(5_000, "env steps between evaluations")
     checkpoint_every: int = option(10_000, "env steps between resumable checkpoints")
@@ -70,13 +71,13 @@ class SACTrainConfig(RunSettings):
     def sac_checks(self) -> dict[str, bool]:
         if self.overlap and self.algorithm != "fast_sac":
             raise ConfigError("--overlap is fast_sac's training loop: drop --algorithm sac or --overlap")
-        if self.update == "compiled":
+        if self.update in ("compiled", "fused"):
             problem = ("it is fast_sac's: drop --algorithm sac" if self.algorithm != "fast_sac" else
                        "it learns the temperature: give --ent-coef auto" if not str(self.ent_coef).startswith("auto")
                        else "it has no BC term: drop --bc-weight and --bc-pretrain" if self.learns_from_demonstrations
                        else None)
             if problem:
-                raise ConfigError(f"--update compiled cannot run this config: {problem}, or --update eager")
+                raise ConfigError(f"--update {self.update} cannot run this config: {problem}, or --update eager")
         return {
             "steps": self.steps >= 0, "n_envs": self.n_envs >= 1, "batch_size": self.batch_size >= 1,
             "buffer_size": self.buffer_size >= self.batch_size, "learning_rate": self.learning_rate > 0,

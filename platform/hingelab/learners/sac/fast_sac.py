@@ -37,8 +37,12 @@ from stable_baselines3.common.type_aliases import DictReplayBufferSamples, Repla
 from stable_baselines3.common.utils import polyak_update
 
 from hingelab.learners.sac.compiled_update import CompiledSACUpdate, train_compiled
+from hingelab.learners.sac.fused_update import FusedSACUpdate, train_fused
 from hingelab.learners.sac.overlap import OverlappedLearning
 from hingelab.training.torch_process import configure_torch  # noqa: F401  (re-exported: the bench applies it)
+
+#: The ways ``FastSAC`` can run one gradient step (the same algorithm each).
+UPDATES = ("eager", "compiled", "fused")
 
 #: Every speed-up ``FastSAC`` applies by default; pass a subset as ``speedups=`` to ablate.
 ALL_SPEEDUPS = frozenset(
@@ -129,8 +133,9 @@ class FastSAC(OverlappedLearning, SAC):
     ``overlap`` set, ``learn`` runs the updates while the envs step (``hingelab.learners.sac.overlap``).
 
     Extra argument ``speedups``: a subset of ``ALL_SPEEDUPS`` (default: all); ``update``: ``"eager"``
-    (default) or ``"compiled"``, each gradient step as one ``torch.compile``d function
-    (``hingelab.learners.sac.compiled_update``; the same algorithm). Adam is fused
+    (default), ``"compiled"``, each gradient step as one ``torch.compile``d function
+    (``hingelab.learners.sac.compiled_update``), or ``"fused"``, the gradients written out by hand
+    into buffers made once (``hingelab.learners.sac.fused_update``); the same algorithm. Adam is fused
     unless ``policy_kwargs["optimizer_kwargs"]`` says otherwise. gSDE and replay buffers other
     than plain ``ReplayBuffer``/``DictReplayBuffer`` (HER, n-step, memory-optimized,
     VecNormalize) fall back to SB3's own code for the part they change (sampling, noise).
@@ -138,8 +143,8 @@ class FastSAC(OverlappedLearning, SAC):
 
     def __init__(self, policy: Any, env: Any, *args: Any, speedups: Iterable[str] | None = None,
                  update: str = "eager", **kwargs: Any):
-        if update not in ("eager", "compiled"):
-            raise ValueError(f"update must be 'eager' or 'compiled', not {update!r}")
+        if update not in UPDATES:
+            raise ValueError(f"update must be one of {', '.join(repr(u) for u in UPDATES)}, not {update!r}")
         self.update = update
         policy_kwargs = dict(kwargs.pop("policy_kwargs", None) or {})
         optimizer_kwargs = dict(policy_kwargs.get("optimizer_kwargs") or {})
@@ -151,10 +156,10 @@ class FastSAC(OverlappedLearning, SAC):
         if unknown:
             raise ValueError(f"unknown speedups {sorted(unknown)}; known: {sorted(ALL_SPEEDUPS)}")
         super().__init__(policy, env, *args, **kwargs)
-        if update == "compiled":
-            problem = CompiledSACUpdate.check(self)
+        if update != "eager":
+            problem = (CompiledSACUpdate if update == "compiled" else FusedSACUpdate).check(self)
             if problem:
-                raise ValueError(f"update='compiled' does not support this model: {problem}")
+                raise ValueError(f"update={update!r} does not support this model: {problem}")
 
     def _setup_model(self) -> None:
         super()._setup_model()
@@ -165,7 +170,7 @@ class FastSAC(OverlappedLearning, SAC):
             _relu_in_place_after_linear(self.policy)
 
     def _excluded_save_params(self) -> list[str]:
-        return [*super()._excluded_save_params(), "_fast_sampler", "_compiled_update"]
+        return [*super()._excluded_save_params(), "_fast_sampler", "_compiled_update", "_fused_update"]
 
     # --- pieces of one update -------------------------------------------------------------
 
@@ -224,8 +229,12 @@ class FastSAC(OverlappedLearning, SAC):
     # --- the update -------------------------------------------------------------------------
 
     def train(self, gradient_steps: int, batch_size: int = 64) -> None:
-        if getattr(self, "update", "eager") == "compiled":  # (models saved before the option have none)
+        update = getattr(self, "update", "eager")  # (models saved before the option have none)
+        if update == "compiled":
             train_compiled(self, gradient_steps, batch_size)
+            return
+        if update == "fused":
+            train_fused(self, gradient_steps, batch_size)
             return
         self.policy.set_training_mode(True)
         optimizers = [self.actor.optimizer, self.critic.optimizer]

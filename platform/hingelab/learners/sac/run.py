@@ -58,8 +58,9 @@ def sac_arguments(config) -> dict:
               "policy_kwargs": {"net_arch": [int(n) for n in config.net_arch], "activation_fn": torch.nn.ReLU}}
     if config.algorithm == "fast_sac" and config.learns_from_demonstrations:
         kwargs.update(bc_weight=config.demo_bc_weight, q_filter=config.demo_q_filter, q_scaled=config.bc_q_scaled)
-    if getattr(config, "update", "eager") == "compiled":  # (configs saved before the option have none)
-        kwargs["update"] = "compiled"
+    update = getattr(config, "update", "eager")  # (configs saved before the option have none)
+    if update != "eager":
+        kwargs["update"] = update
     return kwargs
 
 
