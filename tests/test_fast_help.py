@@ -49,6 +49,7 @@ def test_names_mirror_the_registries():
     from hingelab.perception import object_noise_model
     from hingelab.perception.object_estimate import ESTIMATORS
     from hingelab.perception.object_perception import OBJECT_PERCEPTIONS
+    from hingelab.perception.tool_perception import HAND_EYE
     from hingelab.policies import baseline_names
     from hingelab.robot import stand_in  # noqa: F401  (registers sim)
     from hingelab.robot.interface import ROBOTS
@@ -64,6 +65,7 @@ def test_names_mirror_the_registries():
     assert names.BASELINES == {level: baseline_names(level) for level in ("low", "high")}
     assert names.ROBOTS == tuple(ROBOTS)
     assert names.TOOL_POSITIONS == TOOL_POSITIONS
+    assert names.HAND_EYE == HAND_EYE
     assert names.NOISE_LEVELS == noise_tolerance.DEFAULT_LEVELS
     assert names.BIAS_LEVELS == bias_tolerance.DEFAULT_LEVELS
 

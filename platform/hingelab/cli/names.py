@@ -27,5 +27,7 @@ NOISE_LEVELS = (0.02, 0.05, 0.1, 0.2, 0.3)
 BIAS_LEVELS = (0.01, 0.025, 0.05)
 # hingelab.envs.tool_pick.TOOL_POSITIONS: eval high's and trial's --tool-position
 TOOL_POSITIONS = ("observed", "anchored")
+# hingelab.perception.tool_perception.HAND_EYE: trial's --hand-eye (the first is the default)
+HAND_EYE = ("calibrated", "refined", "exact")
 # hingelab.robot.interface.ROBOTS (hingelab.robot.stand_in registers sim)
 ROBOTS = ("sim",)

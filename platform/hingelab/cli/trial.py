@@ -8,7 +8,7 @@ import sys
 from pathlib import Path
 
 from hingelab.arguments import finite_float
-from hingelab.cli.names import ROBOTS, TOOL_POSITIONS
+from hingelab.cli.names import HAND_EYE, ROBOTS, TOOL_POSITIONS
 from hingelab.cli.options import add_max_mesh_mb, add_object_perception
 from hingelab.folder_lock import folder_lock
 from hingelab.out_dir import DATASET, check_out
@@ -57,6 +57,12 @@ def add_parser(subparsers) -> None:
                    help="the tool position the high level observes: observed (the tracked one; it carries the "
                         "camera's hand-eye error) or anchored (the nominal in-hand position plus the tracked change "
                         "since the trial's first frame); default: what the policy was trained on")
+    p.add_argument("--hand-eye", choices=HAND_EYE, default=HAND_EYE[0],
+                   help="the depth camera's pose: calibrated (the default: as calibrated, with its error of up to "
+                        "3 mm and 1 degree per axis) or refined (corrected at each trial's first frame by aligning "
+                        "the arm's and hand's points in the depth image with their model: "
+                        "hingelab.perception.hand_eye; the fit is in each episode's record) or exact (the camera's "
+                        "true pose: a diagnostic of what the calibration error costs) (the stand-in)")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
     p.set_defaults(func=run)
 
@@ -67,7 +73,8 @@ def run(args: argparse.Namespace) -> int:
     check_out(args.out, DATASET)
     config = TrialConfig(object=args.object, size=args.size, trials=args.trials, seed=args.seed,
                          max_steps=args.max_steps, depth_every=args.depth_every, operator=args.operator,
-                         object_perception=args.object_perception, tool_position=args.tool_position)
+                         object_perception=args.object_perception, tool_position=args.tool_position,
+                         hand_eye=args.hand_eye)
     with folder_lock(args.out, args.argv):
         session = run_trial_session(args.robot, config, args.out, policy=args.policy, low_level=args.low_level,
                                     progress=not args.no_progress, warn=lambda text: print(text, file=sys.stderr))

@@ -62,14 +62,16 @@ frame, dropouts keeping the last estimate, the extent from its extent fit; only 
 ``{"tetrahedron:0.015": 4}``, an unnamed set weighing 1: a curriculum toward the sets a policy misses;
 ``hingelab.sim.object_families.pick_set_weights``), ``tool_position`` ("observed": the tracked tool position, the
 paper's; "anchored": the tracker's nominal in-hand position plus the tracked position's change since the episode's
-first frame; see ``TOOL_POSITIONS``).
+first frame; see ``TOOL_POSITIONS``), ``hand_eye`` (with ``perception="camera"``: "calibrated", the camera pose
+with its calibration error, or "refined", corrected on each episode's first frame from the robot's own points:
+``hingelab.perception.hand_eye``).
 
 ## Version History
 v0: first version. Changed within v0: the observed object position is the centre, not the body
 origin (the same observation for the sphere, cube, cylinder and meshes); ``object`` may be a family.
 ``object_perception`` (default "truth": the observation as before). ``object_noise`` (default "gaussian": the
 observation as before). ``pick_set_weights`` (default None: the draws as before). ``tool_position`` (default
-"observed": the observation as before).
+"observed": the observation as before). ``hand_eye`` (default "calibrated": the camera as before).
 """
 
 from __future__ import annotations
@@ -87,7 +89,7 @@ from hingelab.errors import ConfigError
 from hingelab.perception.encoder import load_encoder
 from hingelab.perception.object_noise_model import GAUSSIAN, fitted_estimator, make_fitted
 from hingelab.perception.object_perception import TRUTH, CameraObjectEstimate, check_object_perception_with
-from hingelab.perception.tool_perception import ToolPerception, camera_for
+from hingelab.perception.tool_perception import CALIBRATED, ToolPerception, camera_for
 from hingelab.policies.low_level import SHIPPED_LOW_LEVEL
 from hingelab.sim import scripted
 from hingelab.sim.core import SimCore
@@ -131,8 +133,9 @@ class ToolPickEnv(SimRenderMixin, gym.Env):
                  reward: HighLevelRewardConfig | None = None, render_mode: str | None = None,
                  terminate_on_drop: bool = True, observe_extent: bool = False, perception: str = "synthesized",
                  object_perception: str = TRUTH, object_noise: str = GAUSSIAN, object_noise_model: str | None = None,
-                 pick_set_weights: dict | None = None, tool_position: str = OBSERVED):
+                 pick_set_weights: dict | None = None, tool_position: str = OBSERVED, hand_eye: str = CALIBRATED):
         self.tool_position = check_tool_position(tool_position, f"{self.env_name} tool_position")
+        self.hand_eye = hand_eye
         # a family draws a new object at each reset (the model is rebuilt for it); until then its seed-0 draw
         self.object_family = ObjectFamily.parse(object, size) if is_family(object) else None
         if pick_set_weights is not None:  # more of the sets a policy misses (its failures' share of training)
@@ -145,7 +148,8 @@ class ToolPickEnv(SimRenderMixin, gym.Env):
         self.object_perception = check_object_perception_with(object_perception, perception)
         self.sim = SimCore("tool_pick", obj=self.object, randomization=RandomizationConfig(enabled=randomize),
                            camera=camera_for(perception))
-        self.perception = ToolPerception(load_encoder(encoder_path), dt=self.sim.control_dt, perception=perception)
+        self.perception = ToolPerception(load_encoder(encoder_path), dt=self.sim.control_dt, perception=perception,
+                                         hand_eye=hand_eye)
         self.object_camera = None if object_perception == TRUTH else CameraObjectEstimate(object_perception)
         if fitted_estimator(object_noise) is not None and self.object_camera is not None:
             raise ConfigError(f"object noise {object_noise!r} draws the camera's error without rendering; object "

@@ -26,6 +26,7 @@ from hingelab.errors import ConfigError
 from hingelab.perception.camera_cloud import ToolCloud, ToolCloudConfig, tool_cloud_from_frame
 from hingelab.perception.clouds import IDEAL, N_POINTS, CloudRealism, CloudSynthesizer
 from hingelab.perception.encoder import ToolEncoder, load_encoder
+from hingelab.perception.hand_eye import Alignment, corrected_pose, refine_on_frame
 from hingelab.perception.tool_state import ALPHA, ToolState, ToolStateSample
 from hingelab.sim.core import SimCore
 from hingelab.sim.depth_noise import DepthNoise
@@ -60,6 +61,16 @@ class SynthesizedClouds:
 
 EXTRINSIC_ERROR_M = 0.003  # per axis, uniform: a hand-eye calibration's error (chosen, not measured)
 EXTRINSIC_ERROR_RAD = float(np.radians(1.0))  # per axis, uniform
+CALIBRATED, REFINED, EXACT = "calibrated", "refined", "exact"
+# the camera pose as calibrated (with its error), refined on the robot's own points each episode, or the true pose
+# (a diagnostic only a simulator can run: what the calibration error costs)
+HAND_EYE = (CALIBRATED, REFINED, EXACT)
+
+
+def check_hand_eye(value: str) -> str:
+    if value not in HAND_EYE:
+        raise ConfigError(f"hand-eye {value!r} is unknown; choose {', '.join(HAND_EYE[:-1])} or {HAND_EYE[-1]}")
+    return value
 
 
 class CameraClouds:
@@ -69,13 +80,23 @@ class CameraClouds:
 
     The pipeline places the points with the camera pose it believes: the true one moved by a
     per-episode calibration error (up to ``EXTRINSIC_ERROR_M`` and ``EXTRINSIC_ERROR_RAD`` per axis),
-    as a rig's hand-eye calibration is off by a few millimetres and about a degree."""
+    as a rig's hand-eye calibration is off by a few millimetres and about a degree.
+
+    ``hand_eye="exact"``: the true pose (the error is drawn, so the other draws stay, and not applied).
+    ``hand_eye="refined"``: on an episode's first frame the believed pose is corrected by aligning the robot's
+    own points in the depth image with its model (``hingelab.perception.hand_eye``), and every frame of the
+    episode uses the corrected pose; ``refinement`` holds that alignment (None: not refined, or too few
+    robot points, when the pose stays as calibrated)."""
 
     def __init__(self, intrinsics: DepthIntrinsics = AZURE_KINECT_NFOV_UNBINNED, noise: DepthNoise = DepthNoise(),
                  config: ToolCloudConfig = ToolCloudConfig(), extrinsic_error: tuple[float, float] = (
-                     EXTRINSIC_ERROR_M, EXTRINSIC_ERROR_RAD)):
+                     EXTRINSIC_ERROR_M, EXTRINSIC_ERROR_RAD), hand_eye: str = CALIBRATED):
         self.intrinsics, self.noise, self.config = intrinsics, noise, config
         self.extrinsic_error = extrinsic_error
+        self.hand_eye = check_hand_eye(hand_eye)
+        self.refinement: Alignment | None = None
+        self._refine_rng = np.random.default_rng()
+        self._refined = False
         self.renderer = None  # made on the first frame, from the sim's model
         self.rng = np.random.default_rng()
         self._error_rot, self._error_pos = np.eye(3), np.zeros(3)
@@ -89,6 +110,8 @@ class CameraClouds:
         offset, angle = self.extrinsic_error
         self._error_pos = self.rng.uniform(-offset, offset, 3)
         self._error_rot = Rotation.from_euler("xyz", self.rng.uniform(-angle, angle, 3)).as_matrix()
+        self._refine_rng = np.random.default_rng(None if seed is None else [seed, 45])  # its own: no draw shifts
+        self.refinement, self._refined = None, False
 
     def cloud(self, sim: SimCore) -> ToolCloud:
         if self.renderer is None:
@@ -96,8 +119,16 @@ class CameraClouds:
         depth, self.geoms = self.renderer.depth_and_geoms(sim.data)
         frame = self.renderer.frame_from(sim.data, depth, self.geoms, stamp_s=float(sim.data.time))
         frame.depth = self.noise.apply(frame.depth, self.intrinsics, self.rng)
-        frame.camera_rotation = self._error_rot @ frame.camera_rotation  # the believed pose (calibration error)
-        frame.camera_position = frame.camera_position + self._error_pos
+        if self.hand_eye != EXACT:
+            frame.camera_rotation = self._error_rot @ frame.camera_rotation  # the believed pose (calibration error)
+            frame.camera_position = frame.camera_position + self._error_pos
+        if self.hand_eye == REFINED:
+            if not self._refined:  # the episode's first frame: measure the correction once
+                self.refinement = refine_on_frame(self.renderer, sim.data, frame, self.geoms, self._refine_rng)
+                self._refined = True
+            if self.refinement is not None:
+                frame.camera_rotation, frame.camera_position = corrected_pose(
+                    self.refinement, frame.camera_rotation, frame.camera_position)
         self.frame = frame
         self.result = tool_cloud_from_frame(frame, self.config, self.rng)
         return self.result
@@ -112,10 +143,13 @@ class ToolPerception:
     """``reset(seed)`` then ``observe(sim) -> ToolStateSample`` (B = 1) once per control step."""
 
     def __init__(self, encoder: ToolEncoder | None = None, realistic: bool = True, dt: float = 0.05,
-                 alpha: float = ALPHA, perception: str = "synthesized"):
+                 alpha: float = ALPHA, perception: str = "synthesized", hand_eye: str = CALIBRATED):
         self.encoder = encoder or load_encoder()
         self.perception = check_perception(perception)
-        self.source = SynthesizedClouds(realistic) if perception == "synthesized" else CameraClouds()
+        if check_hand_eye(hand_eye) != CALIBRATED and perception != "camera":
+            raise ConfigError(f"hand-eye {hand_eye!r} refines the depth camera's pose: it needs perception 'camera' "
+                              f"(--perception camera), not {perception!r}")
+        self.source = SynthesizedClouds(realistic) if perception == "synthesized" else CameraClouds(hand_eye=hand_eye)
         self.tool_state = ToolState(encoder=self.encoder, n_tools=1, dt=dt, alpha=alpha)
         self.cloud: np.ndarray | None = None  # (256, 3) float32, hand_base: the last cloud
         self.flag: str | None = None  # why this step's frame gave no cloud (camera perception)

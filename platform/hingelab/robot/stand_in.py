@@ -29,6 +29,7 @@ import gymnasium as gym
 import numpy as np
 
 from hingelab.envs import TOOL_PICK_ID
+from hingelab.perception.tool_perception import CALIBRATED, REFINED
 from hingelab.robot.interface import RobotReadings, Verdict, register_robot
 from hingelab.rollouts.high_level import FailureReasonWrapper
 from hingelab.sim import names
@@ -42,12 +43,13 @@ class StandInRobot:
     hand_joint_names = names.HAND_ACTUATORS
 
     def __init__(self, object: str = "sphere", size: float = 0.02, mass: float = 0.01, max_steps: int = 200,
-                 randomize: bool = True, object_perception: str = "truth"):
+                 randomize: bool = True, object_perception: str = "truth", hand_eye: str = CALIBRATED):
         self.env = FailureReasonWrapper(gym.make(TOOL_PICK_ID, object=object, size=size, mass=mass,
                                                  low_level="privileged", perception="camera", randomize=randomize,
                                                  max_episode_steps=max_steps,
-                                                 object_perception=object_perception))
+                                                 object_perception=object_perception, hand_eye=hand_eye))
         self.object_perception = object_perception
+        self.hand_eye = hand_eye
         self.pick = self.env.unwrapped
         self.sim = self.pick.sim
         self._arm_qpos = [self.sim.model.joint(j).qposadr[0] for j in names.ARM_JOINTS]
@@ -111,10 +113,27 @@ class StandInRobot:
             hand_translation=data.xpos[self.pick._hand_body].copy(), frame=self.pick.perception.camera.frame,
             object_centre=centre, object_extent=extent, object_points=points, object_flag=flag)
 
+    def episode_facts(self) -> dict:
+        """Facts of this trial for its episode record: the hand-eye refinement's fit (``hand_eye="refined"``):
+        how far it turned and moved the camera, the rms residual and the inlier share."""
+        if self.hand_eye != REFINED:
+            return {} if self.hand_eye == CALIBRATED else {"hand_eye": self.hand_eye}
+        camera = self.pick.perception.camera
+        refinement = camera.refinement
+        if refinement is None:
+            return {"hand_eye": self.hand_eye, "hand_eye_refined": False}
+        corrected = camera.frame.camera_position
+        believed = refinement.rotation.T @ (corrected - refinement.translation)
+        return {"hand_eye": self.hand_eye, "hand_eye_refined": True,
+                "hand_eye_angle_deg": round(refinement.angle_deg, 4),
+                "hand_eye_camera_shift_mm": round(float(np.linalg.norm(corrected - believed)) * 1e3, 3),
+                "hand_eye_rms_mm": round(refinement.rms_m * 1e3, 3),
+                "hand_eye_inliers": round(refinement.inliers / refinement.n_source, 4)}
+
     def true_object_centre(self) -> np.ndarray:
         """The object's true centre now (world, m): what the episode records beside the estimate."""
         return self.pick.observed_object_centre()
 
 
-register_robot("sim", lambda object, size, max_steps, object_perception="truth": StandInRobot(
-    object, size, max_steps=max_steps, object_perception=object_perception))
+register_robot("sim", lambda object, size, max_steps, object_perception="truth", hand_eye=CALIBRATED: StandInRobot(
+    object, size, max_steps=max_steps, object_perception=object_perception, hand_eye=hand_eye))

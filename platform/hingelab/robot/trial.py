@@ -45,6 +45,7 @@ from hingelab.episodes import schemas as S
 from hingelab.errors import ConfigError
 from hingelab.folder_lock import is_empty
 from hingelab.perception.object_perception import TRUTH, check_object_perception
+from hingelab.perception.tool_perception import CALIBRATED, check_hand_eye
 from hingelab.policies.high_level import SHIPPED_HIGH_LEVEL
 from hingelab.robot import stand_in  # noqa: F401  (registers the "sim" robot)
 from hingelab.robot.controller import (
@@ -76,9 +77,11 @@ class TrialConfig:
     operator: bool = False
     object_perception: str = TRUTH  # where the robot's object estimate comes from (the stand-in's choice)
     tool_position: str | None = None  # "observed" or "anchored" (ToolPick-v0's); None: what the policy trained on
+    hand_eye: str = CALIBRATED  # the camera pose as calibrated, or refined on the robot's points (the stand-in's)
 
     def __post_init__(self):
         check_object_perception(self.object_perception)
+        check_hand_eye(self.hand_eye)
         if self.tool_position is not None:
             check_tool_position(self.tool_position)
         if self.trials < 1 or self.max_steps < 1 or self.depth_every < 1:
@@ -193,8 +196,10 @@ def run_trial(robot: Robot, controller: HierarchicalController, writer, seed: in
         first = bool(verdict.first_attempt_success) if verdict else success and attempt == 1
     else:
         first = success and attempt == 1
+    facts = robot.episode_facts() if hasattr(robot, "episode_facts") else {}  # e.g. the stand-in's hand-eye fit
     writer.set_outcome(success, failure_reason=None if success else (reason or "timeout"), attempt=attempt,
-                       first_attempt_success=first, outcome_by="operator" if config.operator else "simulation")
+                       first_attempt_success=first, outcome_by="operator" if config.operator else "simulation",
+                       **facts)
     return {"seed": seed, "success": success, "first_attempt_success": first, "attempts": attempt,
             "failure_reason": "" if success else (reason or "timeout"), "steps": steps}
 
@@ -261,6 +266,11 @@ def run_trial_session(robot_name: str, config: TrialConfig, out, policy=None, lo
             raise ConfigError(f"the robot {robot_name!r} has its own object estimate; --object-perception is for the "
                               "stand-in (--robot sim)")
         options["object_perception"] = config.object_perception
+    if config.hand_eye != CALIBRATED:
+        if "hand_eye" not in inspect.signature(make).parameters:
+            raise ConfigError(f"the robot {robot_name!r} has its own camera calibration; --hand-eye is for the "
+                              "stand-in (--robot sim)")
+        options["hand_eye"] = config.hand_eye
     robot = make(config.object, config.size, config.max_steps, **options)  # a bad object: an error before files
     try:
         high = high_level_for(robot, policy, low_level, warn=warn)
@@ -270,7 +280,8 @@ def run_trial_session(robot_name: str, config: TrialConfig, out, policy=None, lo
                 "size": config.size, "trials": config.trials, "max_steps": config.max_steps,
                 "operator": config.operator, "depth_every": config.depth_every,
                 "seeds": f"{TRIALS_BASE} + seed * {STRIDE} + trial",
-                **({"object_perception": config.object_perception} if options else {}), **anchored}
+                **({"object_perception": config.object_perception} if config.object_perception != TRUTH else {}),
+                **({"hand_eye": config.hand_eye} if config.hand_eye != CALIBRATED else {}), **anchored}
         create_dataset(out, name=f"trial-{config.object}-{config.size * 100:g}cm", source=robot.source,
                        config=card, seed=config.seed,
                        description=f"hingelab trial on the {robot_name} robot: {high.label} over {high.low_level}, "

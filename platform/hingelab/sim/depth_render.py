@@ -19,7 +19,7 @@ import numpy as np
 from hingelab.camera import CameraFrame, DepthIntrinsics
 from hingelab.errors import ConfigError
 from hingelab.sim import names
-from hingelab.sim.rig_camera import CAMERA_NAME, camera_pose_world
+from hingelab.sim.rig_camera import CAMERA_NAME, MJ_TO_OPTICAL, camera_pose_world
 
 GL_HINT = ("set MUJOCO_GL to a backend this machine has: egl (headless, GPU or Mesa's libEGL), "
            "osmesa (Mesa's software renderer) or glfw (needs a display)")
@@ -61,8 +61,26 @@ class DepthRenderer:
 
     def depth_and_geoms(self, data: mujoco.MjData) -> tuple[np.ndarray, np.ndarray]:
         """The depth image (0 out of range) and each pixel's geom id (-1: no geom), one render of each."""
-        r = self._renderer
         mujoco.mj_camlight(self.model, data)  # the sim steps with mj_kinematics, which leaves cameras as they were
+        return self._depth_and_geoms(data)
+
+    def depth_and_geoms_at(self, data: mujoco.MjData, rotation: np.ndarray, position: np.ndarray
+                           ) -> tuple[np.ndarray, np.ndarray]:
+        """``depth_and_geoms`` with the camera put at another pose (optical frame -> world): what the model
+        looks like from where a miscalibrated rig believes its camera is. The camera's pose in ``data`` is
+        restored after."""
+        camera = self.model.camera(CAMERA_NAME).id
+        mujoco.mj_camlight(self.model, data)
+        saved = data.cam_xpos[camera].copy(), data.cam_xmat[camera].copy()
+        try:
+            data.cam_xpos[camera] = position
+            data.cam_xmat[camera] = (np.asarray(rotation) @ MJ_TO_OPTICAL).reshape(-1)
+            return self._depth_and_geoms(data)  # update_scene reads the camera's pose from data as it is
+        finally:
+            data.cam_xpos[camera], data.cam_xmat[camera] = saved
+
+    def _depth_and_geoms(self, data: mujoco.MjData) -> tuple[np.ndarray, np.ndarray]:
+        r = self._renderer
         r.enable_depth_rendering()
         r.update_scene(data, camera=CAMERA_NAME)
         depth = r.render().astype(np.float32, copy=True)
