@@ -139,23 +139,34 @@ def _our_learn_rate(train, config, warmup: int, steps: int, run_dir: Path, **qui
 
 
 UTDS = (1, 2)  # updates per env step of every loop compared (1 env: gradient_steps = UTD)
+ARMS = ("bare", "serial", "overlap", "overlap_fused")  # ours: the serial loop, overlapped, overlapped + fused update
+
+
+def _arm_config(base, arm: str, utd: int):
+    return replace(base, gradient_steps=utd, overlap=arm != "serial", update="fused" if arm == "overlap_fused" else
+                   base.update)
 
 
 def _equal_work_rows(level: str, command: str, bare_env, rates: dict, rows: list, ratios: dict) -> None:
-    """The rows and ratios of one level's loops: ``rates[(arm, utd)]`` for arms bare, serial, overlap."""
+    """The rows and ratios of one level's loops: ``rates[(arm, utd)]`` for arms bare, serial, overlap and
+    overlap_fused (the overlapped loop with ``--update fused``)."""
     for utd in UTDS:
         what = f"{level} env steps/s while training, 1 env, {utd} update{'s' if utd > 1 else ''}/step"
-        bare, serial, overlap = (rates[(arm, utd)] for arm in ("bare", "serial", "overlap"))
+        bare, serial, overlap, fused = (rates[(arm, utd)] for arm in ARMS)
         flags = f"--envs 1{' --gradient-steps 2' if utd == 2 else ''}"
         ours_serial, ours_overlap = f"{command} {flags} (recording)", f"{command} {flags} --overlap (recording)"
-        for baseline, baseline_rate, ours, rate in ((f"bare SB3 SAC.learn{bare_env}", bare, ours_serial, serial),
-                                                    (f"bare SB3 SAC.learn{bare_env}", bare, ours_overlap, overlap),
-                                                    (ours_serial, serial, ours_overlap, overlap)):
+        ours_fused = f"{command} {flags} --overlap --update fused (recording)"
+        bare_name = f"bare SB3 SAC.learn{bare_env}"
+        for baseline, baseline_rate, ours, rate in ((bare_name, bare, ours_serial, serial),
+                                                    (bare_name, bare, ours_overlap, overlap),
+                                                    (ours_serial, serial, ours_overlap, overlap),
+                                                    (bare_name, bare, ours_fused, fused)):
             rows.append({"what": what, "baseline": baseline, "baseline rate": baseline_rate, "ours": ours,
                          "our rate": rate, "ours / baseline": rate / baseline_rate})
         ratios[f"{level} UTD {utd}: serial / bare"] = serial / bare
         ratios[f"{level} UTD {utd}: overlapped / bare"] = overlap / bare
         ratios[f"{level} UTD {utd}: overlapped / serial"] = overlap / serial
+        ratios[f"{level} UTD {utd}: overlapped, fused update / bare (target: >= 1.8)"] = fused / bare
 
 
 def bench_learn(warmup: int, steps: int, rows: list, ratios: dict, notes: list, tmp: Path) -> Path:
@@ -163,14 +174,13 @@ def bench_learn(warmup: int, steps: int, rows: list, ratios: dict, notes: list, 
     rates = {}
     for utd in UTDS:
         rates[("bare", utd)] = _bare_learn_rate(warmup, steps, gradient_steps=utd)
-        for arm in ("serial", "overlap"):
-            config = replace(base, gradient_steps=utd, overlap=arm == "overlap")
-            rates[(arm, utd)] = _our_learn_rate(train_low, config, warmup, steps, tmp / f"low_{arm}_{utd}",
-                                                eval_goals_per_region=1)
+        for arm in ARMS[1:]:
+            rates[(arm, utd)] = _our_learn_rate(train_low, _arm_config(base, arm, utd), warmup, steps,
+                                                tmp / f"low_{arm}_{utd}", eval_goals_per_region=1)
     _equal_work_rows("low-level", "hingelab train low", "", rates, rows, ratios)
     notes.append(f"low-level training loops: {warmup} random warm-up steps, then {steps} steps with updates; the "
                  "bare loop and ours are both timed from the end of the warm-up; arms in the order bare, serial, "
-                 "overlapped, UTD 1 then UTD 2")
+                 "overlapped, overlapped with the fused update (hingelab.learners.sac.fused_update), UTD 1 then UTD 2")
     return tmp / "low_serial_1" / "dataset"
 
 
@@ -180,10 +190,9 @@ def bench_learn_high(warmup: int, steps: int, rows: list, ratios: dict, notes: l
     for utd in UTDS:
         env = gym.make(base.env_id, **base.env_arguments())
         rates[("bare", utd)] = _bare_learn_rate(warmup, steps, gradient_steps=utd, env=env)
-        for arm in ("serial", "overlap"):
-            config = replace(base, gradient_steps=utd, overlap=arm == "overlap")
-            rates[(arm, utd)] = _our_learn_rate(train_high, config, warmup, steps, tmp / f"high_{arm}_{utd}",
-                                                eval_episodes=1)
+        for arm in ARMS[1:]:
+            rates[(arm, utd)] = _our_learn_rate(train_high, _arm_config(base, arm, utd), warmup, steps,
+                                                tmp / f"high_{arm}_{utd}", eval_episodes=1)
     _equal_work_rows("high-level", "hingelab train high --no-prior", " on ToolPick-v0", rates, rows, ratios)
     notes.append(f"high-level training loops: ToolPick-v0 over the shipped low-level policy, {warmup} random warm-up "
                  f"steps, then {steps} steps with updates, timed from the end of the warm-up")
