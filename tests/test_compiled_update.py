@@ -9,6 +9,7 @@ import numpy as np
 import pytest
 import torch as th
 from stable_baselines3 import SAC
+from tests.test_fused_update import train_pair
 
 from hingelab.bench.sac import BASELINE, COMPILED, OURS, SBX, build_table, dummy_goal_env, make_filled_model, ratio_name
 from hingelab.learners.sac.compiled_update import CompiledSACUpdate
@@ -25,12 +26,6 @@ def _filled(cls, seed=0, **kwargs):
                              policy_kwargs=dict(NET), **kwargs)
 
 
-def _losses(model):
-    values = model.logger.name_to_value
-    return np.array([values[k] for k in ("train/critic_loss", "train/actor_loss", "train/ent_coef_loss",
-                                         "train/ent_coef")])
-
-
 @pytest.fixture(scope="module")
 def trained_pair():
     """SB3 SAC and FastSAC(update="compiled") from the same weights, 300 updates on the same batches and noise;
@@ -39,15 +34,7 @@ def trained_pair():
     compiled = _filled(FastSAC, seed=2, update="compiled")
     compiled.policy.load_state_dict(sb3.policy.state_dict())
     compiled.log_ent_coef.data.copy_(sb3.log_ent_coef.data)
-    losses = []
-    for call in range(CALLS):
-        pair = []
-        for model in (sb3, compiled):
-            th.manual_seed(100 + call)  # the same actor noise ...
-            np.random.seed(100 + call)  # ... and the same batches
-            model.train(gradient_steps=UPDATES_PER_CALL, batch_size=BATCH)
-            pair.append(_losses(model))
-        losses.append(pair)
+    losses = train_pair(sb3, compiled)
     return sb3, compiled, losses
 
 

@@ -31,7 +31,8 @@ def _losses(model):
                                          "train/ent_coef")])
 
 
-def _train_pair(reference, fused, calls=CALLS):
+def train_pair(reference, fused, calls=CALLS):
+    """``calls`` x 50 updates of both models on the same batches and noise; the losses logged after each call."""
     losses = []
     for call in range(calls):
         pair = []
@@ -65,7 +66,7 @@ def trained_pair():
     sb3 = _filled(SAC, seed=1)
     fused = _filled(FastSAC, seed=2, update="fused")
     _same_start(sb3, fused)
-    return sb3, fused, _train_pair(sb3, fused)
+    return sb3, fused, train_pair(sb3, fused)
 
 
 def test_fused_update_agrees_with_sb3_sac_over_300_updates(trained_pair):
@@ -83,7 +84,7 @@ def test_fused_update_of_a_ten_critic_ensemble_and_tanh_agrees_with_the_eager_up
     eager = _filled(FastSAC, seed=1, policy_kwargs=kwargs)
     fused = _filled(FastSAC, seed=2, policy_kwargs=kwargs, update="fused")
     _same_start(eager, fused)
-    losses = _train_pair(eager, fused, calls=2)
+    losses = train_pair(eager, fused, calls=2)
     for theirs, ours in losses:
         np.testing.assert_allclose(ours, theirs, rtol=2e-3, atol=2e-4)
     _assert_same_models(fused, eager)

@@ -188,9 +188,7 @@ class CompiledSACUpdate:
         """One update on ``replay_data``; returns (ent_coef_loss, ent_coef, critic_loss, actor_loss), detached."""
         model = self.model
         actor = model.actor
-        with th.no_grad():
-            obs = actor.extract_features(replay_data.observations, actor.features_extractor)
-            next_obs = actor.extract_features(replay_data.next_observations, actor.features_extractor)
+        obs, next_obs = batch_features(model, replay_data)
         shape = (obs.shape[0], actor.mu.out_features)
         noise_pi = th.empty(shape, dtype=obs.dtype).normal_()  # the eager update's two draws, in its order
         noise_next = th.empty(shape, dtype=obs.dtype).normal_()
@@ -286,25 +284,40 @@ class CompiledSACUpdate:
 
 
 
+def batch_features(model: Any, replay_data: Any) -> tuple[th.Tensor, th.Tensor]:
+    """The actor's (parameter-free) features of a batch's observations and next observations."""
+    actor = model.actor
+    with th.no_grad():
+        return (actor.extract_features(replay_data.observations, actor.features_extractor),
+                actor.extract_features(replay_data.next_observations, actor.features_extractor))
+
+
 def train_compiled(model: Any, gradient_steps: int, batch_size: int) -> None:
     """``FastSAC.train`` with each gradient step run by the model's ``CompiledSACUpdate``."""
-    model.policy.set_training_mode(True)
-    model._update_learning_rate([model.actor.optimizer, model.critic.optimizer, model.ent_coef_optimizer])
     update = getattr(model, "_compiled_update", None)
     if update is None or update.model is not model:
         update = model._compiled_update = CompiledSACUpdate(model)
     critic_params = list(model.critic.parameters())
     target_params = list(model.critic_target.parameters())
     foreach_polyak = "foreach_polyak" in model.speedups
+    run_updates(model, update.step, gradient_steps, batch_size,
+                lambda: model._polyak(critic_params, target_params, foreach_polyak))
+
+
+def run_updates(model: Any, step: Callable, gradient_steps: int, batch_size: int, polyak: Callable[[], None]) -> None:
+    """``FastSAC.train``'s loop around a one-step function ``step(replay_data, discounts)`` (the compiled or the
+    fused update): learning rates, batches, the Polyak update every ``target_update_interval`` steps, the log."""
+    model.policy.set_training_mode(True)
+    model._update_learning_rate([model.actor.optimizer, model.critic.optimizer, model.ent_coef_optimizer])
     ent_coef_losses, ent_coefs, critic_losses, actor_losses = [], [], [], []
     for gradient_step in range(gradient_steps):
         replay_data = model._sample(batch_size)
         discounts = replay_data.discounts if replay_data.discounts is not None else model.gamma
-        ent_coef_loss, ent_coef, critic_loss, actor_loss = update.step(replay_data, discounts)
+        ent_coef_loss, ent_coef, critic_loss, actor_loss = step(replay_data, discounts)
         ent_coef_losses.append(ent_coef_loss)
         ent_coefs.append(ent_coef)
         critic_losses.append(critic_loss)
         actor_losses.append(actor_loss)
         if gradient_step % model.target_update_interval == 0:
-            model._polyak(critic_params, target_params, foreach_polyak)
+            polyak()
     model._record_update(gradient_steps, ent_coefs, actor_losses, critic_losses, ent_coef_losses)

@@ -42,7 +42,7 @@ import torch as th
 from stable_baselines3.sac.policies import LOG_STD_MAX, LOG_STD_MIN
 from torch import nn
 
-from hingelab.learners.sac.compiled_update import CompiledSACUpdate
+from hingelab.learners.sac.compiled_update import CompiledSACUpdate, batch_features, run_updates
 
 _LOG_SQRT_2PI = math.log(math.sqrt(2 * math.pi))
 
@@ -349,11 +349,8 @@ class FusedSACUpdate:
 
     def step(self, replay_data: Any, discounts: Any) -> tuple[th.Tensor, th.Tensor, th.Tensor, th.Tensor]:
         """One update on ``replay_data``; returns (ent_coef_loss, ent_coef, critic_loss, actor_loss), detached."""
-        model = self.model
-        actor = model.actor
+        obs, next_obs = batch_features(self.model, replay_data)
         with th.no_grad():
-            obs = actor.extract_features(replay_data.observations, actor.features_extractor)
-            next_obs = actor.extract_features(replay_data.next_observations, actor.features_extractor)
             return self._step(obs, next_obs, replay_data, discounts)
 
     def _step(self, obs: th.Tensor, next_obs: th.Tensor, replay_data: Any,
@@ -430,21 +427,12 @@ class FusedSACUpdate:
 
 def train_fused(model: Any, gradient_steps: int, batch_size: int) -> None:
     """``FastSAC.train`` with each gradient step run by the model's ``FusedSACUpdate``."""
-    model.policy.set_training_mode(True)
-    model._update_learning_rate([model.actor.optimizer, model.critic.optimizer, model.ent_coef_optimizer])
     update = getattr(model, "_fused_update", None)
     if update is None or update.model is not model or not update.intact():
         update = model._fused_update = FusedSACUpdate(model)
-    ent_coef_losses, ent_coefs, critic_losses, actor_losses = [], [], [], []
-    for gradient_step in range(gradient_steps):
-        replay_data = model._sample(batch_size)
-        discounts = replay_data.discounts if replay_data.discounts is not None else model.gamma
-        ent_coef_loss, ent_coef, critic_loss, actor_loss = update.step(replay_data, discounts)
-        ent_coef_losses.append(ent_coef_loss)
-        ent_coefs.append(ent_coef)
-        critic_losses.append(critic_loss)
-        actor_losses.append(actor_loss)
-        if gradient_step % model.target_update_interval == 0:
-            with th.no_grad():
-                update.polyak(model.tau)
-    model._record_update(gradient_steps, ent_coefs, actor_losses, critic_losses, ent_coef_losses)
+
+    def polyak() -> None:
+        with th.no_grad():
+            update.polyak(model.tau)
+
+    run_updates(model, update.step, gradient_steps, batch_size, polyak)
