@@ -78,6 +78,16 @@ def make_model(critics: int) -> Any:
     return model
 
 
+def product_flops() -> dict[int, int]:
+    """The matrix-product FLOPs of one update per number of critics, on this learner's shapes."""
+    from hingelab.bench.sac import UpdateMatmuls
+    from hingelab.policies.high_level import SHIPPED_HIGH_LEVEL
+    from hingelab.policies.residual import ResidualInputs, load_base
+
+    dim = ResidualInputs.of_base(load_base(SHIPPED_HIGH_LEVEL)).dim
+    return {c: UpdateMatmuls(obs_dim=dim, action_dim=5, critics=c, target_critics=2).flops for c in CRITICS}
+
+
 def _worker(critics: int, connection: Any) -> None:
     try:
         from hingelab.training.torch_process import configure_torch
@@ -140,6 +150,9 @@ def run(quick: bool = False) -> BenchTable:
              "cost / 2 critics": median[BASELINE] / median[c]} for c, r in rates.items()]
     ratios = {f"update time {c} critics / {BASELINE} critics": median[BASELINE] / median[c]
               for c in CRITICS if c != BASELINE}
+    flops = product_flops()
+    ratios.update({f"matrix-product FLOPs per update, {c} critics / {BASELINE} critics (what the update's cost grows "
+                   "by at an equal matrix-product rate)": flops[c] / flops[BASELINE] for c in CRITICS if c != BASELINE})
     config = {"quick": quick, "rounds": rounds, "updates_per_block": n_updates, "batch_size": BATCH_SIZE,
               "buffer_size": BUFFER_SIZE, "seed": SEED, "torch": torch.__version__,
               "block_rates": {str(c): r for c, r in rates.items()}}
@@ -152,6 +165,12 @@ def run(quick: bool = False) -> BenchTable:
         "a critic member's forward and backward cost what one 2 x 256 network costs: on one CPU core the batched "
         "network saves the Python loop, not the arithmetic, so the cost grows with the members the update must "
         "fit (all of them) and the actor must read (all of them)",
+        "matrix-product FLOPs: hingelab.bench.sac.UpdateMatmuls on this learner's shapes (the residual's input "
+        "width, action 5, the target's pair), " + ", ".join(f"{c} critics {flops[c] / 1e6:.0f} MFLOP" for c in CRITICS)
+        + f": on one core the products run at one rate however they are batched, so the update's cost grows by this "
+        "ratio less only what the twin-critic update spends outside its products: a cost ratio of 1.6 at 10 critics "
+        f"(issue 43's target) needs {(flops[10] / flops[2] - 1.6) / (flops[10] / flops[2] - 1):.0%} of the twin-critic "
+        "update outside its matrix products",
     ]
     return BenchTable(name="ensemble", title="The residual learner's update with a critic ensemble: 5 and 10 "
                       "critics against the twin critics", columns=COLUMNS, rows=rows, ratios=ratios, notes=notes,

@@ -152,23 +152,29 @@ def update_rate(model: Any, n_updates: int, batch_size: int = BATCH_SIZE,
 class UpdateMatmuls:
     """The matrix products of one fused SAC update on the bench's shapes (``train`` runs them, as a model's
     ``train`` runs updates): actor 2 x 256 on 2B rows, n critics 2 x 256 as stacks; the products of the
-    target, the critic loss and its backward, the actor loss through the critics and the actor's backward.
-    Operands and outputs are made once, as the fused update's buffers are."""
+    target (``target_critics`` members, default all: SAC's minimum; REDQ computes a pair), the critic loss and
+    its backward, the actor loss through the critics and the actor's backward. Operands and outputs are made
+    once, as the fused update's buffers are; ``flops`` counts them."""
 
     def __init__(self, batch: int = BATCH_SIZE, obs_dim: int = 30, action_dim: int = 9, hidden: int = 256,
-                 critics: int = 2):
+                 critics: int = 2, target_critics: int | None = None):
         b, d, a, h, n = batch, obs_dim, action_dim, hidden, critics
+        m = critics if target_critics is None else target_critics  # the members the bootstrap target computes
         r = lambda *shape: th.randn(shape)  # noqa: E731
+
+        def critic_forward(k: int) -> list:
+            return [(r(k, b, d + a), r(k, h, d + a).transpose(1, 2)), (r(k, b, h), r(k, h, h).transpose(1, 2)),
+                    (r(k, b, h), r(k, 1, h).transpose(1, 2))]
+
         actor_products = [(r(2 * b, d), r(h, d).t()), (r(2 * b, h), r(h, h).t()), (r(2 * b, h), r(2 * a, h).t())]
-        critic_forward = [(r(n, b, d + a), r(n, h, d + a).transpose(1, 2)), (r(n, b, h), r(n, h, h).transpose(1, 2)),
-                          (r(n, b, h), r(n, 1, h).transpose(1, 2))]
         critic_backward = [(r(n, b, 1).transpose(1, 2), r(n, b, h)), (r(n, b, 1), r(n, 1, h)),
                            (r(n, b, h).transpose(1, 2), r(n, b, h)), (r(n, b, h), r(n, h, h)),
                            (r(n, b, h).transpose(1, 2), r(n, b, d + a))]
         actor_loss_backward = [(r(n, b, 1), r(n, 1, h)), (r(n, b, h), r(n, h, h)), (r(n, b, h), r(n, h, a))]
         actor_backward = [(r(b, 2 * a).t(), r(b, h)), (r(b, 2 * a), r(2 * a, h)), (r(b, h).t(), r(b, h)),
                           (r(b, h), r(h, h)), (r(b, h).t(), r(b, d))]
-        products = [*actor_products, *critic_forward * 3, *critic_backward, *actor_loss_backward, *actor_backward]
+        critic_forward_all = critic_forward(m) + critic_forward(n) * 2  # the target; the fit; the actor's loss
+        products = [*actor_products, *critic_forward_all, *critic_backward, *actor_loss_backward, *actor_backward]
         self.products = [(x, y, th.empty(*x.shape[:-1], y.shape[-1])) for x, y in products]
         self.flops = sum(2 * x.shape[-2] * x.shape[-1] * y.shape[-1] * (x.shape[0] if x.dim() == 3 else 1)
                          for x, y, _ in self.products)
