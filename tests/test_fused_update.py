@@ -179,3 +179,13 @@ def test_the_matmul_floor_runs_the_products_of_one_update():
     th.testing.assert_close(out, th.bmm(x, y))
     # ten critics: the critics' 448 MFLOP five times, the actor's 155 once (what the ensemble bench meets)
     assert UpdateMatmuls(critics=10).flops == pytest.approx(3.97 * floor.flops, rel=0.01)
+
+
+def test_bench_ensemble_counts_the_products_the_residual_learner_computes():
+    """REDQ's target computes a pair whatever the ensemble: 10 critics cost 3.46x the twin critics' products, so
+    issue 43's 1.6x would need three quarters of the twin-critic update outside its products."""
+    from hingelab.bench.ensemble import product_flops
+
+    flops = product_flops()
+    assert flops[2] < flops[5] < flops[10]
+    assert flops[10] / flops[2] == pytest.approx(3.46, abs=0.01)
