@@ -270,8 +270,8 @@ class FusedSACUpdate:
             _activate_(out, activation)
             x = out
 
-    def _squash(self, heads: th.Tensor, noise: th.Tensor) -> tuple[th.Tensor, th.Tensor, th.Tensor, th.Tensor]:
-        """Actions, log-probabilities (B, 1), std and the clamped log_std from [mean | log_std]."""
+    def _squash(self, heads: th.Tensor, noise: th.Tensor) -> tuple[th.Tensor, th.Tensor, th.Tensor]:
+        """Actions, log-probabilities (B, 1) and std from [mean | log_std]."""
         a = self.action_dim
         mean, raw_log_std = heads[:, :a], heads[:, a:]
         log_std = raw_log_std.clamp(LOG_STD_MIN, LOG_STD_MAX)
@@ -279,7 +279,7 @@ class FusedSACUpdate:
         actions = th.tanh(mean + noise * std)
         log_prob = (-0.5 * noise * noise - log_std - _LOG_SQRT_2PI).sum(dim=1, keepdim=True)
         log_prob -= th.log(1 - actions * actions + self._epsilon).sum(dim=1, keepdim=True)
-        return actions, log_prob, std, log_std
+        return actions, log_prob, std
 
     def _critic_forward(self, stack: _Stack, x: th.Tensor, buffers: _Buffers) -> th.Tensor:
         """Every critic of ``stack`` on ``x`` (B, in): (n, B, 1) values; the hidden layers stay in buffers."""
@@ -372,8 +372,8 @@ class FusedSACUpdate:
         buffers.actor_in[batch:].copy_(next_obs)
         self._actor_forward(buffers)
         heads = buffers.actor_hidden[-1]
-        actions_pi, log_prob, std, log_std = self._squash(heads[:batch], buffers.noise[0])
-        next_actions, next_log_prob, _, _ = self._squash(heads[batch:], buffers.noise[1])
+        actions_pi, log_prob, std = self._squash(heads[:batch], buffers.noise[0])
+        next_actions, next_log_prob, _ = self._squash(heads[batch:], buffers.noise[1])
 
         # 2. temperature: the gradient of -(log_alpha * (log_prob + target_entropy)).mean(), written out
         log_alpha = model.log_ent_coef
@@ -415,7 +415,6 @@ class FusedSACUpdate:
         th.mul(grad_u * buffers.noise[0] * std - alpha, in_range, out=grad_heads[:, a:])
         self._actor_backward(grad_heads, buffers)
         self._adam["actor"]()
-        del log_std
         return ent_coef_loss, ent_coef, critic_loss, actor_loss
 
     def polyak(self, tau: float) -> None:
