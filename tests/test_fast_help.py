@@ -47,7 +47,6 @@ def test_names_mirror_the_registries():
     from hingelab.envs.tool_pick import TOOL_POSITIONS
     from hingelab.episodes.export import EXPORTERS
     from hingelab.perception import object_noise_model
-    from hingelab.perception.object_estimate import ESTIMATORS
     from hingelab.perception.object_perception import OBJECT_PERCEPTIONS
     from hingelab.perception.tool_perception import HAND_EYE
     from hingelab.policies import baseline_names
@@ -55,11 +54,11 @@ def test_names_mirror_the_registries():
     from hingelab.robot.interface import ROBOTS
     from hingelab.rollouts import bias_tolerance, noise_tolerance
     from hingelab.ros2 import bag_export  # noqa: F401  (registers ros2)
-    from hingelab.ros2.object_from_cloud import DEFAULT_ESTIMATOR
+    from hingelab.ros2.object_from_cloud import CLOUD_ESTIMATORS, DEFAULT_ESTIMATOR
 
     assert names.EXPORT_FORMATS == tuple(EXPORTERS)
     assert names.OBJECT_PERCEPTIONS == OBJECT_PERCEPTIONS
-    assert (names.OBJECT_ESTIMATORS, names.OBJECT_FROM_CLOUD_DEFAULT) == (tuple(ESTIMATORS), DEFAULT_ESTIMATOR)
+    assert (names.OBJECT_ESTIMATORS, names.OBJECT_FROM_CLOUD_DEFAULT) == (CLOUD_ESTIMATORS, DEFAULT_ESTIMATOR)
     assert (names.OBJECT_NOISE_GAUSSIAN, names.OBJECT_NOISE_MODEL) == (object_noise_model.GAUSSIAN,
                                                                       object_noise_model.DEFAULT_MODEL)
     assert names.BASELINES == {level: baseline_names(level) for level in ("low", "high")}

@@ -12,6 +12,7 @@ from hingelab.camera import AZURE_KINECT_NFOV_UNBINNED as RIG
 from hingelab.errors import ConfigError
 from hingelab.perception import object_estimate as oe
 from hingelab.perception.camera_cloud import depth_to_points, transform
+from hingelab.perception.object_model_fit import ObjectModel
 from hingelab.rollouts import object_estimate_errors
 from hingelab.sim import names, scripted
 from hingelab.sim.core import SimCore
@@ -78,7 +79,9 @@ def test_ray_corrected_and_the_sphere_fit_are_closer_than_the_centroid_on_a_sphe
     frame.depth = DepthNoise().apply(frame.depth, RIG, rng)
     mask = oe.MaskErrors(wrong_blob=0.0).apply(rendered.object_mask, rng)
     cloud = oe.object_cloud(frame, mask, sphere.config)
-    error = {name: np.linalg.norm(oe.estimate_object(frame, mask, name, sphere.config, cloud=cloud).estimate - truth)
+    model = ObjectModel.from_mujoco(sphere.sim.model)
+    error = {name: np.linalg.norm(oe.estimate_object(frame, mask, name, sphere.config, cloud=cloud,
+                                                     object_model=model).estimate - truth)
              for name in oe.ESTIMATORS}
     assert error["ray_corrected"] < error["centroid"]
     assert error["primitive_fit"] < error["centroid"]

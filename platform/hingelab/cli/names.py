@@ -12,8 +12,8 @@ from hingelab.paths import ANALYSIS_DIR
 # hingelab.episodes.export.EXPORTERS (with hingelab.ros2.bag_export's ros2)
 EXPORT_FORMATS = ("minari", "lerobot", "ros2")
 # hingelab.perception.object_perception.OBJECT_PERCEPTIONS: truth, then the camera estimators
-OBJECT_PERCEPTIONS = ("truth", "centroid", "ray_corrected", "primitive_fit")
-# hingelab.perception.object_estimate.ESTIMATORS, and hingelab.ros2.object_from_cloud.DEFAULT_ESTIMATOR
+OBJECT_PERCEPTIONS = ("truth", "centroid", "ray_corrected", "primitive_fit", "mesh_fit")
+# hingelab.ros2.object_from_cloud.CLOUD_ESTIMATORS and DEFAULT_ESTIMATOR
 OBJECT_ESTIMATORS = ("centroid", "ray_corrected", "primitive_fit")
 OBJECT_FROM_CLOUD_DEFAULT = "ray_corrected"
 # hingelab.perception.object_noise_model.GAUSSIAN and DEFAULT_MODEL

@@ -23,6 +23,9 @@ can say which one it used:
    * ``primitive_fit``: the centre of a sphere fitted to the visible points (geometric least squares,
      its radius bounded by the visible width across the ray): exact for a sphere, an approximation for
      the other shapes;
+   * ``mesh_fit``: the object's known model (``hingelab.perception.object_model_fit``) fitted to the
+     visible points by a trimmed ICP over its position and yaw, from the ray_corrected estimate: needs
+     ``object_model`` (the others take it and ignore it);
    * ``TemporalFilter``: the per-axis median of the last few frames' estimates of any of them;
 
    and ``visible_extent``, the visible points' axis-aligned bounding box (what a detection's box gives).
@@ -46,6 +49,7 @@ from scipy.spatial import cKDTree
 from hingelab.camera import CameraFrame
 from hingelab.errors import ConfigError
 from hingelab.perception.camera_cloud import crop, depth_to_points, remove_statistical_outliers, transform
+from hingelab.perception.object_model_fit import ObjectModel, fit_model
 
 EXTENT_PERCENTILES = (2.0, 98.0)  # the depth extent along the ray, robust to a stray noisy point
 TOOL_CLEARANCE_M = 0.005  # object_cloud_from_scene: scene points this near a tool point are the tool's
@@ -272,8 +276,9 @@ def _tool_hides(frame: CameraFrame, mask: np.ndarray, prior: np.ndarray | None, 
 
 
 # ---------------------------------------------------------------------- estimators
-def centroid(points: np.ndarray, camera_position: np.ndarray | None = None) -> np.ndarray:
-    """The mean of the visible points (the paper's estimate); ``camera_position`` is unused."""
+def centroid(points: np.ndarray, camera_position: np.ndarray | None = None,
+             object_model: ObjectModel | None = None) -> np.ndarray:
+    """The mean of the visible points (the paper's estimate); ``camera_position`` and ``object_model`` are unused."""
     return np.asarray(points, float).mean(axis=0)
 
 
@@ -290,8 +295,10 @@ def depth_extent(points: np.ndarray, camera_position: np.ndarray) -> float:
     return float(high - low)
 
 
-def ray_corrected(points: np.ndarray, camera_position: np.ndarray) -> np.ndarray:
-    """The centroid moved away from the camera along the viewing ray by half the visible depth extent."""
+def ray_corrected(points: np.ndarray, camera_position: np.ndarray,
+                  object_model: ObjectModel | None = None) -> np.ndarray:
+    """The centroid moved away from the camera along the viewing ray by half the visible depth extent
+    (``object_model`` is unused)."""
     return centroid(points) + viewing_ray(points, camera_position) * depth_extent(points, camera_position) / 2
 
 
@@ -320,9 +327,18 @@ def fit_sphere(points: np.ndarray, camera_position: np.ndarray) -> tuple[np.ndar
     return result.x[:3], float(result.x[3])
 
 
-def primitive_fit(points: np.ndarray, camera_position: np.ndarray) -> np.ndarray:
-    """The centre of ``fit_sphere``."""
+def primitive_fit(points: np.ndarray, camera_position: np.ndarray,
+                  object_model: ObjectModel | None = None) -> np.ndarray:
+    """The centre of ``fit_sphere``; ``object_model`` is unused."""
     return fit_sphere(points, camera_position)[0]
+
+
+def mesh_fit(points: np.ndarray, camera_position: np.ndarray, object_model: ObjectModel | None = None) -> np.ndarray:
+    """The centre of the object's model fitted to the visible points (``object_model_fit.fit_model``)."""
+    if object_model is None:
+        raise ConfigError("the mesh_fit estimator needs the object's model (ObjectModel.from_mujoco); "
+                          "without one, use ray_corrected")
+    return fit_model(points, camera_position, object_model, ray_corrected(points, camera_position)).centre
 
 
 def visible_extent(points: np.ndarray) -> np.ndarray:
@@ -331,27 +347,31 @@ def visible_extent(points: np.ndarray) -> np.ndarray:
     return points.max(axis=0) - points.min(axis=0)
 
 
-ESTIMATORS = {"centroid": centroid, "ray_corrected": ray_corrected, "primitive_fit": primitive_fit}
+ESTIMATORS = {"centroid": centroid, "ray_corrected": ray_corrected, "primitive_fit": primitive_fit,
+              "mesh_fit": mesh_fit}
+MODEL_ESTIMATORS = ("mesh_fit",)  # the estimators that need the object's model
 
 
 def estimate_object(frame: CameraFrame, mask: np.ndarray, estimator: str = "centroid",
                     config: ObjectCloudConfig = ObjectCloudConfig(), prior: np.ndarray | None = None,
-                    cloud: ObjectCloud | None = None) -> ObjectEstimate:
-    """The chain and one named estimator on one frame (``cloud``: reuse one ``object_cloud`` made already)."""
+                    cloud: ObjectCloud | None = None, object_model: ObjectModel | None = None) -> ObjectEstimate:
+    """The chain and one named estimator on one frame (``cloud``: reuse one ``object_cloud`` made already;
+    ``object_model``: the object's, for ``mesh_fit``)."""
     if estimator not in ESTIMATORS:
         raise ConfigError(f"unknown object estimator {estimator!r}; choose one of {', '.join(ESTIMATORS)}")
     cloud = cloud if cloud is not None else object_cloud(frame, mask, config, prior)
-    return estimate_from_cloud(cloud, estimator, frame.camera_position)
+    return estimate_from_cloud(cloud, estimator, frame.camera_position, object_model)
 
 
-def estimate_from_cloud(cloud: ObjectCloud, estimator: str, camera_position: np.ndarray) -> ObjectEstimate:
+def estimate_from_cloud(cloud: ObjectCloud, estimator: str, camera_position: np.ndarray,
+                        object_model: ObjectModel | None = None) -> ObjectEstimate:
     """One named estimator on an ``ObjectCloud`` (either way of step 2); ``camera_position`` (3,): the optical
-    centre in the cloud's frame."""
+    centre in the cloud's frame; ``object_model``: the object's, for ``mesh_fit``."""
     if estimator not in ESTIMATORS:
         raise ConfigError(f"unknown object estimator {estimator!r}; choose one of {', '.join(ESTIMATORS)}")
     if cloud.points is None:
         return ObjectEstimate(None, None, estimator, cloud.flag, 0, cloud.counts)
-    estimate = ESTIMATORS[estimator](cloud.points, np.asarray(camera_position, float))
+    estimate = ESTIMATORS[estimator](cloud.points, np.asarray(camera_position, float), object_model)
     return ObjectEstimate(np.asarray(estimate, float), visible_extent(cloud.points), estimator, None,
                           len(cloud.points), cloud.counts)
 

@@ -32,12 +32,14 @@ import numpy as np
 from hingelab.errors import ConfigError
 from hingelab.perception.object_estimate import (
     ESTIMATORS,
+    MODEL_ESTIMATORS,
     MaskErrors,
     ObjectCloudConfig,
     ObjectEstimate,
     estimate_object,
     object_cloud,
 )
+from hingelab.perception.object_model_fit import ObjectModel
 from hingelab.perception.tool_perception import CameraClouds
 from hingelab.sim import names
 from hingelab.sim.object_render import platform_crop
@@ -76,6 +78,7 @@ class CameraObjectEstimate:
         self.config = ObjectCloudConfig()
         self.placeholder = np.zeros(3)
         self._object_geoms = np.zeros(0, int)
+        self.object_model: ObjectModel | None = None  # the object's model, for an estimator that fits one
         self._clear()
 
     def _clear(self) -> None:
@@ -93,6 +96,8 @@ class CameraObjectEstimate:
         self.config = dataclasses.replace(self.config, crop_low=low, crop_high=high)
         self.placeholder = (np.asarray(low) + np.asarray(high)) / 2
         self.placeholder[2] = low[2]
+        if self.estimator in MODEL_ESTIMATORS:
+            self.object_model = ObjectModel.from_mujoco(model)
         self._clear()
 
     def observe(self, camera: CameraClouds, hand_rotation: np.ndarray, hand_position: np.ndarray) -> ObjectEstimate:
@@ -102,7 +107,7 @@ class CameraObjectEstimate:
                                     camera_position=hand_rotation @ frame.camera_position + hand_position)
         mask = self.mask_errors.apply(np.isin(camera.geoms, self._object_geoms), self.rng)
         cloud = object_cloud(world, mask, self.config, prior=self.estimate)
-        result = estimate_object(world, mask, self.estimator, self.config, cloud=cloud)
+        result = estimate_object(world, mask, self.estimator, self.config, cloud=cloud, object_model=self.object_model)
         self.fresh, self.flag, self.n_points, self.points = result.estimate is not None, result.flag, \
             result.n_points, cloud.points
         if self.fresh:

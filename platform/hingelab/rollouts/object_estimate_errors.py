@@ -40,6 +40,7 @@ from hingelab.perception.object_estimate import (  # noqa: E402
     fit_sphere,
     object_cloud,
 )
+from hingelab.perception.object_model_fit import ObjectModel  # noqa: E402
 from hingelab.perception.object_noise_model import ray_frame  # noqa: E402
 from hingelab.rollouts.reward_diagnostic import write_tables  # noqa: E402
 from hingelab.sim import scripted  # noqa: E402
@@ -87,6 +88,7 @@ def measure(placements: int = 20, frames: int = 5, seed: int = 0, shapes=SHAPES,
         sim = SimCore("tool_pick", obj=obj, camera=intrinsics)
         renderer = ObjectDepthRenderer(sim.model, intrinsics)
         config = ObjectCloudConfig(*platform_crop(sim.model))
+        object_model = ObjectModel.from_mujoco(sim.model)
         rng = np.random.default_rng([seed, index])
         for spot in range(placements):
             xy = scripted.platform_center(sim.model) + rng.uniform(-PLACEMENT_HALF_WIDTH, PLACEMENT_HALF_WIDTH, 2)
@@ -104,12 +106,12 @@ def measure(placements: int = 20, frames: int = 5, seed: int = 0, shapes=SHAPES,
                 mask = mask_errors.apply(rendered.object_mask, rng)
                 cloud = object_cloud(frame, mask, config)
                 for name in ESTIMATORS:
-                    result = estimate_object(frame, mask, name, config, cloud=cloud)
+                    result = estimate_object(frame, mask, name, config, cloud=cloud, object_model=object_model)
                     rows.append(_row(base, f, name, result.estimate, truth, frame.camera_position, cloud,
                                      None if result.extent is None else result.extent - true_extent))
                     filters[name].update(result.estimate)
                 if not picture and (spot == 0 and f == 0) and ((shape, size) == PICTURE or PICTURE not in combos):
-                    picture = _picture_data(frame, rendered.object_mask, mask, cloud, truth, obj)
+                    picture = _picture_data(frame, rendered.object_mask, mask, cloud, truth, obj, object_model)
                 bar.update()
             for name, filt in filters.items():
                 filtered = filt.update(None)
@@ -160,14 +162,14 @@ def best_alternative(summary: list[dict]) -> str:
     return min(pooled, key=lambda s: (s["p95_mm"], s["median_mm"]))["estimator"]
 
 
-def _picture_data(frame, true_mask, mask, cloud, truth, obj: ObjectSpec) -> dict:
+def _picture_data(frame, true_mask, mask, cloud, truth, obj: ObjectSpec, object_model: ObjectModel) -> dict:
     points = cloud.points
     data = {"depth": frame.depth.copy(), "true_mask": true_mask.copy(), "mask": mask.copy(), "points": points,
             "truth": truth.copy(), "camera": np.asarray(frame.camera_position, float).copy(), "object": obj,
             "estimates": {}}
     if points is not None:
         for name, estimator in ESTIMATORS.items():
-            data["estimates"][name] = estimator(points, data["camera"])
+            data["estimates"][name] = estimator(points, data["camera"], object_model)
         data["sphere_radius"] = fit_sphere(points, data["camera"])[1]
     return data
 
@@ -201,7 +203,8 @@ def write_picture(picture: dict, path: Path) -> Path:
 
     if picture["points"] is not None:
         right.scatter(*side(picture["points"]), s=6, c="#7f7f7f", label="visible points (after crop, outliers)")
-    markers = {"centroid": ("#c8473f", "o"), "ray_corrected": ("#3b7dd8", "s"), "primitive_fit": ("#3aa76d", "D")}
+    markers = {"centroid": ("#c8473f", "o"), "ray_corrected": ("#3b7dd8", "s"), "primitive_fit": ("#3aa76d", "D"),
+               "mesh_fit": ("#e08a1e", "^")}
     for name, estimate in picture["estimates"].items():
         colour, marker = markers[name]
         right.scatter(*side(estimate), s=60, c=colour, marker=marker, label=name)

@@ -36,6 +36,7 @@ from hingelab.errors import ConfigError
 from hingelab.perception.camera_cloud import depth_to_points, transform
 from hingelab.perception.object_estimate import (
     ESTIMATORS,
+    MODEL_ESTIMATORS,
     ObjectCloudConfig,
     estimate_from_cloud,
     object_cloud,
@@ -45,15 +46,19 @@ from hingelab.sim.arm_kinematics import ArmKinematics, default_kinematics
 from hingelab.sim.object_render import platform_crop
 
 DEFAULT_ESTIMATOR = "ray_corrected"
+CLOUD_ESTIMATORS = tuple(name for name in ESTIMATORS if name not in MODEL_ESTIMATORS)  # a bag carries no object model
 NO_ARM_JOINTS = "no_arm_joints"  # the frame's flag when no arm joint state places the hand in the world
 NO_CAMERA_POSE = "no_camera_pose"  # ... when TF cannot place the camera in hand_base
 NO_OBJECT_MASK = "no_object_mask"  # ... when the bag has a mask topic but no mask of this frame
 
 
 def check_estimator(name: str) -> str:
+    if name in MODEL_ESTIMATORS:
+        raise ConfigError(f"--object-from-cloud {name!r}: fits the object's model, which a bag does not carry; "
+                          f"choose one of {', '.join(CLOUD_ESTIMATORS)}")
     if name not in ESTIMATORS:
         raise ConfigError(f"--object-from-cloud {name!r}: not an object estimator; choose one of "
-                          f"{', '.join(ESTIMATORS)} (default {DEFAULT_ESTIMATOR}; a bag's path right after the "
+                          f"{', '.join(CLOUD_ESTIMATORS)} (default {DEFAULT_ESTIMATOR}; a bag's path right after the "
                           "flag is read as its estimator: put the flag after the bags, or name the estimator)")
     return name
 
