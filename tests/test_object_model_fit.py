@@ -11,6 +11,7 @@ from hingelab.camera import AZURE_KINECT_NFOV_UNBINNED as RIG
 from hingelab.errors import ConfigError
 from hingelab.perception import object_estimate as oe
 from hingelab.perception.object_model_fit import ObjectModel, fit_model
+from hingelab.perception.object_perception import SUPPORT_ERROR_M, CameraObjectEstimate
 from hingelab.ros2.object_from_cloud import check_estimator
 from hingelab.sim import scripted
 from hingelab.sim.core import SimCore
@@ -78,3 +79,22 @@ def test_without_a_model_mesh_fit_says_what_it_needs():
         oe.mesh_fit(points, np.array([0.5, 0.0, 0.5]))
     with pytest.raises(ConfigError, match="a bag does not carry"):
         check_estimator("mesh_fit")
+
+
+def test_the_platform_height_the_fit_rests_on_is_off_by_a_seeded_draw_within_its_bound():
+    sim = SimCore("tool_pick", obj=ObjectSpec("cube", 0.02), camera=RIG)
+    exact = ObjectModel.from_mujoco(sim.model).support_z
+    camera = CameraObjectEstimate("mesh_fit")
+    draws = []
+    for seed in range(20):
+        camera.new_episode(seed, sim.model)
+        draws.append(camera.object_model.support_z - exact)
+        assert camera.support_error == pytest.approx(draws[-1])
+    assert max(abs(d) for d in draws) <= SUPPORT_ERROR_M and np.std(draws) > SUPPORT_ERROR_M / 4
+    camera.new_episode(3, sim.model)
+    assert camera.support_error == pytest.approx(draws[3])  # the seed's own draw
+    other = CameraObjectEstimate("ray_corrected")
+    other.new_episode(3, sim.model)
+    assert other.object_model is None and other.support_error == 0.0
+    with pytest.raises(ConfigError, match="support height"):
+        CameraObjectEstimate("mesh_fit", support_error_m=-0.001)

@@ -45,6 +45,7 @@ from hingelab.sim import names
 from hingelab.sim.object_render import platform_crop
 
 TRUTH = "truth"
+SUPPORT_ERROR_M = 0.002  # the platform's height as a rig knows it: uniform within +-2 mm per episode (chosen)
 OBJECT_PERCEPTIONS = (TRUTH, *ESTIMATORS)
 
 
@@ -68,12 +69,20 @@ class CameraObjectEstimate:
     After each frame: ``estimate`` (3,) and ``extent`` (3,), world, m, the last good ones (None before the
     first); ``fresh`` (this frame gave them); ``flag`` (why it did not); ``points`` (N, 3) world, m, this
     frame's visible points (None when flagged); ``n_points``. ``mask_errors``: the segmentation's errors,
-    drawn per frame from the episode's own stream (the other draws of the env do not shift)."""
+    drawn per frame from the episode's own stream (the other draws of the env do not shift).
+    ``support_error_m``: for an estimator that fits the object's model (``mesh_fit``), the platform's height
+    that the model rests on is the simulator's plus an error drawn per episode, uniform within this (a rig
+    knows its fixture's height from its calibration, to a millimetre or two; a stream of its own, so the
+    mask errors' draws do not shift); recorded as ``support_error``."""
 
-    def __init__(self, estimator: str, mask_errors: MaskErrors = MaskErrors()):
+    def __init__(self, estimator: str, mask_errors: MaskErrors = MaskErrors(),
+                 support_error_m: float = SUPPORT_ERROR_M):
         if check_object_perception(estimator) == TRUTH:
             raise ConfigError("CameraObjectEstimate needs an estimator, not 'truth'")
-        self.estimator, self.mask_errors = estimator, mask_errors
+        if not support_error_m >= 0:
+            raise ConfigError(f"the support height's error bound must be >= 0 m, not {support_error_m}")
+        self.estimator, self.mask_errors, self.support_error_m = estimator, mask_errors, support_error_m
+        self.support_error = 0.0  # m, this episode's draw
         self.rng = np.random.default_rng()
         self.config = ObjectCloudConfig()
         self.placeholder = np.zeros(3)
@@ -97,7 +106,11 @@ class CameraObjectEstimate:
         self.placeholder = (np.asarray(low) + np.asarray(high)) / 2
         self.placeholder[2] = low[2]
         if self.estimator in MODEL_ESTIMATORS:
-            self.object_model = ObjectModel.from_mujoco(model)
+            support_rng = np.random.default_rng(None if seed is None else [seed, 45])
+            self.support_error = float(support_rng.uniform(-self.support_error_m, self.support_error_m))
+            exact = ObjectModel.from_mujoco(model)
+            self.object_model = dataclasses.replace(exact, support_z=None if exact.support_z is None
+                                                    else exact.support_z + self.support_error)
         self._clear()
 
     def observe(self, camera: CameraClouds, hand_rotation: np.ndarray, hand_position: np.ndarray) -> ObjectEstimate:

@@ -115,7 +115,14 @@ class StandInRobot:
 
     def episode_facts(self) -> dict:
         """Facts of this trial for its episode record: the hand-eye refinement's fit (``hand_eye="refined"``):
-        how far it turned and moved the camera, the rms residual and the inlier share."""
+        how far it turned and moved the camera, the rms residual and the inlier share; the error drawn in the
+        platform's height where the object's model is fitted (``object_support_error_mm``)."""
+        object_camera = self.pick.object_camera
+        support = {} if object_camera is None or object_camera.object_model is None else \
+            {"object_support_error_mm": round(object_camera.support_error * 1e3, 3)}
+        return {**self._hand_eye_facts(), **support}
+
+    def _hand_eye_facts(self) -> dict:
         if self.hand_eye != REFINED:
             return {} if self.hand_eye == CALIBRATED else {"hand_eye": self.hand_eye}
         camera = self.pick.perception.camera
