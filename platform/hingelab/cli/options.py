@@ -33,7 +33,8 @@ def add_object_perception(p, needs: str) -> None:
     p.add_argument("--object-perception", default="truth", metavar="NAME",
                    help=f"where the object's position and extent come from: {', '.join(OBJECT_PERCEPTIONS)}; truth "
                         "(default) is the true centre with 2 mm noise, the others estimate it from the depth camera's "
-                        f"frame each step (centroid: the paper's; hingelab.perception.object_estimate){needs}")
+                        "frame each step (centroid: the paper's; mesh_fit: the object's model fitted to its points, "
+                        f"the most accurate; hingelab.perception.object_estimate){needs}")
 
 
 def add_object_noise(p) -> None:
@@ -42,7 +43,7 @@ def add_object_noise(p) -> None:
     p.add_argument("--object-noise", default=OBJECT_NOISE_GAUSSIAN, metavar="MODE",
                    help="the error on the observed object: gaussian (default: the true centre and extent with 2 mm "
                         "noise) or fitted:NAME, the depth camera's error without rendering, drawn from the fitted "
-                        "model of estimator NAME (centroid, ray_corrected, primitive_fit, or temporal_NAME: "
+                        "model of estimator NAME (centroid, ray_corrected, primitive_fit, mesh_fit, or temporal_NAME: "
                         "hingelab.perception.object_noise_model), e.g. fitted:ray_corrected")
     p.add_argument("--object-noise-model", default=None, metavar="PATH",
                    help="the fitted model for --object-noise fitted:NAME (default "
