@@ -27,7 +27,9 @@ import trimesh
 from scipy.spatial import cKDTree
 
 from hingelab.errors import ConfigError
+from hingelab.perception.clouds import pose_matrix
 from hingelab.sim import names
+from hingelab.sim.geom_meshes import geom_in_body, geom_mesh
 
 MODEL_SAMPLES = 1000  # surface points of the model (about 1.5 mm apart on a 2 cm cube)
 YAW_STARTS = 8  # yaw starts, evenly over a turn (a tetrahedron repeats every 120 degrees, a cube every 90)
@@ -61,7 +63,7 @@ class ObjectModel:
         if not meshes:
             raise ConfigError(f"the model has no geoms on body {body!r} to fit")
         surface = trimesh.util.concatenate(meshes)
-        resting = _quat_matrix(model.body_quat[body_id])
+        resting = pose_matrix(np.zeros(3), model.body_quat[body_id])[0]
         surface.apply_transform(np.block([[resting, np.zeros((3, 1))], [np.zeros((1, 3)), np.ones((1, 1))]]))
         points, faces = trimesh.sample.sample_surface_even(surface, samples, seed=seed)
         if len(points) < samples // 2:  # sample_surface_even rejects points closer than its spacing
@@ -74,32 +76,14 @@ class ObjectModel:
                    float(low[2]), support)
 
 
-def _quat_matrix(quat: np.ndarray) -> np.ndarray:
-    matrix = np.zeros(9)
-    mujoco.mju_quat2Mat(matrix, np.asarray(quat, float))
-    return matrix.reshape(3, 3)
-
-
 def _geom_mesh(model: mujoco.MjModel, g: int) -> trimesh.Trimesh:
-    """Geom ``g``'s surface in its body's frame."""
-    kind, size = model.geom_type[g], model.geom_size[g]
-    if kind == mujoco.mjtGeom.mjGEOM_SPHERE:
-        mesh = trimesh.creation.icosphere(subdivisions=3, radius=size[0])
-    elif kind == mujoco.mjtGeom.mjGEOM_BOX:
-        mesh = trimesh.creation.box(extents=2 * size[:3])
-    elif kind == mujoco.mjtGeom.mjGEOM_CYLINDER:
-        mesh = trimesh.creation.cylinder(radius=size[0], height=2 * size[1], sections=48)
-    elif kind == mujoco.mjtGeom.mjGEOM_MESH:
-        m = model.geom_dataid[g]
-        start, count = model.mesh_vertadr[m], model.mesh_vertnum[m]
-        mesh = trimesh.convex.convex_hull(model.mesh_vert[start:start + count].astype(float))
-    else:
-        raise ConfigError(f"cannot fit an object geom of type {mujoco.mjtGeom(kind).name}: sphere, box, cylinder "
-                          "and mesh geoms only")
-    rotation = _quat_matrix(model.geom_quat[g])
-    transform = np.eye(4)
-    transform[:3, :3], transform[:3, 3] = rotation, model.geom_pos[g]
-    mesh.apply_transform(transform)
+    """Geom ``g``'s surface in its body's frame (a mesh geom as its vertices' convex hull, what MuJoCo collides)."""
+    mesh = geom_mesh(model, g, sections=48, sphere_subdivisions=3)
+    if mesh is None:
+        raise ConfigError(f"cannot fit an object geom of type {mujoco.mjtGeom(model.geom_type[g]).name}")
+    if model.geom_type[g] == mujoco.mjtGeom.mjGEOM_MESH:
+        mesh = trimesh.convex.convex_hull(mesh.vertices)
+    mesh.apply_transform(geom_in_body(model, g))
     return mesh
 
 

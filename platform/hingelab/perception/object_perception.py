@@ -88,6 +88,7 @@ class CameraObjectEstimate:
         self.placeholder = np.zeros(3)
         self._object_geoms = np.zeros(0, int)
         self.object_model: ObjectModel | None = None  # the object's model, for an estimator that fits one
+        self._exact_model: tuple[mujoco.MjModel, ObjectModel] | None = None  # sampled once per MjModel
         self._clear()
 
     def _clear(self) -> None:
@@ -108,7 +109,9 @@ class CameraObjectEstimate:
         if self.estimator in MODEL_ESTIMATORS:
             support_rng = np.random.default_rng(None if seed is None else [seed, 45])
             self.support_error = float(support_rng.uniform(-self.support_error_m, self.support_error_m))
-            exact = ObjectModel.from_mujoco(model)
+            if self._exact_model is None or self._exact_model[0] is not model:  # a family's draw is a new model
+                self._exact_model = (model, ObjectModel.from_mujoco(model))
+            exact = self._exact_model[1]
             self.object_model = dataclasses.replace(exact, support_z=None if exact.support_z is None
                                                     else exact.support_z + self.support_error)
         self._clear()

@@ -35,6 +35,7 @@ from hingelab.episodes import Episode
 from hingelab.episodes import schemas as S
 from hingelab.errors import ConfigError
 from hingelab.sim import names
+from hingelab.sim.geom_meshes import geom_in_body, geom_mesh
 from hingelab.sim.hand import HandCoupling
 
 PRIMITIVE_SECTIONS = 16  # segments around a cylinder or capsule: smooth enough at a hand's scale
@@ -68,48 +69,16 @@ def _part(body_name: str) -> str:
     return "scene"
 
 
-def _primitive(model: mujoco.MjModel, g: int) -> trimesh.Trimesh | None:
-    kind, size = model.geom_type[g], model.geom_size[g]
-    if kind == mujoco.mjtGeom.mjGEOM_BOX:
-        return trimesh.creation.box(extents=2 * size)
-    if kind == mujoco.mjtGeom.mjGEOM_CYLINDER:
-        return trimesh.creation.cylinder(radius=size[0], height=2 * size[1], sections=PRIMITIVE_SECTIONS)
-    if kind == mujoco.mjtGeom.mjGEOM_CAPSULE:
-        return trimesh.creation.capsule(height=2 * size[1], radius=size[0],
-                                        count=[PRIMITIVE_SECTIONS, PRIMITIVE_SECTIONS])
-    if kind == mujoco.mjtGeom.mjGEOM_SPHERE:
-        return trimesh.creation.icosphere(subdivisions=2, radius=size[0])
-    if kind == mujoco.mjtGeom.mjGEOM_ELLIPSOID:
-        sphere = trimesh.creation.icosphere(subdivisions=2, radius=1.0)
-        sphere.apply_scale(size)
-        return sphere
-    if kind == mujoco.mjtGeom.mjGEOM_MESH:
-        m = model.geom_dataid[g]
-        v0, nv = model.mesh_vertadr[m], model.mesh_vertnum[m]
-        f0, nf = model.mesh_faceadr[m], model.mesh_facenum[m]
-        return trimesh.Trimesh(model.mesh_vert[v0:v0 + nv].copy(), model.mesh_face[f0:f0 + nf].copy(), process=False)
-    return None  # planes, heightfields, SDFs: not part of this scene
-
-
-def _geom_in_body(model: mujoco.MjModel, g: int) -> np.ndarray:
-    pose = np.eye(4)
-    rot = np.zeros(9)
-    mujoco.mju_quat2Mat(rot, model.geom_quat[g])
-    pose[:3, :3] = rot.reshape(3, 3)
-    pose[:3, 3] = model.geom_pos[g]
-    return pose
-
-
 def scene_meshes(model: mujoco.MjModel) -> list[BodyMesh]:
     """One ``BodyMesh`` per body with visible geoms (see the module docstring), in body id order."""
     per_body: dict[int, list[tuple[trimesh.Trimesh, np.ndarray]]] = {}
     for g in range(model.ngeom):
         if model.geom_rgba[g][3] <= 0 or model.geom(g).name in LEFT_OUT_GEOMS:
             continue
-        mesh = _primitive(model, g)
+        mesh = geom_mesh(model, g, sections=PRIMITIVE_SECTIONS)
         if mesh is None:
             continue
-        mesh.apply_transform(_geom_in_body(model, g))
+        mesh.apply_transform(geom_in_body(model, g))
         per_body.setdefault(int(model.geom_bodyid[g]), []).append((mesh, model.geom_rgba[g]))
     out = []
     for body, parts in sorted(per_body.items()):
