@@ -44,10 +44,10 @@ def test_help_imports_no_heavy_library():
 def test_names_mirror_the_registries():
     """The names ``--help`` lists without loading the library are the registries' own."""
     from hingelab.cli import names
-    from hingelab.envs.tool_pick import TOOL_POSITIONS
     from hingelab.episodes.export import EXPORTERS
     from hingelab.perception import object_noise_model
     from hingelab.perception.object_perception import OBJECT_PERCEPTIONS
+    from hingelab.perception.observed_tool_pose import TOOL_POSITIONS
     from hingelab.perception.tool_perception import HAND_EYE
     from hingelab.policies import baseline_names
     from hingelab.robot import stand_in  # noqa: F401  (registers sim)

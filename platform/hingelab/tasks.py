@@ -24,7 +24,12 @@ TOOL_SHAPE_SUCCESS_GAP_MM = 2.0  # ToolShape-v0 succeeds within this tip gap of 
 # ToolPick-v0's action: the latent goal in units of Z_SCALE and the hand velocity in units of MAX_SPEED
 Z_SCALE = 3.0
 MAX_SPEED = 0.08  # m/s
-OBSERVED_OBJECT = slice(8, 11)  # the observed object centre (hand frame, m) in ToolPick-v0's observation
+# ToolPick-v0's observation: the tool's pose (position, m, and Euler angles, rad, hand frame), z_bar, then
+# the object's centre (hand frame, m)
+OBSERVED_TOOL_POSE = slice(0, 6)
+OBSERVED_TOOL_POSITION = slice(0, 3)
+OBSERVED_Z = slice(6, 8)
+OBSERVED_OBJECT = slice(8, 11)
 TARGET_HEIGHT = 0.05  # m: ToolPick-v0's target is this far above the object's start (world z)
 TOOL_STATE_ALPHA = 0.9  # the paper's smoothing of the tool state (perception's and the high level's)
 HIGH_LEVEL_ACTION_SHAPE = (5,)
@@ -116,6 +121,7 @@ def register_envs_with_gymnasium() -> None:
 
 
 __all__ = ["TOOL_SHAPE_ID", "TOOL_PICK_ID", "TOOL_PICK_FLAT_ID", "TOOL_SHAPE_EPISODE_STEPS",
-           "TOOL_SHAPE_SUCCESS_GAP_MM", "Z_SCALE", "MAX_SPEED", "OBSERVED_OBJECT", "TARGET_HEIGHT", "TOOL_STATE_ALPHA",
+           "TOOL_SHAPE_SUCCESS_GAP_MM", "Z_SCALE", "MAX_SPEED", "OBSERVED_OBJECT", "OBSERVED_TOOL_POSITION",
+           "OBSERVED_TOOL_POSE", "OBSERVED_Z", "TARGET_HEIGHT", "TOOL_STATE_ALPHA",
            "HIGH_LEVEL_ACTION_SHAPE", "LOW_LEVEL_ACTION_SHAPE", "LOW_LEVEL_OBSERVATION_DIM", "FLAT_FINGERS",
            "observation_dim", "register_envs", "register_envs_with_gymnasium", "task_spaces"]

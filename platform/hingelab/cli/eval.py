@@ -8,7 +8,7 @@ Success is the env's one verdict (ToolShape-v0: settled over the last 0.5 s), th
 recorded ``success``, so ``hingelab report`` of ``--out`` counts the same episodes.
 
 ``high``: a high-level checkpoint (SAC or phase clone), or a baseline (heuristic, scripted, scripted-observed,
-scripted-feedback, random), on ToolPick-v0
+scripted-perceived, scripted-feedback, random), on ToolPick-v0
 (``hingelab.rollouts.high_level``): success within 200 steps and at the first attempt,
 attempts and failure reasons per episode; a table with Wilson 95% intervals (table.csv, report.md).
 
@@ -89,7 +89,9 @@ def add_parser(subparsers) -> None:
                       help="evaluate a baseline instead of a checkpoint: heuristic (privileged, commands the "
                            "hinge), scripted (the heuristic's motion as latent goals over the low level), "
                            "scripted-observed (scripted, told the object's position by the policy's observation: "
-                           "its noise and delay), "
+                           "its noise and delay), scripted-perceived (scripted-observed that also reads its own "
+                           "grip point and opening from the observed tool pose and z_bar: the demonstrator on exactly "
+                           "the high level's observation), "
                            "scripted-feedback (the same without the object's size: one opening width, the hinge "
                            "closed by feedback on the perceived opening), random")
     high.add_argument("--low-level", default=None,
@@ -102,8 +104,9 @@ def add_parser(subparsers) -> None:
     add_object_noise(high)
     high.add_argument("--tool-position", choices=TOOL_POSITIONS, default=None,
                       help="the tool position the policy observes: observed (the tracked one, the paper's; it carries "
-                           "the clouds' per-episode calibration error) or anchored (the nominal in-hand position plus "
-                           "the tracked change since the episode's first frame); default: what the checkpoint was "
+                           "the clouds' per-episode calibration error), anchored (the nominal in-hand position plus "
+                           "the tracked change since the episode's first frame) or relative (the whole pose's change "
+                           "since the first frame on the nominal pose); default: what the checkpoint was "
                            "trained on")
     high.add_argument("--no-progress", action="store_true", help="no progress bar")
     high.add_argument("--resume", action="store_true",

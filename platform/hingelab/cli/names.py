@@ -21,12 +21,13 @@ OBJECT_NOISE_GAUSSIAN = "gaussian"
 OBJECT_NOISE_MODEL = ANALYSIS_DIR / "objects" / "noise-model" / "object_noise_model.json"
 # hingelab.policies.baseline_names(level)
 BASELINES = {"low": ("hold-still", "synergy"),
-             "high": ("heuristic", "scripted", "scripted-observed", "scripted-feedback", "random")}
+             "high": ("heuristic", "scripted", "scripted-observed", "scripted-perceived", "scripted-feedback",
+                      "random")}
 # hingelab.rollouts.noise_tolerance.DEFAULT_LEVELS and bias_tolerance.DEFAULT_LEVELS: diagnose's levels
 NOISE_LEVELS = (0.02, 0.05, 0.1, 0.2, 0.3)
 BIAS_LEVELS = (0.01, 0.025, 0.05)
-# hingelab.envs.tool_pick.TOOL_POSITIONS: eval high's and trial's --tool-position
-TOOL_POSITIONS = ("observed", "anchored")
+# hingelab.perception.observed_tool_pose.TOOL_POSITIONS: eval high's and trial's --tool-position
+TOOL_POSITIONS = ("observed", "anchored", "relative")
 # hingelab.perception.tool_perception.HAND_EYE: trial's --hand-eye (the first is the default)
 HAND_EYE = ("calibrated", "refined", "exact")
 # hingelab.robot.interface.ROBOTS (hingelab.robot.stand_in registers sim)

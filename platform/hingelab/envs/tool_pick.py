@@ -60,19 +60,20 @@ path), ``randomize`` (True: object friction 1-5, finger friction, gains
 frame, dropouts keeping the last estimate, the extent from its extent fit; only with ``object_perception="truth"``),
 ``pick_set_weights`` (None: ``family:picksets`` draws its 12 sets uniformly; ``{"SHAPE:SIZE": weight}``, e.g.
 ``{"tetrahedron:0.015": 4}``, an unnamed set weighing 1: a curriculum toward the sets a policy misses;
-``hingelab.sim.object_families.pick_set_weights``), ``tool_position`` ("observed": the tracked tool position, the
-paper's; "anchored": the tracker's nominal in-hand position plus the tracked position's change since the episode's
-first frame; see ``TOOL_POSITIONS``), ``hand_eye`` (with ``perception="camera"``: "calibrated", the camera pose
-with its calibration error, or "refined", corrected on each episode's first frame from the robot's own points:
-``hingelab.perception.hand_eye``).
+``hingelab.sim.object_families.pick_set_weights``), ``tool_position`` (the form of the observed tool pose:
+"observed", the tracked pose, the paper's; "anchored", the tracked position's change since the episode's first frame
+on the nominal in-hand position; "relative", the whole pose's change in the tool's first-frame axes on the nominal
+pose, its Euler angles near zero: ``hingelab.perception.observed_tool_pose``), ``hand_eye`` (with
+``perception="camera"``: "calibrated", the camera pose with its calibration error, or "refined", corrected on each
+episode's first frame from the robot's own points: ``hingelab.perception.hand_eye``).
 
 ## Version History
 v0: first version. Changed within v0: the observed object position is the centre, not the body
 origin (the same observation for the sphere, cube, cylinder and meshes); ``object`` may be a family.
 ``object_perception`` (default "truth": the observation as before). ``object_noise`` (default "gaussian": the
 observation as before). ``pick_set_weights`` (default None: the draws as before). ``tool_position`` (default
-"observed": the observation as before). ``hand_eye`` (default "calibrated": the camera as before).
-"""
+"observed": the observation as before; "relative" added later). ``hand_eye`` (default "calibrated": the camera as
+before)."""
 
 from __future__ import annotations
 
@@ -89,6 +90,7 @@ from hingelab.errors import ConfigError
 from hingelab.perception.encoder import load_encoder
 from hingelab.perception.object_noise_model import GAUSSIAN, fitted_estimator, make_fitted
 from hingelab.perception.object_perception import TRUTH, CameraObjectEstimate, check_object_perception_with
+from hingelab.perception.observed_tool_pose import OBSERVED, ObservedToolPose, check_tool_position
 from hingelab.perception.tool_perception import CALIBRATED, ToolPerception, camera_for
 from hingelab.policies.low_level import SHIPPED_LOW_LEVEL
 from hingelab.sim import scripted
@@ -98,29 +100,9 @@ from hingelab.sim.object_families import ObjectFamily, is_family
 from hingelab.sim.object_families import pick_set_weights as pick_set_weights_of
 from hingelab.sim.objects import ObjectSpec
 from hingelab.sim.randomization import RandomizationConfig
-from hingelab.tasks import MAX_SPEED, TARGET_HEIGHT, TOOL_PICK_ID, TOOL_STATE_ALPHA, Z_SCALE, task_spaces
+from hingelab.tasks import MAX_SPEED, TARGET_HEIGHT, TOOL_PICK_ID, Z_SCALE, task_spaces
 
 OBJECT_NOISE_M = 0.002
-# The observed tool position. The paper's synthesized clouds carry a per-episode pose error (up to 2 cm, 30 degrees:
-# a calibration error, fixed for the episode), the camera's a hand-eye error of about 1 cm; either moves the tracked
-# position by a constant. "anchored" keeps the tracked motion and drops that constant: the tracker's nominal in-hand
-# position plus the change since the episode's first frame (the true in-hand start, 1-2 mm from nominal, unseen).
-OBSERVED, ANCHORED = "observed", "anchored"
-TOOL_POSITIONS = (OBSERVED, ANCHORED)
-
-
-def check_tool_position(value: str, where: str = "tool position") -> str:
-    """``value`` if it is one of ``TOOL_POSITIONS``, else a one-line ConfigError starting with ``where``."""
-    if value not in TOOL_POSITIONS:
-        raise ConfigError(f"{where} {value!r} is unknown; choose one of {', '.join(TOOL_POSITIONS)}")
-    return value
-
-
-def anchored_tool_pose(pose: np.ndarray, anchor: np.ndarray, nominal) -> np.ndarray:
-    """``pose`` (position, Euler angles) with its position moved to ``nominal`` plus its change since ``anchor``
-    (the first frame's position): the ``"anchored"`` tool position."""
-    return np.concatenate([np.asarray(nominal, float) + pose[:3] - anchor, pose[3:]])
-ALPHA = TOOL_STATE_ALPHA  # smoothing of t and theta (the paper smooths the high-level tool state too)
 
 
 class ToolPickEnv(SimRenderMixin, gym.Env):
@@ -205,8 +187,8 @@ class ToolPickEnv(SimRenderMixin, gym.Env):
         self._privileged_command = None
         self.sample = self.perception.observe(self.sim)
         self._observe_object()
-        self._tool_pose = np.concatenate([self.sample.position[0], self.sample.euler_xyz[0]])
-        self._tool_anchor = self._tool_pose[:3].copy()  # the first frame's position ("anchored" subtracts it)
+        self.tool_pose = ObservedToolPose(self.tool_position, self.perception.tool_state.prior)
+        self.tool_pose.reset(self.sample.rotation[0], self.sample.position[0], self.sample.euler_xyz[0])
         self.z_goal = self.sample.z_smoothed[0].copy()
         self.delay.reset(self._fresh_observation())
         info = self._info(self._terms(), False)
@@ -246,8 +228,7 @@ class ToolPickEnv(SimRenderMixin, gym.Env):
         self.state = result.state
         self.sample = self.perception.observe(self.sim)
         self._observe_object()
-        pose = np.concatenate([self.sample.position[0], self.sample.euler_xyz[0]])
-        self._tool_pose = ALPHA * pose + (1 - ALPHA) * self._tool_pose
+        self.tool_pose.update(self.sample.rotation[0], self.sample.position[0], self.sample.euler_xyz[0])
         if executed is None:  # paper: the current latent stands for the previous step's z_goal
             self.z_goal = self.sample.z_smoothed[0].copy()
             executed = np.clip(np.concatenate([self.z_goal / Z_SCALE, velocity_hand / MAX_SPEED]), -1, 1)
@@ -335,19 +316,13 @@ class ToolPickEnv(SimRenderMixin, gym.Env):
         centre_noise = self.np_random.normal(0.0, OBJECT_NOISE_M, 3)
         estimate = self.object_camera if self.object_camera is not None else self.object_fitted
         centre = self.observed_object_centre() + centre_noise if estimate is None else estimate.centre
-        parts = [self._observed_tool_pose(), self.sample.z_smoothed[0], self._to_hand(centre),
+        parts = [self.tool_pose.observation(), self.sample.z_smoothed[0], self._to_hand(centre),
                  self._to_hand(self.target)]
         if self.observe_extent:
             extent_noise = self.np_random.normal(0.0, OBJECT_NOISE_M, 3)
             box = None if estimate is None else estimate.box  # a model without an extent fit: the Gaussian
             parts.append(self.observed_object_extent() + extent_noise if box is None else box)
         return np.concatenate(parts)
-
-    def _observed_tool_pose(self) -> np.ndarray:
-        """The tool's position and Euler angles the policy observes (``tool_position``)."""
-        if self.tool_position == OBSERVED:
-            return self._tool_pose
-        return anchored_tool_pose(self._tool_pose, self._tool_anchor, self.perception.tool_state.prior[1])
 
     def _observe_object(self) -> None:
         """The camera's object estimate on this step's frame (``object_perception`` an estimator), or drawn from the

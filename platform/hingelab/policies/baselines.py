@@ -4,8 +4,9 @@ High level (ToolPick-v0; episode policies: each reads the simulator through the 
 ``heuristic`` (the privileged heuristic commanding the arm and the hinge directly), ``scripted`` (its
 arm motion and hinge command as the 5-D action over the low level: the demonstrator the phase clone
 copies), ``scripted-observed`` (``scripted`` reading the object's position from the policy's
-observation), ``scripted-feedback`` (``scripted`` without the object's size), ``random`` (uniform
-actions in [-1, 1], seeded per episode).
+observation), ``scripted-perceived`` (``scripted-observed`` reading its own grip point and opening from the
+observation too: the demonstrator on exactly what the high level observes), ``scripted-feedback``
+(``scripted`` without the object's size), ``random`` (uniform actions in [-1, 1], seeded per episode).
 
 Low level (ToolShape-v0; ``Policy``s): ``hold-still`` (zero finger changes) and ``synergy`` (the
 calibrated opening through the grasp synergy, with integral feedback on the latent).
@@ -21,13 +22,14 @@ import numpy as np
 
 from hingelab.heuristic.controller import HeuristicConfig, PrivilegedHeuristic
 from hingelab.heuristic.feedback import FeedbackHeuristic
+from hingelab.perception.grip_point import grip_points_world
 from hingelab.policies.loading import register_baseline
 from hingelab.policies.phase_clone import phase_index
 from hingelab.sim.finger_synergy import FingerSynergy
-from hingelab.tasks import MAX_SPEED, OBSERVED_OBJECT, Z_SCALE
+from hingelab.tasks import MAX_SPEED, OBSERVED_OBJECT, OBSERVED_TOOL_POSE, OBSERVED_TOOL_POSITION, OBSERVED_Z, Z_SCALE
 
 # ------------------------------------------------------------------ high level (ToolPick-v0)
-BASELINES = ("heuristic", "scripted", "scripted-observed", "scripted-feedback", "random")
+BASELINES = ("heuristic", "scripted", "scripted-observed", "scripted-perceived", "scripted-feedback", "random")
 
 
 # ------------------------------------------------------------------ policies
@@ -96,7 +98,7 @@ class ScriptedPolicy(HeuristicPolicy):
         command = heuristic.act(state)
         # the demonstrator's memory around this decision: what the phase clone learns to keep itself
         self.labels = {"demo_phase": phase, "demo_phase_steps": steps, "demo_next_phase": phase_index(heuristic.phase)}
-        opening = command.hinge_target if command.hinge_target is not None else pick.state.hinge_angle
+        opening = command.hinge_target if command.hinge_target is not None else state.hinge_angle
         z_goal = np.asarray(pick.perception.calibration.z_for_opening(opening), float)
         rot_hand = pick.sim.data.xmat[pick.sim.reader.hand_body].reshape(3, 3)
         velocity_hand = rot_hand.T @ np.asarray(command.arm_velocity, float)
@@ -126,6 +128,27 @@ class ObservedScriptedPolicy(ScriptedPolicy):
         centre = data.xmat[hand].reshape(3, 3) @ np.asarray(obs[OBSERVED_OBJECT], float) + data.xpos[hand]
         origin = centre - (pick.observed_object_centre() - pick.state.object_pos_world)  # centre -> body origin
         return replace(pick.state, object_pos_world=origin)
+
+
+class PerceivedScriptedPolicy(ObservedScriptedPolicy):
+    """``ObservedScriptedPolicy`` that also knows its own tweezer only as the policy does: the grip point rebuilt
+    from the observed tool pose and the opening read off the observed z_bar (``hingelab.perception.grip_point``),
+    that opening as the hinge angle, all mapped through the hand's current pose. The demonstrator on exactly the
+    high level's observation (its tool-pose error, the anchored or tracked position, the delay): how many picks
+    that observation allows a demonstrator, against the privileged one's and a clone's."""
+
+    def act(self, env, obs) -> np.ndarray:
+        pick = env.unwrapped
+        obs = np.asarray(obs, float)
+        data, hand = pick.sim.data, pick.sim.reader.hand_body
+        hand_rot, hand_pos = data.xmat[hand].reshape(1, 3, 3), data.xpos[hand].reshape(1, 3)
+        z_bar = obs[OBSERVED_Z].reshape(1, 2)
+        tool_rot = pick.tool_pose.rotation(obs[OBSERVED_TOOL_POSE]).reshape(1, 3, 3)  # in the env's form
+        grip, _, _ = grip_points_world(obs[OBSERVED_TOOL_POSITION].reshape(1, 3), tool_rot, z_bar, hand_rot, hand_pos,
+                                       pick.perception.calibration)
+        self.heuristic.grip_point = lambda: grip[0]
+        opening = float(np.asarray(pick.perception.calibration.opening_rad(z_bar)).reshape(-1)[0])
+        return self._action(env, replace(self.observed_state(env, obs), hinge_angle=opening))
 
 
 class FeedbackScriptedPolicy(ScriptedPolicy):
@@ -203,11 +226,14 @@ for _name, _cls, _text in (
         ("heuristic", HeuristicPolicy, "the privileged heuristic, commanding the hinge directly"),
         ("scripted", ScriptedPolicy, "the heuristic's arm motion and hinge command as the high level's action"),
         ("scripted-observed", ObservedScriptedPolicy, "scripted, the object's position from the observation"),
+        ("scripted-perceived", PerceivedScriptedPolicy,
+         "scripted-observed, its grip point and opening from the observation too"),
         ("scripted-feedback", FeedbackScriptedPolicy, "scripted without the object's size"),
         ("random", RandomPolicy, "uniform random actions")):
     register_baseline(_name, "high", lambda env=None, _cls=_cls: _cls(), _text)
 register_baseline("hold-still", "low", lambda env=None: HoldStillPolicy(), "zero finger changes")
 register_baseline("synergy", "low", _synergy, "the calibrated opening through the grasp synergy, latent feedback")
 
-__all__ = ["RandomPolicy", "HeuristicPolicy", "ScriptedPolicy", "ObservedScriptedPolicy", "FeedbackScriptedPolicy",
+__all__ = ["RandomPolicy", "HeuristicPolicy", "ScriptedPolicy", "ObservedScriptedPolicy", "PerceivedScriptedPolicy",
+           "FeedbackScriptedPolicy",
            "HoldStillPolicy", "SynergyPolicy"]

@@ -27,10 +27,11 @@ from pathlib import Path
 import numpy as np
 
 from hingelab.envs.low_level import PolicyLowLevel
-from hingelab.envs.tool_pick import ALPHA, ANCHORED, TARGET_HEIGHT, anchored_tool_pose, check_tool_position
+from hingelab.envs.tool_pick import TARGET_HEIGHT
 from hingelab.errors import ConfigError
 from hingelab.perception.camera_cloud import ToolCloudConfig, tool_cloud_from_frame
 from hingelab.perception.encoder import load_encoder
+from hingelab.perception.observed_tool_pose import ObservedToolPose, check_tool_position
 from hingelab.perception.tool_state import ToolState
 from hingelab.policies.baselines import ScriptedPolicy
 from hingelab.policies.high_level import (
@@ -112,7 +113,8 @@ class HierarchicalController:
 
     def __init__(self, high_level, encoder=None, cloud_config: ToolCloudConfig = ToolCloudConfig(),
                  tool_position: str = "observed"):
-        # as ToolPick-v0's: "anchored" drops the hand-eye error's constant
+        # as ToolPick-v0's (hingelab.perception.observed_tool_pose): "anchored" and "relative" drop the hand-eye
+        # error's constant
         self.tool_position = check_tool_position(tool_position)
         self.encoder = encoder or load_encoder()
         self.high_level = high_level
@@ -122,8 +124,7 @@ class HierarchicalController:
         self.tool_state = ToolState(encoder=self.encoder, n_tools=1)
         self.cloud_config = cloud_config
         self.rng = np.random.default_rng()
-        self._tool_pose = np.zeros(6)
-        self._tool_anchor = np.zeros(3)
+        self._tool_pose = ObservedToolPose(self.tool_position, self.tool_state.prior)
         self.target_world = np.zeros(3)
         self._fresh = True
 
@@ -147,14 +148,9 @@ class HierarchicalController:
         if cloud.points is None:
             return Step(None, None, None, None, None, None, None, None, None, flag=cloud.flag)
         sample = self.tool_state.update(cloud.points[None], n_distinct=cloud.n_distinct)
-        pose = np.concatenate([sample.position[0], sample.euler_xyz[0]])
-        self._tool_pose = pose if self._fresh else ALPHA * pose + (1 - ALPHA) * self._tool_pose
-        if self._fresh:
-            self._tool_anchor = pose[:3].copy()
+        pose = (sample.rotation[0], sample.position[0], sample.euler_xyz[0])
+        tool_pose = self._tool_pose.reset(*pose) if self._fresh else self._tool_pose.update(*pose)
         self._fresh = False
-        tool_pose = self._tool_pose
-        if self.tool_position == ANCHORED:
-            tool_pose = anchored_tool_pose(tool_pose, self._tool_anchor, self.tool_state.prior[1])
         z_bar = sample.z_smoothed[0]
         centre = (readings.object_centre if readings.object_centre is not None
                   else self.target_world - [0, 0, TARGET_HEIGHT])

@@ -39,12 +39,12 @@ from tqdm import tqdm
 
 from hingelab.analysis.pick_table import FAILURE_REASONS, pick_rates
 from hingelab.envs.recording import object_metadata, object_perception_metadata, platform_pose, privileged_fields
-from hingelab.envs.tool_pick import check_tool_position
 from hingelab.episodes import EpisodeWriter, create_dataset
 from hingelab.episodes import schemas as S
 from hingelab.errors import ConfigError
 from hingelab.folder_lock import is_empty
 from hingelab.perception.object_perception import TRUTH, check_object_perception
+from hingelab.perception.observed_tool_pose import check_tool_position
 from hingelab.perception.tool_perception import CALIBRATED, check_hand_eye
 from hingelab.policies.high_level import SHIPPED_HIGH_LEVEL
 from hingelab.robot import stand_in  # noqa: F401  (registers the "sim" robot)
@@ -76,7 +76,7 @@ class TrialConfig:
     depth_every: int = 4  # record the depth image every this many steps (5 Hz at 20 Hz control)
     operator: bool = False
     object_perception: str = TRUTH  # where the robot's object estimate comes from (the stand-in's choice)
-    tool_position: str | None = None  # "observed" or "anchored" (ToolPick-v0's); None: what the policy trained on
+    tool_position: str | None = None  # ToolPick-v0's form of the tool pose; None: what the policy trained on
     hand_eye: str = CALIBRATED  # the camera pose as calibrated, or refined on the robot's points (the stand-in's)
 
     def __post_init__(self):

@@ -61,7 +61,7 @@ from hingelab.episodes import schemas as S
 from hingelab.episodes.errors import DatasetError
 from hingelab.episodes.export_trial import smoothed_pose
 from hingelab.episodes.transitions import Transitions
-from hingelab.perception.clouds import ToolGeometry
+from hingelab.perception.grip_point import grip_points_world
 from hingelab.ros2.topics import ARM_JOINT_NAMES
 from hingelab.sim.arm_kinematics import default_kinematics
 from hingelab.tasks import MAX_SPEED, Z_SCALE
@@ -132,22 +132,6 @@ def _perception(episode, n: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
                                "re-import the bag with hingelab datasets import-ros2 (the camera cloud gives them)")
     rot = Rotation.from_quat(np.asarray(pose["orientation"][:n], float)).as_matrix()  # x y z w
     return np.asarray(pose["position"][:n], float), rot, np.asarray(latent["z_smoothed"][:n], float)
-
-
-def grip_points_world(tool_pos_hand, tool_rot_hand, z_bar, hand_rot, hand_pos, calibration):
-    """The grip point (world, m) of each step rebuilt from perception (module docstring), and the two
-    tips (T, 3) each in the world: tips from the tool pose (T, 3), (T, 3, 3) in hand_base and the
-    opening read off z_bar (T, 2); into the world by the hand's pose (T, 3, 3), (T, 3)."""
-
-    opening = calibration.opening_rad(z_bar)
-    tips = []
-    for tip_tool in ToolGeometry.default().tips_in_tool_frame(opening):
-        tip_hand = np.einsum("tij,tj->ti", tool_rot_hand, tip_tool) + tool_pos_hand
-        tips.append(np.einsum("tij,tj->ti", hand_rot, tip_hand) + hand_pos)
-    a, b = tips
-    grip = 0.5 * (a + b)
-    grip[:, 2] = np.minimum(a[:, 2], b[:, 2])  # scripted.grip_point's rule: at the lower tip's height
-    return grip, a, b
 
 
 def real_episode_transitions(episode, index: int, config: HighLevelRewardConfig, calibration, actions: str = "recorded",
@@ -222,4 +206,4 @@ def real_episode_transitions(episode, index: int, config: HighLevelRewardConfig,
         episode_index=np.full(m, index, dtype=np.int64))
 
 
-__all__ = ["RealEpisodeError", "real_episode_transitions", "grip_points_world", "is_real", "TOPICS", "SOURCE"]
+__all__ = ["RealEpisodeError", "real_episode_transitions", "is_real", "TOPICS", "SOURCE"]
