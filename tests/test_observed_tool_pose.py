@@ -75,7 +75,7 @@ def test_observed_and_anchored_smooth_as_the_paper_does():
 
 
 def test_a_bad_form_is_a_one_line_error():
-    with pytest.raises(ConfigError, match="'true' is unknown; choose one of observed, anchored, relative"):
+    with pytest.raises(ConfigError, match="'true' is unknown; choose one of observed, anchored, relative, nominal"):
         ObservedToolPose("true", nominal_tool_pose())
     with pytest.raises(ConfigError, match="tool_position 'true' is unknown"):
         gym.make("hingelab/ToolPick-v0", tool_position="true")
@@ -126,3 +126,13 @@ def test_scripted_perceived_acts_on_the_observation_s_tool_pose():
         assert np.linalg.norm(rebuilt - scripted.grip_point(pick.sim)) < 0.01
     finally:
         env.close()
+
+
+def test_nominal_observes_the_nominal_pose_at_every_step_whatever_is_tracked():
+    _, tracked, nominal = _true_and_tracked()
+    pose = ObservedToolPose("nominal", nominal)
+    observations = [pose.reset(*tracked[0], _euler(tracked[0][0]))]
+    observations += [pose.update(r, p, _euler(r)) for r, p in tracked[1:]]
+    for obs in observations:
+        np.testing.assert_allclose(obs, np.concatenate([nominal[1], np.zeros(3)]), atol=1e-12)
+        np.testing.assert_allclose(pose.rotation(obs), nominal[0], atol=1e-12)

@@ -105,8 +105,9 @@ def add_parser(subparsers) -> None:
     high.add_argument("--tool-position", choices=TOOL_POSITIONS, default=None,
                       help="the tool position the policy observes: observed (the tracked one, the paper's; it carries "
                            "the clouds' per-episode calibration error), anchored (the nominal in-hand position plus "
-                           "the tracked change since the episode's first frame) or relative (the whole pose's change "
-                           "since the first frame on the nominal pose); default: what the checkpoint was "
+                           "the tracked change since the episode's first frame), relative (the whole pose's change "
+                           "since the first frame on the nominal pose) or nominal (the nominal in-hand pose, no "
+                           "tracking); default: what the checkpoint was "
                            "trained on")
     high.add_argument("--no-progress", action="store_true", help="no progress bar")
     high.add_argument("--resume", action="store_true",

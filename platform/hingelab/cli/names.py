@@ -27,7 +27,7 @@ BASELINES = {"low": ("hold-still", "synergy"),
 NOISE_LEVELS = (0.02, 0.05, 0.1, 0.2, 0.3)
 BIAS_LEVELS = (0.01, 0.025, 0.05)
 # hingelab.perception.observed_tool_pose.TOOL_POSITIONS: eval high's and trial's --tool-position
-TOOL_POSITIONS = ("observed", "anchored", "relative")
+TOOL_POSITIONS = ("observed", "anchored", "relative", "nominal")
 # hingelab.perception.tool_perception.HAND_EYE: trial's --hand-eye (the first is the default)
 HAND_EYE = ("calibrated", "refined", "exact")
 # hingelab.robot.interface.ROBOTS (hingelab.robot.stand_in registers sim)

@@ -56,8 +56,9 @@ def add_parser(subparsers) -> None:
     p.add_argument("--tool-position", choices=TOOL_POSITIONS, default=None,
                    help="the tool position the high level observes: observed (the tracked one; it carries the "
                         "camera's hand-eye error), anchored (the nominal in-hand position plus the tracked change "
-                        "since the trial's first frame) or relative (the whole pose's change since the first frame "
-                        "on the nominal pose); default: what the policy was trained on")
+                        "since the trial's first frame), relative (the whole pose's change since the first frame "
+                        "on the nominal pose) or nominal (the nominal in-hand pose, no tracking); default: what the "
+                        "policy was trained on")
     p.add_argument("--hand-eye", choices=HAND_EYE, default=HAND_EYE[0],
                    help="the depth camera's pose: calibrated (the default: as calibrated, with its error of up to "
                         "3 mm and 1 degree per axis) or refined (corrected at each trial's first frame by aligning "

@@ -63,7 +63,8 @@ frame, dropouts keeping the last estimate, the extent from its extent fit; only 
 ``hingelab.sim.object_families.pick_set_weights``), ``tool_position`` (the form of the observed tool pose:
 "observed", the tracked pose, the paper's; "anchored", the tracked position's change since the episode's first frame
 on the nominal in-hand position; "relative", the whole pose's change in the tool's first-frame axes on the nominal
-pose, its Euler angles near zero: ``hingelab.perception.observed_tool_pose``), ``hand_eye`` (with
+pose, its Euler angles near zero; "nominal", the nominal in-hand pose, no tracking:
+``hingelab.perception.observed_tool_pose``), ``hand_eye`` (with
 ``perception="camera"``: "calibrated", the camera pose with its calibration error, or "refined", corrected on each
 episode's first frame from the robot's own points: ``hingelab.perception.hand_eye``).
 
@@ -72,8 +73,8 @@ v0: first version. Changed within v0: the observed object position is the centre
 origin (the same observation for the sphere, cube, cylinder and meshes); ``object`` may be a family.
 ``object_perception`` (default "truth": the observation as before). ``object_noise`` (default "gaussian": the
 observation as before). ``pick_set_weights`` (default None: the draws as before). ``tool_position`` (default
-"observed": the observation as before; "relative" added later). ``hand_eye`` (default "calibrated": the camera as
-before)."""
+"observed": the observation as before; "relative" and "nominal" added later). ``hand_eye`` (default "calibrated":
+the camera as before)."""
 
 from __future__ import annotations
 

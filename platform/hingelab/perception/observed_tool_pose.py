@@ -11,7 +11,9 @@ forms (``TOOL_POSITIONS``; the env's ``tool_position`` and ``hingelab trial``'s 
   (where a constant calibration rotation cancels: ``R_0^T R_t``), placed on the nominal in-hand pose. Its Euler
   angles are those of the rotation away from the nominal pose, near zero. The nominal pose itself sits at
   Euler angles of about (3.12, -0.25, -3.14) rad, where a tracked angle flips between +pi and -pi with the
-  tracker's noise and a linear average across the flip is no rotation at all; near zero nothing flips.
+  tracker's noise and a linear average across the flip is no rotation at all; near zero nothing flips;
+- ``"nominal"``: no tracking: the nominal in-hand pose at every step, in the relative form's terms (Euler angles
+  zero). What a policy that takes the tool to sit where it was put observes; a baseline for what tracking adds.
 
 The pose is smoothed with the paper's alpha (0.9) each step, the first frame unsmoothed. The env and the robot
 controller both observe through ``ObservedToolPose``, so a policy sees the same form in simulation and on a rig.
@@ -26,8 +28,8 @@ from hingelab.errors import ConfigError
 from hingelab.perception.registration import EULER_SEQUENCE, euler_xyz
 from hingelab.tasks import TOOL_STATE_ALPHA
 
-OBSERVED, ANCHORED, RELATIVE = "observed", "anchored", "relative"
-TOOL_POSITIONS = (OBSERVED, ANCHORED, RELATIVE)
+OBSERVED, ANCHORED, RELATIVE, NOMINAL = "observed", "anchored", "relative", "nominal"
+TOOL_POSITIONS = (OBSERVED, ANCHORED, RELATIVE, NOMINAL)
 
 
 def check_tool_position(value: str, where: str = "tool position") -> str:
@@ -57,7 +59,7 @@ def relative_tool_pose(rot: np.ndarray, pos: np.ndarray, first: tuple[np.ndarray
 def observed_tool_rotation(euler: np.ndarray, tool_position: str, nominal_rotation: np.ndarray) -> np.ndarray:
     """The tool's rotation in the hand frame (3, 3) that an observation's Euler angles stand for, in its form."""
     rot = Rotation.from_euler(EULER_SEQUENCE, np.asarray(euler, float)).as_matrix()
-    return nominal_rotation @ rot if tool_position == RELATIVE else rot
+    return nominal_rotation @ rot if tool_position in (RELATIVE, NOMINAL) else rot
 
 
 class ObservedToolPose:
@@ -74,6 +76,8 @@ class ObservedToolPose:
     def _raw(self, rot: np.ndarray, pos: np.ndarray, euler: np.ndarray) -> np.ndarray:
         if self.tool_position == RELATIVE:
             return relative_tool_pose(rot, pos, self._first, self.nominal)
+        if self.tool_position == NOMINAL:
+            return np.concatenate([self.nominal[1], np.zeros(3)])
         return np.concatenate([np.asarray(pos, float), np.asarray(euler, float)])
 
     def reset(self, rot: np.ndarray, pos: np.ndarray, euler: np.ndarray) -> np.ndarray:
@@ -97,5 +101,5 @@ class ObservedToolPose:
         return observed_tool_rotation(np.asarray(observation)[3:6], self.tool_position, self.nominal[0])
 
 
-__all__ = ["OBSERVED", "ANCHORED", "RELATIVE", "TOOL_POSITIONS", "check_tool_position", "anchored_tool_pose",
+__all__ = ["OBSERVED", "ANCHORED", "RELATIVE", "NOMINAL", "TOOL_POSITIONS", "check_tool_position", "anchored_tool_pose",
            "relative_tool_pose", "observed_tool_rotation", "ObservedToolPose"]
