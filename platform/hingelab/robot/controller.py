@@ -113,8 +113,8 @@ class HierarchicalController:
 
     def __init__(self, high_level, encoder=None, cloud_config: ToolCloudConfig = ToolCloudConfig(),
                  tool_position: str = "observed"):
-        # as ToolPick-v0's (hingelab.perception.observed_tool_pose): "anchored" and "relative" drop the hand-eye
-        # error's constant
+        # the forms of ToolPick-v0's tool pose (hingelab.perception.observed_tool_pose): "anchored" and "relative"
+        # drop the hand-eye error's constant, "nominal" does without tracking
         self.tool_position = check_tool_position(tool_position)
         self.encoder = encoder or load_encoder()
         self.high_level = high_level
