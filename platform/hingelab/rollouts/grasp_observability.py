@@ -29,9 +29,8 @@ import numpy as np
 from hingelab.errors import ConfigError
 from hingelab.rollouts.grasp_offsets import AXES, grasp_at, read_episodes
 from hingelab.rollouts.reward_diagnostic import write_tables
-from hingelab.tasks import OBSERVED_OBJECT
+from hingelab.tasks import OBSERVED_OBJECT, OBSERVED_TOOL_POSE
 
-TOOL_POSE = slice(0, 6)  # ToolPick-v0's observation: the tool position and Euler angles (hand frame) first
 INPUTS = ("observation", "true tool pose", "true tool pose and object")
 MIN_EPISODES = 30
 CLOSING = 1  # the hand's y axis: the tips close along it (grasp_offsets)
@@ -52,9 +51,10 @@ def samples(roots) -> tuple[dict[str, np.ndarray], np.ndarray]:
                 continue
             observation = np.asarray(step["observation"][t], float)
             tool = np.r_[privileged["tool_position"][t], privileged["tool_orientation"][t]]
-            rest = np.delete(observation, np.r_[np.arange(6), np.arange(OBSERVED_OBJECT.start, OBSERVED_OBJECT.stop)])
+            rest = np.delete(observation, np.r_[np.arange(OBSERVED_TOOL_POSE.start, OBSERVED_TOOL_POSE.stop),
+                                                  np.arange(OBSERVED_OBJECT.start, OBSERVED_OBJECT.stop)])
             rows["observation"].append(observation)
-            rows["true tool pose"].append(np.r_[tool, observation[6:]])
+            rows["true tool pose"].append(np.r_[tool, observation[OBSERVED_TOOL_POSE.stop:]])
             rows["true tool pose and object"].append(np.r_[tool, obj, rest])
             offsets.append(1000 * offset)
     return {name: np.asarray(v) for name, v in rows.items()}, np.asarray(offsets)
