@@ -93,6 +93,12 @@ def prior_block(run_seed: int, part: int) -> int:
     return PRIOR_BASE + int(run_seed) + PRIOR_PART_STRIDE * int(part)
 
 
+def dagger_block(run_seed: int, round_index: int, part: int) -> int:
+    """The block (a ``--seed`` of ``eval high``'s stream) of part ``part`` of round ``round_index`` of DAgger run
+    ``run_seed``'s rollouts: past every prior part's block (``prior_block``: parts below 100)."""
+    return PRIOR_BASE + int(run_seed) + PRIOR_PART_STRIDE * (100 * (int(round_index) + 1) + int(part))
+
+
 def training_episode_seed(run_seed: int, env_index: int, episode: int) -> int:
     """Episode ``episode`` of rollout env ``env_index`` of a training run: determined by the count, so a
     resumed run and 1 or N envs replay the same episodes."""
@@ -144,5 +150,5 @@ def ensemble_member_seed(seed: int, member: int) -> int:
 __all__ = ["SEED_BOUND", "seed_argument",
            "STRIDE", "SEED_LIMIT", "EPISODE_LIMIT", "TRAINING_SEED_LIMIT", "TRAINING_EPISODE_LIMIT", "TRIALS_BASE",
            "EVAL_HIGH_BASE", "PRIOR_BASE", "TRAINING_EVALUATION_SEED", "HELD_OUT_BASE", "demo_seed", "trial_seed",
-           "eval_high_seed", "prior_block", "training_episode_seed", "held_out_goal_seed", "sampled_goal_seed",
-           "ensemble_member_seed", "OBJECT_DRAW_KEY", "object_draw_entropy"]
+           "eval_high_seed", "prior_block", "dagger_block", "training_episode_seed", "held_out_goal_seed",
+           "sampled_goal_seed", "ensemble_member_seed", "OBJECT_DRAW_KEY", "object_draw_entropy"]

@@ -4,6 +4,7 @@ the action and the demonstrator's next phase, from the observation and the phase
 
 from __future__ import annotations
 
+import copy
 import time
 from dataclasses import dataclass
 
@@ -48,18 +49,32 @@ class PhaseDemos:
     def __len__(self) -> int:
         return len(self.actions)
 
+    @classmethod
+    def concat(cls, parts: list["PhaseDemos"]) -> "PhaseDemos":
+        """The steps of ``parts`` one after another."""
+        return cls(*(np.concatenate([getattr(p, f) for p in parts]) for f in
+                     ("observations", "actions", "phases", "steps", "next_phases")))
+
 
 def fit_phase_clone(demos: PhaseDemos, hidden: tuple[int, ...], updates: int, batch_size: int,
-                    learning_rate: float, seed: int, progress: bool = False) -> tuple[PhaseCloneNet, dict]:
+                    learning_rate: float, seed: int, progress: bool = False,
+                    start: PhaseCloneNet | None = None) -> tuple[PhaseCloneNet, dict]:
     """Fit a ``PhaseCloneNet``: squared action error + cross-entropy of the next phase, Adam with a
     cosine decay. Returns the net and its fit (final losses on all demos, phase accuracy overall and on
-    the demonstrator's phase changes)."""
+    the demonstrator's phase changes). ``start``: a net to go on from (a copy of it is fitted, its
+    observation standardization kept; ``hidden`` is then its own), else a new one standardized on the demos."""
     if len(demos) == 0:
         raise ConfigError("no demo steps to clone")
     torch.manual_seed(seed)
     generator = torch.Generator().manual_seed(seed)
-    std = demos.observations.std(0) + 1e-6
-    net = PhaseCloneNet(demos.observations.shape[1], hidden, demos.observations.mean(0), std)
+    if start is not None:
+        if start.observation_dim != demos.observations.shape[1]:
+            raise ConfigError(f"the clone to go on from takes {start.observation_dim}-D observations, the demos hold "
+                              f"{demos.observations.shape[1]}-D ones")
+        net = copy.deepcopy(start)
+    else:
+        std = demos.observations.std(0) + 1e-6
+        net = PhaseCloneNet(demos.observations.shape[1], hidden, demos.observations.mean(0), std)
     tensors = [torch.as_tensor(a) for a in (demos.observations, np.clip(demos.actions, -1, 1), demos.phases,
                                             demos.steps, demos.next_phases)]
     optimizer = torch.optim.Adam(net.parameters(), lr=learning_rate)
@@ -92,18 +107,22 @@ def fit_phase_clone(demos: PhaseDemos, hidden: tuple[int, ...], updates: int, ba
 
 
 def fit_phase_clone_members(demos: PhaseDemos, members: int, hidden: tuple[int, ...], updates: int, batch_size: int,
-                            learning_rate: float, seed: int,
-                            progress: bool = False) -> tuple[list[PhaseCloneNet], dict]:
+                            learning_rate: float, seed: int, progress: bool = False,
+                            starts: list[PhaseCloneNet] | None = None) -> tuple[list[PhaseCloneNet], dict]:
     """``members`` nets fitted by ``fit_phase_clone`` on the same demos from different seeds (an ensemble
-    for ``PhaseClone``); the nets and the fit (member 0's figures, every member's, total seconds)."""
+    for ``PhaseClone``); the nets and the fit (member 0's figures, every member's, total seconds).
+    ``starts``: one net per member to go on from (``fit_phase_clone``'s ``start``)."""
     if members < 1:
         raise ConfigError(f"an ensemble needs at least one member, not {members}")
+    if starts is not None and len(starts) != members:
+        raise ConfigError(f"{members} members to fit from {len(starts)} nets to go on from")
     nets, fits = [], []
     for member in range(members):
         if progress and members > 1:
             print(f"phase clone: member {member + 1} of {members}")
         net, fit = fit_phase_clone(demos, hidden, updates, batch_size, learning_rate,
-                                   ensemble_member_seed(seed, member), progress=progress)
+                                   ensemble_member_seed(seed, member), progress=progress,
+                                   start=None if starts is None else starts[member])
         nets.append(net)
         fits.append(fit)
     fit = dict(fits[0])
