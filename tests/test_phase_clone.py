@@ -221,3 +221,16 @@ def test_noisy_demos_execute_a_perturbed_velocity_and_label_the_clean_action(tmp
     np.testing.assert_allclose(PhaseDemos.from_transitions(transitions).actions, clean, atol=1e-6)
     with pytest.raises(ConfigError, match="--prior-action-noise"):
         HighLevelTrainConfig(prior_action_noise=0.1, prior_source="heuristic")
+
+
+def test_the_fit_does_not_depend_on_the_order_of_the_demo_steps():
+    """A dataset lists its episodes by file name, partly random: the same demos in another order fit the same
+    weights."""
+    demos = _timer_demos(episodes=6)
+    order = np.random.default_rng(1).permutation(len(demos))
+    shuffled = PhaseDemos(*(getattr(demos, f)[order] for f in
+                            ("observations", "actions", "phases", "steps", "next_phases")))
+    a, _ = fit_phase_clone(demos, (8,), 20, 16, 1e-2, seed=0)
+    b, _ = fit_phase_clone(shuffled, (8,), 20, 16, 1e-2, seed=0)
+    for x, y in zip(a.state_dict().values(), b.state_dict().values()):
+        np.testing.assert_array_equal(x.numpy(), y.numpy())

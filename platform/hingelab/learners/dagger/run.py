@@ -32,7 +32,8 @@ from hingelab.training.torch_process import configure_torch
 
 LABEL = "train high (DAgger)"
 BASE_FILE, ROUNDS_DIR = "base.zip", "rounds"
-OBSERVED_FORM = ("observe_extent", "tool_position")  # env arguments a clone must observe as it was trained
+# env arguments a clone must observe as it was trained, with ToolPick-v0's defaults
+OBSERVED_FORM = {"observe_extent": False, "tool_position": "observed"}
 _ROUND_SEED_STRIDE = 104_729  # a round's fit seeds, apart from the base fit's (run seed + member strides)
 
 
@@ -153,12 +154,12 @@ def _base(c, folder: RunFolder, demos: PhaseDemos, progress: bool) -> tuple[Phas
                           f"{demos.observations.shape[1]}-D: set observe_extent in --env-kwargs as the base was "
                           "trained")
     check_context(base, path, c.low_level)
-    trained = (base.hingelab_provenance or {}).get("env_kwargs") or {}
+    trained = (base.hingelab_provenance or {}).get("env_kwargs")
     run = c.env_arguments()
-    for key in OBSERVED_FORM:
-        if key in trained and trained.get(key) != run.get(key):
-            raise ConfigError(f"the base {path} was trained with {key}={trained[key]!r}, the run has "
-                              f"{run.get(key)!r}: give --env-kwargs with {key} as the base's")
+    for key, default in OBSERVED_FORM.items() if trained is not None else ():  # (older clones: not recorded)
+        if trained.get(key, default) != run.get(key, default):
+            raise ConfigError(f"the base {path} was trained with {key}={trained.get(key, default)!r}, the run has "
+                              f"{run.get(key, default)!r}: give --env-kwargs with {key} as the base's")
     record = {"path": str(path), "sha256": hashlib.sha256(path.read_bytes()).hexdigest(), "nets": len(base.nets),
               "how": c.base if c.base in ("fit", "shipped") else "checkpoint"}
     return base, record

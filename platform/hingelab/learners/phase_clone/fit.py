@@ -49,6 +49,15 @@ class PhaseDemos:
     def __len__(self) -> int:
         return len(self.actions)
 
+    def in_canonical_order(self) -> "PhaseDemos":
+        """The same steps sorted by their content (observation, memory, labels): a dataset lists its episodes by
+        file name, whose random part orders the episodes of one second at random, and the fit's batches are rows
+        by index, so without this the same demos read from two generations would fit different weights."""
+        keys = np.column_stack([self.observations, self.actions, self.phases, self.steps, self.next_phases])
+        order = np.lexsort(keys.T[::-1])
+        return PhaseDemos(*(getattr(self, f)[order] for f in
+                            ("observations", "actions", "phases", "steps", "next_phases")))
+
     @classmethod
     def concat(cls, parts: list["PhaseDemos"]) -> "PhaseDemos":
         """The steps of ``parts`` one after another."""
@@ -65,6 +74,7 @@ def fit_phase_clone(demos: PhaseDemos, hidden: tuple[int, ...], updates: int, ba
     observation standardization kept; ``hidden`` is then its own), else a new one standardized on the demos."""
     if len(demos) == 0:
         raise ConfigError("no demo steps to clone")
+    demos = demos.in_canonical_order()
     torch.manual_seed(seed)
     generator = torch.Generator().manual_seed(seed)
     if start is not None:
