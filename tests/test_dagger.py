@@ -121,6 +121,7 @@ def test_a_tiny_run_records_labelled_rounds_and_fits_on_from_the_last_nets(tiny_
     assert record["learner"] == "dagger" and record["dagger"]["round"] == 2
     assert record["dagger"]["labelled_steps"] == metrics["env_steps"].iloc[-1] and record["fit"]["updates"] == 30
     assert record["dagger"]["base"]["how"] == "fit" and "git_commit" in record
+    assert record["config"]["object"] == "family:picksets"  # evaluated on the 12 sets, one per episode
     assert (tiny_run / "best_model.zip").exists()
 
 

@@ -14,6 +14,11 @@ ROLLOUT_OBJECTS = ("all", "run")
 
 @dataclass(frozen=True)
 class DaggerConfig(PhaseCloneConfig):
+    # the held-out evaluation of each round on the sets the rounds roll out on (one of the 12 per episode), not on
+    # one sphere, where every clone here picks everything
+    object: str = option("family:picksets", "the object of the held-out evaluations (and of the rollouts with "
+                                            "--rollout-objects run): sphere, cube, cylinder, tetrahedron, mesh:PATH "
+                                            "or family:NAME[:SEED] (a new object each episode, --size its cap)")
     base: str = option("fit", "the clone to start from: fit (fitted first on the run's privileged prior by the phase "
                               "clone's recipe, the --net-arch and --clone-* flags), shipped "
                               "(assets/checkpoints/high_level.zip) or a phase-clone checkpoint (its prior should be "
