@@ -29,6 +29,8 @@ from hingelab.seeds import TRAINING_EVALUATION_SEED
 from hingelab.tasks import observation_dim
 from hingelab.training.high_level_demos import concat_demos, high_level_transitions, look_ahead
 from hingelab.training.prior import generate_prior, prior_parts
+from hingelab.training.run_folder import RunFolder
+from hingelab.training.torch_process import configure_torch
 
 PRIOR_DIR = "prior"
 EVAL_SEED = TRAINING_EVALUATION_SEED
@@ -118,6 +120,22 @@ class PriorData:
                      "seconds": round(time.perf_counter() - started, 2)}
 
 
+def open_prior_run(config, run_dir, learner: str, resume: bool, progress: bool, name: str | None):
+    """The opening of a run that learns from the privileged prior (the phase clone, DAgger): the run folder (new,
+    after ``check_pick_inputs``, or resumed), torch's threads, the prior's demos loaded and, in a new run,
+    recorded in ``config.json``. Returns (folder, prior); ``folder.config`` is the run's config."""
+    folder = RunFolder(Path(run_dir), config, resume=resume, name=name)
+    configure_torch(folder.config.torch_threads)
+    if not resume:
+        check_pick_inputs(folder.config)
+        folder.write_run_files({"learner": learner})
+    prior = PriorData(folder.config, folder.path, folder.name, progress)
+    prior.load()
+    if not resume:
+        folder.record_run_fact("prior", prior.info)
+    return folder, prior
+
+
 class PickEvaluation:
     """Held-out evaluations of a policy on the run's ToolPick task (or its flat version)."""
 
@@ -142,4 +160,5 @@ class PickEvaluation:
 
 
 __all__ = ["PRIOR_DIR", "EVAL_SEED", "summarize_pick", "prior_dataset_record", "check_pick_inputs", "PriorData",
+           "open_prior_run",
            "PickEvaluation"]

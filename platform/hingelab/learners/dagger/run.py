@@ -26,9 +26,8 @@ from hingelab.policies.phase_clone import PhaseClone
 from hingelab.provenance import code_version
 from hingelab.tasks import MAX_SPEED, Z_SCALE, observation_dim
 from hingelab.training.high_level_demos import high_level_transitions
-from hingelab.training.pick_run_parts import PickEvaluation, PriorData, check_pick_inputs
+from hingelab.training.pick_run_parts import PickEvaluation, open_prior_run
 from hingelab.training.run_folder import RunFolder
-from hingelab.training.torch_process import configure_torch
 
 LABEL = "train high (DAgger)"
 BASE_FILE, ROUNDS_DIR = "base.zip", "rounds"
@@ -44,17 +43,9 @@ def round_file(run_dir: Path, round_index: int) -> Path:
 def train_dagger(config: DaggerConfig, run_dir, resume: bool = False, progress: bool = True,
                  name: str | None = None) -> dict:
     """DAgger's rounds in a run folder (module doc); a summary dict."""
-    folder = RunFolder(Path(run_dir), config, resume=resume, name=name)
-    c = folder.config
-    configure_torch(c.torch_threads)
     started = time.perf_counter()
-    if not resume:
-        check_pick_inputs(c)
-        folder.write_run_files({"learner": "dagger"})
-    prior = PriorData(c, folder.path, folder.name, progress)
-    prior.load()
-    if not resume:
-        folder.record_run_fact("prior", prior.info)
+    folder, prior = open_prior_run(config, run_dir, "dagger", resume, progress, name)
+    c = folder.config
     demos = PhaseDemos.from_transitions(prior.demos, where=", ".join(prior.info["datasets"]))
     clone, base_record = _base(c, folder, demos, progress)
     if not resume:

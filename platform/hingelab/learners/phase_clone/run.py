@@ -14,7 +14,6 @@ same weights, as the fit depends only on the demos and the seed.
 from __future__ import annotations
 
 import time
-from pathlib import Path
 
 from hingelab.learners.phase_clone.config import PhaseCloneConfig
 from hingelab.learners.phase_clone.fit import PhaseDemos, fit_phase_clone_members
@@ -22,9 +21,7 @@ from hingelab.policies.high_level import training_context
 from hingelab.policies.phase_clone import PhaseClone
 from hingelab.provenance import code_version
 from hingelab.tasks import MAX_SPEED, Z_SCALE
-from hingelab.training.pick_run_parts import PickEvaluation, PriorData, check_pick_inputs
-from hingelab.training.run_folder import RunFolder
-from hingelab.training.torch_process import configure_torch
+from hingelab.training.pick_run_parts import PickEvaluation, open_prior_run
 
 LABEL = "train high (phase clone)"
 
@@ -32,17 +29,9 @@ LABEL = "train high (phase clone)"
 def train_phase_clone(config: PhaseCloneConfig, run_dir, resume: bool = False, progress: bool = True,
                       name: str | None = None) -> dict:
     """Fit (or fit again, on ``resume``) the phase clone of a run folder; a summary dict."""
-    folder = RunFolder(Path(run_dir), config, resume=resume, name=name)
-    c = folder.config
-    configure_torch(c.torch_threads)
     started = time.perf_counter()
-    if not resume:
-        check_pick_inputs(c)
-        folder.write_run_files({"learner": "phase-clone"})
-    prior = PriorData(c, folder.path, folder.name, progress)
-    prior.load()
-    if not resume:
-        folder.record_run_fact("prior", prior.info)
+    folder, prior = open_prior_run(config, run_dir, "phase-clone", resume, progress, name)
+    c = folder.config
     evaluation = PickEvaluation(c)
 
     demos = PhaseDemos.from_transitions(prior.demos, where=", ".join(prior.info["datasets"]))
