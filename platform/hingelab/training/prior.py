@@ -48,14 +48,20 @@ from hingelab.sim.objects import PICK_SETS  # noqa: F401  (the pick table's sets
 from hingelab.training.config_parts import PRIOR_OBJECTS, PRIOR_SOURCES
 
 
-def prior_parts(config) -> list[tuple[str, object, float, int]]:
-    """(sub-folder, object, size, episodes) of each dataset of the run's prior: one folder, ``""``, for
-    ``--prior-objects run``; one per pick-table set for ``all``, the episodes shared evenly."""
-    if config.prior_objects == "run":
-        return [("", config.object, config.size, config.prior_episodes)]
-    share, extra = divmod(config.prior_episodes, len(PICK_SETS))
+def pick_set_parts(episodes: int) -> list[tuple[str, str, float, int]]:
+    """(sub-folder, shape, size, episodes) for each of the pick table's 12 sets, ``episodes`` shared evenly (the
+    first sets get one more where it does not divide)."""
+    share, extra = divmod(episodes, len(PICK_SETS))
     return [(f"{shape}_{100 * size:g}cm", shape, size, share + (i < extra))
             for i, (shape, size) in enumerate(PICK_SETS)]
+
+
+def prior_parts(config) -> list[tuple[str, object, float, int]]:
+    """(sub-folder, object, size, episodes) of each dataset of the run's prior: one folder, ``""``, for
+    ``--prior-objects run``; one per pick-table set for ``all`` (``pick_set_parts``)."""
+    if config.prior_objects == "run":
+        return [("", config.object, config.size, config.prior_episodes)]
+    return pick_set_parts(config.prior_episodes)
 
 
 def generate_prior(root: Path, config, name: str, progress: bool = True) -> list[Path]:
@@ -102,4 +108,5 @@ def _generate(root: Path, config, seed: int, name: str, progress: bool) -> Path:
     return root
 
 
-__all__ = ["PICK_SETS", "PRIOR_OBJECTS", "PRIOR_SOURCES", "generate_prior", "prior_parts"]
+__all__ = ["PICK_SETS", "PRIOR_OBJECTS", "PRIOR_SOURCES", "generate_prior", "pick_set_parts",
+           "prior_parts"]

@@ -31,7 +31,7 @@ from hingelab.policies.phase_clone import PHASES, phase_index
 from hingelab.rollouts.high_level import DemonstratorLabels, FailureReasonWrapper, evaluate
 from hingelab.seeds import dagger_block
 from hingelab.sim.mesh_objects import object_label
-from hingelab.sim.objects import PICK_SETS
+from hingelab.training.prior import pick_set_parts
 
 
 class ShadowedClone:
@@ -83,10 +83,7 @@ def rollout_parts(config) -> list[tuple[str, str, float, int]]:
     sets with the episodes shared evenly."""
     if config.rollout_objects == "run":
         return [("", config.object, config.size, config.dagger_episodes)]
-    share, extra = divmod(config.dagger_episodes, len(PICK_SETS))
-    parts = [(f"{shape}_{100 * size:g}cm", shape, size, share + (i < extra))
-             for i, (shape, size) in enumerate(PICK_SETS)]
-    return [p for p in parts if p[3] > 0]
+    return [part for part in pick_set_parts(config.dagger_episodes) if part[3] > 0]
 
 
 def generate_round(root: Path, config, clone, round_index: int, name: str, progress: bool = True) -> list[Path]:

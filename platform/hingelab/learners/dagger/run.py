@@ -89,20 +89,19 @@ def train_dagger(config: DaggerConfig, run_dir, resume: bool = False, progress: 
 
     final = PhaseClone.load(round_file(folder.path, c.dagger_rounds))
     final.save(folder.path / "model.zip")
-    best_row, best_round = None, 0
-    for row in folder.metrics.rows():
-        row = {k: float(v) for k, v in row.items() if v not in ("", None)}
-        if best_row is None or PickEvaluation.is_better(row, best_row):
-            best_row, best_round = row, int(row["round"])
+    rows = [{k: float(v) for k, v in row.items() if v not in ("", None)} for row in folder.metrics.rows()]
+    best_row = rows[0]
+    for row in rows[1:]:
+        if PickEvaluation.is_better(row, best_row):
+            best_row = row
+    best_round = int(best_row["round"])
     best = PhaseClone.load(round_file(folder.path, best_round) if best_round else base_record["path"])
     best.save(folder.path / "best_model.zip")
-    last = {k: float(v) for k, v in folder.metrics.rows()[-1].items() if v not in ("", None)}
     return {"run_dir": str(folder.path), "env_steps": env_steps, "rounds": c.dagger_rounds,
-            "wall_time_s": time.perf_counter() - started, "last_evaluation": last,
+            "wall_time_s": time.perf_counter() - started, "last_evaluation": rows[-1],
             "best": {k: best_row[k] for k in PickEvaluation.initial_best()} | {"env_steps": best_row["env_steps"],
                                                                               "round": best_round},
-            "prior": prior.info, "base": base_record, "eval_episodes": c.eval_episodes,
-            "first_evaluation": {k: float(v) for k, v in folder.metrics.rows()[0].items() if v not in ("", None)}}
+            "prior": prior.info, "base": base_record, "eval_episodes": c.eval_episodes, "first_evaluation": rows[0]}
 
 
 def _row(c, round_index: int, env_steps: int, round_steps: int, evaluated: dict) -> dict:
