@@ -20,6 +20,7 @@ WRITERS = {
     "datasets export minari": ["datasets", "export", "no_such_dataset", "--format", "minari", "--out", "OUT"],
     "eval low": ["eval", "low", "--episodes", "1", "--out", "OUT"],
     "eval high": ["eval", "high", "--baseline", "heuristic", "--episodes", "1", "--out", "OUT"],
+    "eval picks": ["eval", "picks", "--baseline", "scripted", "--episodes", "1", "--out", "OUT"],
     "eval perception": ["eval", "perception", "--episodes", "1", "--out", "OUT"],
     "trial": ["trial", "--trials", "1", "--out", "OUT"],
     "train low": ["train", "low", "--steps", "10", "--out", "OUT"],
@@ -128,6 +129,7 @@ def test_own_kinds_pass_the_check(tmp_path):
 
 def test_the_markers_are_the_writers_file_names():
     from hingelab.episodes.card import CARD_FILE
+    from hingelab.rollouts.pick_sets import PICKS_FILE
     from hingelab.sweeps.reproduce import STATE_FILE
     from hingelab.sweeps.runner import SWEEP_TOML
     from hingelab.training.run_folder import CONFIG_FILE, RUN_FILE
@@ -136,3 +138,4 @@ def test_the_markers_are_the_writers_file_names():
     assert out_dir.RUN.markers == (CONFIG_FILE, RUN_FILE)
     assert out_dir.SWEEP.markers == (SWEEP_TOML,)
     assert out_dir.REPRODUCTION.markers == (STATE_FILE,)
+    assert out_dir.PICKS.markers == (PICKS_FILE,)

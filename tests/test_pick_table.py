@@ -70,3 +70,40 @@ def test_a_folder_that_is_not_an_eval_high_one_is_refused(tmp_path, capsys):
         pick_table([tmp_path / "empty"])
     assert main(["report", "--picks", str(tmp_path / "empty"), "--out", str(tmp_path / "o"), "--allow-dirty"]) != 0
     assert "hingelab: error:" in capsys.readouterr().err
+
+
+def test_the_sign_test_is_exact_and_two_sided():
+    from hingelab.analysis.pick_table import sign_test_p
+
+    assert sign_test_p(19, 6) == pytest.approx(0.01463, abs=1e-5)  # 2 * P(X <= 6), X ~ Binomial(25, 1/2)
+    assert sign_test_p(6, 19) == sign_test_p(19, 6)
+    assert sign_test_p(3, 3) == 1.0 and sign_test_p(0, 0) == 1.0
+    assert sign_test_p(5, 0) == pytest.approx(2 / 32)
+
+
+def test_policies_on_the_same_episodes_pair(tmp_path):
+    from hingelab.analysis.pick_table import paired_table
+
+    def with_seeds(folder, firsts, seeds):
+        frame = pd.read_csv(folder / "episodes.csv")
+        frame["seed"], frame["first_attempt_success"] = seeds, firsts
+        frame.to_csv(folder / "episodes.csv", index=False)
+        return folder
+
+    ok, miss = (True, True, 1, ""), (False, False, 1, "slip")
+    a = with_seeds(eval_folder(tmp_path / "a", "runs/a/model.zip", "sphere", 0.02, [ok] * 4),
+                   [True, True, False, False], [10, 11, 12, 13])
+    # b ran episodes 11-14 of the same set: three shared; on 11 both picked, on 12 only b, on 13 neither
+    b = with_seeds(eval_folder(tmp_path / "b", "runs/b/model.zip", "sphere", 0.02, [miss] * 4),
+                   [True, True, False, True], [11, 12, 13, 14])
+    other_set = with_seeds(eval_folder(tmp_path / "c", "runs/b/model.zip", "cube", 0.02, [ok] * 2),
+                           [True, True], [10, 11])  # a never ran the cube: nothing to pair
+    paired = paired_table([a, b, other_set])
+    assert len(paired) == 1
+    row = paired.iloc[0]
+    assert row.policy_a.startswith("a/model.zip") and row.policy_b.startswith("b/model.zip")
+    assert (row.shared_episodes, row.both, row.a_only, row.b_only, row.neither) == (3, 1, 0, 1, 1)
+    assert row.sign_test_p == 1.0
+    assert main(["report", "--picks", str(a), str(b), "--out", str(tmp_path / "out"), "--allow-dirty"]) == 0
+    assert "## Paired" in (tmp_path / "out" / "picks.md").read_text()
+    assert len(pd.read_csv(tmp_path / "out" / "paired.csv")) == 1

@@ -7,7 +7,8 @@ The rule, the same for every command that writes:
   written. Writability is probed by creating and removing a hidden folder in the nearest existing parent.
 * A folder that exists and holds something (hidden entries such as the writer lock aside) must be the
   command's own kind of output (``OutKind``): a dataset (``dataset.json`` or ``episodes/``), a run
-  (``config.json`` or ``run.json``), a sweep (``sweep.toml``), a reproduction (``reproduce.json``), a report
+  (``config.json`` or ``run.json``), a sweep (``sweep.toml``), a reproduction (``reproduce.json``), a pick-table
+  evaluation (``picks.json``), a report
   (top-level files are tables, figures, text or recordings; sub-folders are other reports), a Minari datasets
   folder (folders only). Anything else, another kind's folder included, is one line naming what is there, and
   nothing is written. What a command then does with its own kind is its policy: a dataset, sweep or
@@ -72,10 +73,11 @@ DATASET = OutKind("dataset", ("dataset.json", "episodes"))
 RUN = OutKind("run", ("config.json", "run.json"))
 SWEEP = OutKind("sweep", ("sweep.toml",))
 REPRODUCTION = OutKind("reproduction", ("reproduce.json",))
+PICKS = OutKind("pick-table evaluation", ("picks.json",))
 REPORT = OutKind("report", report=True)
 MINARI_ROOT = OutKind("Minari datasets folder", folders_only=True)
 NEW = OutKind("export", new=True)
-MARKED = (DATASET, RUN, SWEEP, REPRODUCTION)
+MARKED = (DATASET, RUN, SWEEP, REPRODUCTION, PICKS)
 
 
 def _visible(folder: Path) -> list[Path]:

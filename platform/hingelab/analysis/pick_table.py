@@ -7,11 +7,17 @@ folder (a policy on one shape and size) with the first-attempt and overall succe
 Wilson 95% intervals, the mean attempts and the failure reasons; then, per policy and low level,
 a pooled row over its folders and the lowest set. Writes ``picks.md`` and ``picks.csv``;
 ``picks.md`` names the command and the code version.
+
+Where two or more policies ran the same episodes (the same object, size and episode seed: ``eval high`` at
+the same ``--seed``), the episodes pair: ``paired.csv`` and a section of ``picks.md`` count, for every two
+policies, the shared episodes each picked at the first attempt and the other did not, with the exact
+two-sided sign test on those (the episodes both or neither picked say nothing about which is better).
 """
 
 from __future__ import annotations
 
 import json
+import math
 from pathlib import Path
 
 import numpy as np
@@ -39,7 +45,7 @@ def pick_rates(episodes: pd.DataFrame) -> dict:
                 f"{prefix}ci_low": float(low[0]), f"{prefix}ci_high": float(high[0])}
     row["mean_attempts"] = float(episodes["attempts"].mean()) if n else float("nan")
     for reason in FAILURE_REASONS:
-        row[f"failures_{reason}"] = int((episodes["failure_reason"].fillna("") == reason).sum())
+        row[f"failures_{reason}"] = int((episodes["failure_reason"].astype(object).fillna("") == reason).sum())
     return row
 
 
@@ -105,8 +111,49 @@ def pick_table(folders) -> pd.DataFrame:
     return pd.concat([pd.DataFrame(rows), pd.DataFrame(pooled)], ignore_index=True)
 
 
+def sign_test_p(wins: int, losses: int) -> float:
+    """Exact two-sided sign test: the chance of a split at least this uneven among ``wins + losses`` fair coins."""
+    n, k = wins + losses, min(wins, losses)
+    if n == 0:
+        return 1.0
+    return min(1.0, 2 * sum(math.comb(n, i) for i in range(k + 1)) / 2 ** n)
+
+
+def paired_table(folders) -> pd.DataFrame:
+    """For every two policies (in the order their first folders came), their shared episodes (object, size and
+    episode seed) at the first attempt: both picked, only the first, only the second, neither, and the sign
+    test's p on the discordant ones. Empty when fewer than two policies share an episode."""
+    outcomes: dict[str, dict] = {}
+    for folder in folders:
+        config, frame = read_folder(folder)
+        label = " / ".join((policy_label(config), str(config.get("low_level", "?")), perception_label(config)))
+        if "seed" not in frame.columns:
+            continue
+        episodes = outcomes.setdefault(label, {})
+        for seed, success in zip(frame["seed"], frame["first_attempt_success"]):
+            episodes[(str(config["object"]), round(float(config["size"]), 6), int(seed))] = bool(success)
+    rows = []
+    labels = list(outcomes)
+    for i, a in enumerate(labels):
+        for b in labels[i + 1:]:
+            shared = outcomes[a].keys() & outcomes[b].keys()
+            if not shared:
+                continue
+            pairs = [(outcomes[a][k], outcomes[b][k]) for k in shared]
+            a_only = sum(x and not y for x, y in pairs)
+            b_only = sum(y and not x for x, y in pairs)
+            rows.append({"policy_a": a, "policy_b": b, "shared_episodes": len(pairs),
+                         "both": sum(x and y for x, y in pairs), "a_only": a_only, "b_only": b_only,
+                         "neither": sum(not x and not y for x, y in pairs),
+                         "sign_test_p": sign_test_p(a_only, b_only)})
+    return pd.DataFrame(rows, columns=["policy_a", "policy_b", "shared_episodes", "both", "a_only", "b_only",
+                                       "neither", "sign_test_p"])
+
+
 def write_picks(folders, out, command: str) -> pd.DataFrame:
+    folders = list(folders)
     table = pick_table(folders)
+    paired = paired_table(folders)
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
     table.to_csv(out / "picks.csv", index=False)
@@ -116,14 +163,24 @@ def write_picks(folders, out, command: str) -> pd.DataFrame:
     failures = table[["policy", "low_level", "perception", "object", "size_cm",
                       *[f"failures_{r}" for r in FAILURE_REASONS]]]
     version = code_version()
+    paired_text = ""
+    if len(paired):
+        paired.to_csv(out / "paired.csv", index=False)
+        paired_text = ("\n\n## Paired\n\nEvery two policies on the episodes they share (object, size, episode "
+                       "seed), at the first attempt: picked by both, by a only, by b only, by neither; the exact "
+                       "two-sided sign test on a only against b only.\n\n"
+                       + markdown_table(paired.round({"sign_test_p": 4})))
+    elif (out / "paired.csv").exists():
+        (out / "paired.csv").unlink()  # left by an earlier report of other folders
     (out / "picks.md").write_text(
         "# Pick table\n\nPer policy (and the low level under it, and where its tool clouds came from, with the tool "
         "position it observed where that was not the tracked one), shape and size: "
         "success at the first attempt and within the 200 steps (object within 1 cm of the target), Wilson 95% "
         "intervals; `all` pools the policy's sets.\n\n" + markdown_table(shown.round(3)) + "\n\n## Failure reasons\n\n"
-        + markdown_table(failures) + f"\n\nMade by: `{command}` (hingelab {version['hingelab_version']}, "
+        + markdown_table(failures) + paired_text + f"\n\nMade by: `{command}` (hingelab {version['hingelab_version']}, "
         f"commit {version['git_commit']}).\n")
     return table
 
 
-__all__ = ["FAILURE_REASONS", "pick_rates", "pick_table", "write_picks", "read_folder", "policy_label"]
+__all__ = ["FAILURE_REASONS", "paired_table", "pick_rates", "pick_table", "policy_label", "read_folder", "sign_test_p",
+           "write_picks"]

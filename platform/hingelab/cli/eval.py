@@ -12,6 +12,9 @@ scripted-perceived, scripted-feedback, random), on ToolPick-v0
 (``hingelab.rollouts.high_level``): success within 200 steps and at the first attempt,
 attempts and failure reasons per episode; a table with Wilson 95% intervals (table.csv, report.md).
 
+``picks``: a high-level checkpoint (or a baseline) on each of the pick table's sets, one ``eval high`` dataset per
+set and the pooled pick table (``hingelab.rollouts.pick_sets``).
+
 ``perception``: the depth camera's perception against the synthesized clouds on the same poses
 (``hingelab.cli.eval_perception``).
 """
@@ -26,7 +29,7 @@ from hingelab.cli import eval_perception
 from hingelab.cli.names import BASELINES, TOOL_POSITIONS
 from hingelab.cli.options import add_max_mesh_mb, add_object_noise, add_object_perception, add_ray_argument
 from hingelab.errors import ConfigError
-from hingelab.folder_lock import folder_lock
+from hingelab.folder_lock import command_line, folder_lock
 from hingelab.out_dir import DATASET, check_out
 from hingelab.seeds import seed_argument
 
@@ -115,7 +118,42 @@ def add_parser(subparsers) -> None:
                            "kept, the rest run with their own seeds; the other settings must be the same")
     add_ray_argument(high)
     high.set_defaults(func=run_high)
+    add_picks_parser(what)
     eval_perception.add_parser(what)
+
+
+def add_picks_parser(what) -> None:
+    picks = what.add_parser(
+        "picks", help="a high-level policy on each of the pick table's 12 sets, and the pooled table",
+        description="Run a high-level checkpoint (or a baseline) for N episodes on each set of the pick table (4 "
+                    "shapes x 1.5, 2 and 2.5 cm, or --sets), each an `eval high` dataset in OUT/SHAPE_NNmm with "
+                    "the same episode seeds as any other policy's at --seed, then pool them into OUT/picks.md and "
+                    "picks.csv (first attempt and within 200 steps, Wilson 95%% intervals, the lowest set). "
+                    "Tables of two policies on the same seed pair episode by episode: hingelab report --picks "
+                    "OUT_A/*mm OUT_B/*mm --out DIR counts the episodes one picked and the other missed.")
+    picks.add_argument("checkpoint", type=Path, nargs="?", default=None,
+                       help="a high-level checkpoint (as for eval high; default: the shipped one)")
+    picks.add_argument("--out", type=Path, required=True,
+                       help="folder to write: one dataset per set and the pooled table (must be new or empty, or "
+                            "an evaluation of the same settings with --resume)")
+    picks.add_argument("--episodes", type=int, default=50, help="evaluation episodes per set (default 50)")
+    picks.add_argument("--seed", type=seed_argument, default=0, help="seed of the episodes (default 0)")
+    picks.add_argument("--sets", nargs="+", default=None, metavar="SHAPE:SIZE",
+                       help="the sets, e.g. sphere:0.025 cube:0.015 (size in m; default: the pick table's 12)")
+    picks.add_argument("--baseline", default=None, metavar="{" + ",".join(BASELINES["high"]) + "}",
+                       help="evaluate a baseline instead of a checkpoint (as for eval high)")
+    picks.add_argument("--low-level", default=None,
+                       help="the frozen low level (as for eval high; default: the one the checkpoint learned over)")
+    picks.add_argument("--tool-position", choices=TOOL_POSITIONS, default=None,
+                       help="the tool position the policy observes (as for eval high; default: what the checkpoint "
+                            "was trained on)")
+    picks.add_argument("--jobs", type=int, default=1,
+                       help="sets evaluated at once, each in its own process with one torch thread (default 1)")
+    picks.add_argument("--no-progress", action="store_true", help="no progress bar")
+    picks.add_argument("--resume", action="store_true",
+                       help="continue a stopped evaluation in --out: finished sets are kept, a cut-off set goes on "
+                            "from its last whole episode; the settings must be the same")
+    picks.set_defaults(func=run_picks)
 
 
 def check_baseline(name: str | None, level: str) -> None:
@@ -154,4 +192,25 @@ def run_high(args: argparse.Namespace) -> int:
                                tool_position=args.tool_position, progress=not args.no_progress, command=args.argv)
     print(result.table.to_string(index=False, float_format=lambda v: f"{v:.3f}"))
     print(result.summary)
+    return 0
+
+
+def run_picks(args: argparse.Namespace) -> int:
+    from hingelab.out_dir import PICKS
+    from hingelab.rollouts.pick_sets import evaluate_pick_sets  # on run: the parser stays light (hingelab.cli)
+
+    check_out(args.out, PICKS)
+    check_baseline(args.baseline, "high")
+    settings = {"baseline": args.baseline, "low_level": args.low_level, "tool_position": args.tool_position}
+    command = command_line(args.argv)
+    with folder_lock(args.out, args.argv):
+        table = evaluate_pick_sets(args.checkpoint, out=args.out, sets=args.sets, episodes=args.episodes,
+                                   seed=args.seed, jobs=args.jobs, resume=args.resume, progress=not args.no_progress,
+                                   command=args.argv, report_command=command, **settings)
+    pooled = table[table["object"] == "all"].iloc[0]
+    print(f"{pooled['policy']} over {len(table) - 1} sets, {int(pooled['episodes'])} episodes: first attempt "
+          f"{int(pooled['first_attempt_successes'])}/{int(pooled['episodes'])} = "
+          f"{pooled['first_attempt_success_rate']:.3f} [{pooled['first_attempt_ci_low']:.3f}, "
+          f"{pooled['first_attempt_ci_high']:.3f}], lowest set {pooled['lowest_set_first_attempt_success_rate']:.2f}; "
+          f"within 200 steps {int(pooled['successes'])}. Tables: {args.out}/picks.md, picks.csv.")
     return 0
