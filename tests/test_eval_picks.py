@@ -75,8 +75,20 @@ def test_sets_run_in_worker_processes_as_in_one(tmp_path):
     pd.testing.assert_frame_equal(frames["1"][columns], frames["2"][columns])
 
 
+def test_families_are_sets_with_a_size_cap(tmp_path):
+    assert parse_sets(["family:prism3:0.03", "family:torus:7:0.02"]) == (("family:prism3", 0.03),
+                                                                          ("family:torus:7", 0.02))
+    assert set_folder(tmp_path, "family:torus:7", 0.02) == tmp_path / "family_torus_7_20mm"
+    out = tmp_path / "families"
+    assert main(["eval", "picks", "--baseline", "scripted", "--sets", "family:prism3:0.03", "--episodes", "1",
+                 "--seed", "7", "--no-progress", "--out", str(out)]) == 0
+    row = pd.read_csv(out / "picks.csv").iloc[0]
+    assert row.object == "family:prism3" and row.episodes == 1
+
+
 @pytest.mark.parametrize("sets, message", [(["ball:0.02"], "give SHAPE:SIZE"), (["sphere:2"], "give SHAPE:SIZE"),
                                            (["sphere"], "give SHAPE:SIZE"),
+                                           (["family:nope:0.03"], "nope"), (["family:prism3:0.5"], "out of range"),
                                            (["cube:0.02", "cube:0.02"], "names a set twice")])
 def test_bad_sets_are_one_line(sets, message):
     with pytest.raises(ConfigError, match=message):

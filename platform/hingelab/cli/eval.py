@@ -138,8 +138,9 @@ def add_picks_parser(what) -> None:
                             "an evaluation of the same settings with --resume)")
     picks.add_argument("--episodes", type=int, default=50, help="evaluation episodes per set (default 50)")
     picks.add_argument("--seed", type=seed_argument, default=0, help="seed of the episodes (default 0)")
-    picks.add_argument("--sets", nargs="+", default=None, metavar="SHAPE:SIZE",
-                       help="the sets, e.g. sphere:0.025 cube:0.015 (size in m; default: the pick table's 12)")
+    picks.add_argument("--sets", nargs="+", default=None, metavar="OBJECT:SIZE",
+                       help="the sets, e.g. sphere:0.025 cube:0.015 (size in m), or object families with their size "
+                            "cap, e.g. family:prism3:0.03 family:torus:0.03 (default: the pick table's 12)")
     picks.add_argument("--baseline", default=None, metavar="{" + ",".join(BASELINES["high"]) + "}",
                        help="evaluate a baseline instead of a checkpoint (as for eval high)")
     picks.add_argument("--low-level", default=None,

@@ -1,6 +1,7 @@
 """The pick table in one command (``hingelab eval picks``): one policy on each of the pick table's sets.
 
-Each set (a shape and a size of ``hingelab.sim.objects.PICK_SETS``, or the ``--sets`` given) is an ordinary
+Each set (a shape and a size of ``hingelab.sim.objects.PICK_SETS``, or the ``--sets`` given: shapes and sizes, or
+object families with their size caps) is an ordinary
 ``eval high`` dataset in ``OUT/SHAPE_NNmm`` with the same episode seeds as any other policy's evaluation at
 that seed, so two policies' tables pair episode by episode (``hingelab report --picks A B`` counts the
 episodes one picked and the other missed). ``OUT/picks.json`` records what is evaluated (the policy, seed,
@@ -23,29 +24,36 @@ PICKS_FILE = "picks.json"
 
 
 def parse_sets(texts) -> tuple[tuple[str, float], ...]:
-    """``SHAPE:SIZE_M`` texts (``sphere:0.025``) as (shape, size) pairs; None or empty: the pick table's 12 sets."""
+    """``OBJECT:SIZE_M`` texts as (object, size) pairs: a shape (``sphere:0.025``, size in metres) or a family
+    (``family:prism3:0.03`` or ``family:prism3:7:0.03``, the size its cap); None or empty: the pick table's 12
+    sets."""
+    from hingelab.sim.object_families import ObjectFamily, is_family
     from hingelab.sim.objects import PICK_SETS, SHAPES
 
     if not texts:
         return tuple(PICK_SETS)
     sets = []
     for text in texts:
-        shape, _, size = str(text).partition(":")
+        name, _, size = str(text).rpartition(":")
         try:
             value = float(size)
         except ValueError:
             value = float("nan")
-        if shape not in SHAPES or not 0.005 <= value <= 0.05:
+        if is_family(name):
+            ObjectFamily.parse(name, value)  # a one-line error naming the families or the size range
+        elif name not in SHAPES or not 0.005 <= value <= 0.05:
             raise ConfigError(f"--sets {text}: give SHAPE:SIZE with SHAPE one of {', '.join(SHAPES)} and SIZE in "
-                              "metres, 0.005 to 0.05 (e.g. sphere:0.025)")
-        sets.append((shape, value))
+                              "metres, 0.005 to 0.05 (e.g. sphere:0.025), or family:NAME[:SEED]:SIZE_CAP "
+                              "(e.g. family:prism3:0.03)")
+        sets.append((name, value))
     if len(set(sets)) != len(sets):
         raise ConfigError(f"--sets names a set twice: {' '.join(map(str, texts))}")
     return tuple(sets)
 
 
 def set_folder(out: Path, shape: str, size: float) -> Path:
-    return Path(out) / f"{shape}_{round(size * 1000)}mm"
+    """``OUT/sphere_25mm``, ``OUT/family_prism3_30mm``."""
+    return Path(out) / f"{shape.replace(':', '_')}_{round(size * 1000)}mm"
 
 
 def _finished(folder: Path) -> bool:
