@@ -65,5 +65,8 @@ def test_a_tiny_run_trains_the_recorded_weights(name, tmp_path, capsys):
         np.savez_compressed(golden, **weights)
     with np.load(golden, allow_pickle=False) as expected:
         assert sorted(expected.files) == sorted(weights), f"{name}: the policy's parameters are others"
+        # within 1e-4: a CPU of another instruction set rounds the sim's and the nets' arithmetic otherwise, and the
+        # last bits of the demos grow to 3e-5 in the phase clone's 40 updates (two machines); a change of what a
+        # seed trains moves weights by 1e-2 and more
         for key in expected.files:
-            np.testing.assert_allclose(weights[key], expected[key], rtol=1e-5, atol=1e-6, err_msg=f"{name}: {key}")
+            np.testing.assert_allclose(weights[key], expected[key], rtol=1e-4, atol=1e-4, err_msg=f"{name}: {key}")
