@@ -4,6 +4,8 @@ calibration error) or anchored (the nominal in-hand position plus the tracked ch
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import gymnasium as gym
 import numpy as np
 import pytest
@@ -13,6 +15,8 @@ from hingelab.cli.main import main
 from hingelab.episodes import EpisodeFile
 from hingelab.episodes.dataset import Dataset
 from hingelab.errors import ConfigError
+
+REPO = Path(__file__).resolve().parents[1]
 
 
 def _episode(tool_position: str, steps: int = 12) -> tuple[np.ndarray, np.ndarray]:
@@ -162,3 +166,11 @@ def test_diagnose_tool_position_runs_the_three_arms_on_the_same_seeds(tmp_path, 
     errors = {arm: max(e for a, e in drawn if a == arm) for arm in D.ARMS}
     assert errors[D.NO_ERROR] == 0.0 and errors[D.OBSERVED] > 1e-3 and errors[D.ANCHORED] > 1e-3
     assert (out / "tool_position.md").read_text().count("| ") >= 3
+
+
+def test_a_policy_trained_on_another_tool_position_is_named_with_its_form(tmp_path, capsys):
+    relative = REPO / "analysis/high-level/dagger-runs/dagger_relative_fit_s0/model.zip"  # trained on "relative"
+    assert main(["diagnose", "tool-position", str(relative), "--episodes", "1", "--out", str(tmp_path / "tp"),
+                 "--allow-dirty", "--no-progress"]) == 1
+    err = capsys.readouterr().err
+    assert "was trained on the relative tool position" in err and str(relative) in err

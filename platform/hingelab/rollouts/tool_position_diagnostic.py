@@ -57,9 +57,10 @@ def diagnose(checkpoint=None, object: str = "tetrahedron", size: float = 0.015, 
         raise ConfigError(f"give --episodes >= 1, not {episodes}")
     model = load_policy(checkpoint or SHIPPED_HIGH_LEVEL, level="high")
     provenance = getattr(model, "hingelab_provenance", None) or {}
-    if trained_tool_position(model) != "observed":
-        raise ConfigError(f"{checkpoint} was trained on the anchored tool position; this check compares arms of a "
-                          "policy trained on the observed one")
+    trained = trained_tool_position(model)
+    if trained != "observed":
+        raise ConfigError(f"{checkpoint or SHIPPED_HIGH_LEVEL} was trained on the {trained} tool position; this check "
+                          "compares arms of a policy trained on the observed one: give such a checkpoint")
     low_level = provenance.get("low_level", "policy")
     seeds = [eval_high_seed(seed, i) for i in range(episodes)]
     rows = []
