@@ -82,14 +82,25 @@ def perception_label(config: dict) -> str:
     return label if position == "observed" else f"{label}, {position} tool position"
 
 
-def pick_table(folders) -> pd.DataFrame:
-    """One row per folder, then per (policy, low level, perception) a pooled row (``object`` = "all")."""
-    rows, frames = [], []
+def _read_all(folders) -> list[tuple[dict, pd.DataFrame, object]]:
+    """(config, episodes, the card's seed) of each folder, read once for both tables."""
+    read = []
     for folder in folders:
         config, frame = read_folder(folder)
+        read.append((config, frame, json.loads((Path(folder) / "dataset.json").read_text()).get("seed")))
+    return read
+
+
+def pick_table(folders) -> pd.DataFrame:
+    """One row per folder, then per (policy, low level, perception) a pooled row (``object`` = "all")."""
+    return _pick_table(_read_all(folders))
+
+
+def _pick_table(read) -> pd.DataFrame:
+    rows, frames = [], []
+    for config, frame, seed in read:
         key = {"policy": policy_label(config), "low_level": str(config.get("low_level", "?")),
                "perception": perception_label(config)}
-        seed = json.loads((Path(folder) / "dataset.json").read_text()).get("seed")
         rows.append({**key, "object": str(config["object"]), "size_cm": round(100 * float(config["size"]), 3),
                      "episodes": len(frame), "seed": seed, **pick_rates(frame)})
         frames.append(frame.assign(**key, _set_rate=rows[-1]["success_rate"],
@@ -123,9 +134,12 @@ def paired_table(folders) -> pd.DataFrame:
     """For every two policies (in the order their first folders came), their shared episodes (object, size and
     episode seed) at the first attempt: both picked, only the first, only the second, neither, and the sign
     test's p on the discordant ones. Empty when fewer than two policies share an episode."""
+    return _paired_table(_read_all(folders))
+
+
+def _paired_table(read) -> pd.DataFrame:
     outcomes: dict[str, dict] = {}
-    for folder in folders:
-        config, frame = read_folder(folder)
+    for config, frame, _ in read:
         label = " / ".join((policy_label(config), str(config.get("low_level", "?")), perception_label(config)))
         if "seed" not in frame.columns:
             continue
@@ -151,9 +165,8 @@ def paired_table(folders) -> pd.DataFrame:
 
 
 def write_picks(folders, out, command: str) -> pd.DataFrame:
-    folders = list(folders)
-    table = pick_table(folders)
-    paired = paired_table(folders)
+    read = _read_all(folders)
+    table, paired = _pick_table(read), _paired_table(read)
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
     table.to_csv(out / "picks.csv", index=False)

@@ -19,6 +19,7 @@ import os
 from pathlib import Path
 
 from hingelab.errors import ConfigError
+from hingelab.provenance import differing_settings
 
 PICKS_FILE = "picks.json"
 
@@ -84,8 +85,8 @@ def _record(out: Path, settings: dict, resume: bool) -> None:
         if not resume:
             raise ConfigError(f"{out} already holds a pick-table evaluation ({path}); add --resume to continue it "
                               "or give a new --out")
-        if recorded != settings:
-            changed = sorted(k for k in set(recorded) | set(settings) if recorded.get(k) != settings.get(k))
+        changed = differing_settings(recorded, settings)
+        if changed:
             raise ConfigError(f"--resume {out}: its evaluation was made with other settings ({', '.join(changed)} "
                               f"differ, see {path}); give the same ones or a new --out")
         return
