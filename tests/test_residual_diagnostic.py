@@ -85,8 +85,12 @@ def test_a_policy_that_is_not_a_residual_is_refused(tmp_path, capsys):
     assert "is not a residual policy" in capsys.readouterr().err
 
 
-def test_bias_tolerance_offsets_one_dimension_both_ways_and_reads_the_tolerated_level(tmp_path, capsys):
+def test_bias_tolerance_offsets_one_dimension_both_ways_and_reads_the_tolerated_level(tmp_path, capsys, monkeypatch):
     from hingelab.rollouts import bias_tolerance as bt
+
+    made = []  # the env observes as the shipped policy was trained: the extent and the relative tool pose
+    make = bt.gym.make
+    monkeypatch.setattr(bt.gym, "make", lambda *a, **kw: made.append(kw) or make(*a, **kw))
 
     rows = [{"dimension": "none", "offset": 0.0, "episodes": 10, "successes": 9, "tool_drops": 0}]
     for offset, picks in ((-0.05, 3), (-0.01, 9), (0.01, 8), (0.05, 9)):
@@ -99,3 +103,4 @@ def test_bias_tolerance_offsets_one_dimension_both_ways_and_reads_the_tolerated_
     assert measured["offset"].tolist() == [0.0, -0.05, 0.05] and (measured["episodes"] == 1).all()
     assert "| velocity_z |" in (out / "bias_tolerance.md").read_text()
     assert "velocity_z: tolerates an offset of" in capsys.readouterr().out
+    assert made and made[0]["observe_extent"] is True and made[0]["tool_position"] == "relative"

@@ -156,8 +156,8 @@ def test_diagnose_tool_position_runs_the_three_arms_on_the_same_seeds(tmp_path, 
         return env
     monkeypatch.setattr(D, "_env", watched)
     out = tmp_path / "tp"
-    assert main(["diagnose", "tool-position", "--object", "sphere", "--size", "0.02", "--episodes", "2",
-                 "--out", str(out), "--allow-dirty", "--no-progress"]) == 0
+    assert main(["diagnose", "tool-position", str(REPO / D.OBSERVED_CLONE), "--object", "sphere", "--size", "0.02",
+                 "--episodes", "2", "--out", str(out), "--allow-dirty", "--no-progress"]) == 0
     assert "wrote" in capsys.readouterr().out
     import pandas as pd
     episodes = pd.read_csv(out / "episodes.csv")
@@ -174,3 +174,14 @@ def test_a_policy_trained_on_another_tool_position_is_named_with_its_form(tmp_pa
                  "--allow-dirty", "--no-progress"]) == 1
     err = capsys.readouterr().err
     assert "was trained on the relative tool position" in err and str(relative) in err
+
+
+def test_the_observation_form_is_read_from_the_checkpoint():
+    from hingelab.policies.high_level import SHIPPED_HIGH_LEVEL, observation_form
+    from hingelab.policies.loading import load_policy
+    from hingelab.rollouts.tool_position_diagnostic import OBSERVED_CLONE
+
+    assert observation_form(load_policy(SHIPPED_HIGH_LEVEL, level="high")) == {"observe_extent": True,
+                                                                                "tool_position": "relative"}
+    assert observation_form(load_policy(REPO / OBSERVED_CLONE, level="high")) == {"observe_extent": True,
+                                                                                   "tool_position": "observed"}

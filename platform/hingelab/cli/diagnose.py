@@ -145,14 +145,16 @@ def add_parser(subparsers) -> None:
     fitted.set_defaults(func=run_object_noise_fit)
     tool = what.add_parser(
         "tool-position", help="whether the tool clouds' calibration error costs a policy its picks",
-        description="One policy (default the shipped high level) on the same reset seeds three times: the paper's "
-                    "synthesized clouds with their per-episode pose error (up to 2 cm and 30 degrees, a calibration "
-                    "error), the same clouds without that error, and the paper's clouds with ToolPick-v0's anchored "
-                    "tool position (the nominal in-hand position plus the tracked change). First-attempt picks per "
-                    "arm and paired against the first: what the error costs and what anchoring wins back. Writes "
-                    "tool_position.md, summary.csv and episodes.csv into --out.")
-    tool.add_argument("checkpoint", type=Path, nargs="?", default=None,
-                      help="a high-level checkpoint trained on the observed tool position (default: the shipped one)")
+        description="One policy trained on the observed tool position on the same reset seeds three times: the "
+                    "paper's synthesized clouds with their per-episode pose error (up to 2 cm and 30 degrees, a "
+                    "calibration error), the same clouds without that error, and the paper's clouds with ToolPick-v0's "
+                    "anchored tool position (the nominal in-hand position plus the tracked change). First-attempt "
+                    "picks per arm and paired against the first: what the error costs and what anchoring wins back. "
+                    "Writes tool_position.md, summary.csv and episodes.csv into --out.")
+    tool.add_argument("checkpoint", type=Path,
+                      help="a high-level checkpoint trained on the observed tool position, e.g. "
+                           "analysis/high-level/previous-shipped/high_level_cbc73bd.zip (the shipped one until "
+                           "2026-12-07; the shipped one now observes the relative pose)")
     tool.add_argument("--object", default="tetrahedron", help="object shape (default tetrahedron)")
     tool.add_argument("--size", type=finite_float, default=0.015, help="object width in m (default 0.015)")
     tool.add_argument("--episodes", type=int, default=25, help="episodes per arm (default 25)")
@@ -214,9 +216,9 @@ def run_tool_position(args: argparse.Namespace) -> int:
     require_clean_for(args.out, args.allow_dirty, "hingelab diagnose tool-position")
     rows = D.diagnose(args.checkpoint, args.object, args.size, args.episodes, args.seed, progress=not args.no_progress)
     summary = D.summarize(rows)
-    options = ([str(args.checkpoint)] if args.checkpoint else []) + [
+    options = [str(args.checkpoint)] + [
         "--object", args.object, "--size", f"{args.size:g}", "--episodes", str(args.episodes), "--seed", str(args.seed)]
-    policy = f"`{args.checkpoint}`" if args.checkpoint else "The shipped high level (assets/checkpoints/high_level.zip)"
+    policy = f"`{args.checkpoint}`"
     path = D.write_report(rows, summary, args.out, _command(args, "tool-position", options), policy, args.object,
                           args.size)
     for s in summary:

@@ -94,6 +94,11 @@ def trained_tool_position(model) -> str:
     return str(kwargs.get("tool_position", "observed"))
 
 
+def observation_form(model) -> dict:
+    """ToolPick-v0's arguments that make its observation the one the checkpoint was trained on."""
+    return {"observe_extent": observes_extent(model), "tool_position": trained_tool_position(model)}
+
+
 def load_high_level_checkpoint(path, low_level: str | None = None):
     """A SAC zip trained on ToolPick-v0 (14-D observation, 17-D with ``observe_extent``; 5-D action), or a
     phase clone (``phase_clone.PhaseClone``, a policy with memory: drive it with ``state``, as
@@ -154,4 +159,5 @@ register_policy_format("residual-sac training checkpoint", is_residual_training_
 register_policy_format("stable-baselines3 SAC zip", is_sac_zip, _load_sac_zip)
 
 __all__ = ["load_high_level_checkpoint", "resolve_checkpoint", "training_context", "check_context",
-           "low_level_sha256", "observes_extent", "ACTION_SHAPE", "SHIPPED_HIGH_LEVEL"]
+           "low_level_sha256", "observes_extent", "trained_tool_position", "observation_form", "ACTION_SHAPE",
+           "SHIPPED_HIGH_LEVEL"]

@@ -21,7 +21,7 @@ from tqdm import tqdm
 
 from hingelab.envs import TOOL_PICK_ID
 from hingelab.errors import ConfigError
-from hingelab.policies.high_level import SHIPPED_HIGH_LEVEL, observes_extent
+from hingelab.policies.high_level import SHIPPED_HIGH_LEVEL, observation_form
 from hingelab.policies.loading import load_policy
 from hingelab.policies.policy import ModelPolicy
 from hingelab.rollouts.high_level import FailureReasonWrapper
@@ -60,7 +60,7 @@ def measure(checkpoint=None, episodes: int = 30, levels=DEFAULT_LEVELS, dimensio
     low_level = (getattr(model, "hingelab_provenance", None) or {}).get("low_level", "policy")
     seeds = [eval_high_seed(seed, i) for i in range(episodes)]
     env = FailureReasonWrapper(gym.make(TOOL_PICK_ID, object=object, size=size, low_level=low_level,
-                                        max_episode_steps=200, observe_extent=observes_extent(model)))
+                                        max_episode_steps=200, **observation_form(model)))
     rows = []
     try:
         bar = tqdm(total=(1 + 2 * len(dimensions) * len(levels)) * episodes, desc="diagnose bias", unit="episode",

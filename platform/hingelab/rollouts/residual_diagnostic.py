@@ -29,7 +29,7 @@ from tqdm import tqdm
 from hingelab.envs import TOOL_PICK_ID
 from hingelab.envs.rewards import HighLevelRewardConfig
 from hingelab.errors import ConfigError
-from hingelab.policies.high_level import observes_extent
+from hingelab.policies.high_level import observation_form
 from hingelab.policies.loading import load_policy
 from hingelab.policies.policy import ModelPolicy
 from hingelab.policies.residual import ResidualPolicy
@@ -94,7 +94,7 @@ def diagnose(checkpoint, object: str, size: float, episodes: int = 30, seed: int
     reward = HighLevelRewardConfig(mode=config.get("reward_mode", "absorbing"), gamma=gamma)
     env = FailureReasonWrapper(gym.make(TOOL_PICK_ID, object=object, size=size,
                                         low_level=recorded.get("low_level", "policy"), max_episode_steps=200,
-                                        observe_extent=observes_extent(model), reward=asdict(reward)))
+                                        **observation_form(model), reward=asdict(reward)))
     rows = []
     try:
         for label, arm in arms(model).items():

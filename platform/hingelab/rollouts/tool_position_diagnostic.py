@@ -28,7 +28,7 @@ from tqdm import tqdm
 
 from hingelab.envs import TOOL_PICK_ID
 from hingelab.errors import ConfigError
-from hingelab.policies.high_level import SHIPPED_HIGH_LEVEL, observes_extent, trained_tool_position
+from hingelab.policies.high_level import observes_extent, trained_tool_position
 from hingelab.policies.loading import load_policy
 from hingelab.policies.policy import ModelPolicy
 from hingelab.rollouts.high_level import FailureReasonWrapper
@@ -37,6 +37,9 @@ from hingelab.seeds import eval_high_seed
 
 OBSERVED, NO_ERROR, ANCHORED = "observed", "no calibration error", "anchored"
 ARMS = (OBSERVED, NO_ERROR, ANCHORED)
+# The shipped high level until 2026-12-07 (a phase clone on the observed tool position), kept for this check: the
+# shipped one now observes the relative tool pose, which has no calibration error to measure.
+OBSERVED_CLONE = "analysis/high-level/previous-shipped/high_level_cbc73bd.zip"
 
 
 def _env(model, low_level: str, object: str, size: float, arm: str):
@@ -49,18 +52,18 @@ def _env(model, low_level: str, object: str, size: float, arm: str):
     return env
 
 
-def diagnose(checkpoint=None, object: str = "tetrahedron", size: float = 0.015, episodes: int = 25, seed: int = 1350,
+def diagnose(checkpoint, object: str = "tetrahedron", size: float = 0.015, episodes: int = 25, seed: int = 1350,
              progress: bool = True) -> list[dict]:
     """One row per arm and episode: the reset seed, success at the first attempt and within the episode, the failure
     reason."""
     if episodes < 1:
         raise ConfigError(f"give --episodes >= 1, not {episodes}")
-    model = load_policy(checkpoint or SHIPPED_HIGH_LEVEL, level="high")
+    model = load_policy(checkpoint, level="high")
     provenance = getattr(model, "hingelab_provenance", None) or {}
     trained = trained_tool_position(model)
     if trained != "observed":
-        raise ConfigError(f"{checkpoint or SHIPPED_HIGH_LEVEL} was trained on the {trained} tool position; this check "
-                          "compares arms of a policy trained on the observed one: give such a checkpoint")
+        raise ConfigError(f"{checkpoint} was trained on the {trained} tool position; this check compares arms of a "
+                          f"policy trained on the observed one: give such a checkpoint, e.g. {OBSERVED_CLONE}")
     low_level = provenance.get("low_level", "policy")
     seeds = [eval_high_seed(seed, i) for i in range(episodes)]
     rows = []

@@ -112,12 +112,11 @@ class ResidualSACConfig(PickTask, PickReward, PriorDemos, SACTrainConfig):
         if floor and (len(floor) != 5 or not all(0 < f <= b for f, b in zip(floor, bound))):
             raise ConfigError(f"--exploration-floor takes 5 positive stds, each at most --exploration-bound's "
                               f"({list(bound)}), not {list(self.exploration_floor)}")
-        if self.base != "fit" and "observe_extent" not in self.env_kwargs:  # observe as the base was trained to
+        if self.base != "fit":  # observe as the base was trained to, where --env-kwargs does not say
             from hingelab.policies.high_level import SHIPPED_HIGH_LEVEL  # torch: when a config is checked
 
-            extent = base_observes_extent(SHIPPED_HIGH_LEVEL if self.base == "shipped" else Path(self.base))
-            if extent is not None:
-                object.__setattr__(self, "env_kwargs", {**self.env_kwargs, "observe_extent": extent})
+            form = base_observation_form(SHIPPED_HIGH_LEVEL if self.base == "shipped" else Path(self.base))
+            object.__setattr__(self, "env_kwargs", {**form, **self.env_kwargs})
         if self.base == "fit" and not self.prior:
             raise ConfigError("--base fit clones the run's privileged prior: drop --no-prior, or give --base shipped "
                               "or a phase-clone checkpoint")
@@ -154,13 +153,13 @@ def _checked_scale(scale):
     return check_scale(scale)
 
 
-def base_observes_extent(path: Path) -> bool | None:
-    """Whether the phase clone at ``path`` was trained observing the object's extent (None: not readable here;
-    the run then says what is wrong with it)."""
-    from hingelab.policies.high_level import observes_extent  # torch: when a config is checked
+def base_observation_form(path: Path) -> dict:
+    """ToolPick-v0's observation arguments (``observe_extent``, ``tool_position``) the phase clone at ``path`` was
+    trained with ({}: not readable here; the run then says what is wrong with it)."""
+    from hingelab.policies.high_level import observation_form  # torch: when a config is checked
     from hingelab.policies.phase_clone import PhaseClone
 
     try:
-        return observes_extent(PhaseClone.load(path))
+        return observation_form(PhaseClone.load(path))
     except ConfigError:
-        return None
+        return {}

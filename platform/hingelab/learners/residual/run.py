@@ -32,7 +32,7 @@ from hingelab.learners.residual.networks import ResidualSACPolicy, actor_state_f
 from hingelab.learners.residual.vec_env import ResidualVecEnv
 from hingelab.learners.sac.high_level import PickRun
 from hingelab.learners.sac.run import PROVENANCE_ATTRIBUTE, sac_arguments
-from hingelab.policies.high_level import SHIPPED_HIGH_LEVEL, check_context, training_context
+from hingelab.policies.high_level import SHIPPED_HIGH_LEVEL, check_context, trained_tool_position, training_context
 from hingelab.policies.phase_clone import PhaseClone
 from hingelab.policies.residual import ResidualPolicy, load_base
 from hingelab.tasks import MAX_SPEED, Z_SCALE, observation_dim
@@ -90,6 +90,11 @@ class ResidualRun(PickRun):
             raise ConfigError(f"the base {self.base_path} takes {base.observation_dim}-D observations, the run's "
                               f"ToolPick-v0 gives {expected}-D ones: set observe_extent in --env-kwargs as the base "
                               "was trained")
+        trained, here = trained_tool_position(base), str(c.env_kwargs.get("tool_position", "observed"))
+        if trained != here:
+            raise ConfigError(f"the base {self.base_path} was trained on the {trained} tool position, the run's "
+                              f"ToolPick-v0 gives the {here} one: drop tool_position from --env-kwargs (the run "
+                              "observes as its base) or give a base trained on it")
         check_context(base, self.base_path, c.low_level)
         self.policy = ResidualPolicy(base, None, c.residual_scale, base_bytes=base_bytes)
         self.demos = residual_transitions(self.prior.demos, self.policy) if c.uses_demos else None
