@@ -26,15 +26,15 @@ from hingelab.tasks import HIGH_LEVEL_ACTION_NAMES
 def add_parser(subparsers) -> None:
     p = subparsers.add_parser("diagnose",
                               help="diagnostics of the high level's learning problem (reward, noise, residual, bias, "
-                                   "object-estimate, grasp, tool-position)",
+                                   "object-estimate, grasp, families, tool-position)",
                               description="Diagnostics that can fail: what the high-level reward pays for "
                                           "finishing against lingering, how much exploration noise and constant "
                                           "offset each action dimension tolerates, why a fine-tuned residual "
                                           "picks less than its base, how far the depth camera's object "
                                           "estimate is from the truth, a model of that error fitted for "
                                           "training without rendering, where the tips hold the object "
-                                          "when a policy's picks fail, and whether the tool clouds' calibration "
-                                          "error costs the picks.")
+                                          "when a policy's picks fail, which objects of a family it misses, and "
+                                          "whether the tool clouds' calibration error costs the picks.")
     what = p.add_subparsers(title="diagnostics", metavar="WHAT", required=True)
     reward = what.add_parser(
         "reward", help="the value of succeeding against hovering 1.1 cm short, under each reward mode",
@@ -121,6 +121,19 @@ def add_parser(subparsers) -> None:
     grasp.add_argument("--reference", type=Path, required=True,
                        help="the demonstrator's eval high dataset whose first-attempt picks set the ranges")
     grasp.set_defaults(func=run_grasp)
+    families = what.add_parser(
+        "families", help="which objects of a family a policy misses: picks by kind and drawn size",
+        description="For the eval high / eval picks datasets of family:NAME objects given (each episode records its "
+                    "draw), first-attempt picks per policy split by kind and by the drawn size, with Wilson 95% "
+                    "intervals, each kind's failures by reason, and a verdict naming the size bin and the kind with "
+                    "the lowest rate and whether it lies below the others' interval. Writes families.md, "
+                    "summary.csv, failures.csv and episodes.csv into --out.")
+    families.add_argument("datasets", type=Path, nargs="+", metavar="DATASET",
+                          help="eval high dataset folders of family:NAME objects (e.g. eval picks' DIR/family_*)")
+    families.add_argument("--size-bins", type=finite_float, nargs="+", default=[14.0, 20.0, 26.0], metavar="MM",
+                          help="edges of the size bins in mm (default 14 20 26: below, within and above the pick "
+                               "table's 15-25 mm sets)")
+    families.set_defaults(func=run_families)
     seeing = what.add_parser(
         "grasp-observability", help="how much of the grasp offset the policy's observation can see",
         description="At each episode's first lift command, the true grasp offset (the tips' midpoint minus the "
@@ -160,7 +173,7 @@ def add_parser(subparsers) -> None:
     tool.add_argument("--episodes", type=int, default=25, help="episodes per arm (default 25)")
     tool.add_argument("--seed", type=seed_argument, default=1350, help="exploration seed of the resets (default 1350)")
     tool.set_defaults(func=run_tool_position)
-    for sub in (reward, noise, residual, bias, objects, fitted, grasp, seeing, tool):
+    for sub in (reward, noise, residual, bias, objects, fitted, grasp, families, seeing, tool):
         sub.add_argument("--out", type=Path, required=True, help="report folder, e.g. analysis/high-level/reward")
         sub.add_argument("--allow-dirty", action="store_true",
                          help="write under analysis/ from uncommitted code (the report then says so)")
@@ -294,6 +307,21 @@ def run_grasp(args: argparse.Namespace) -> int:
     path = grasp_offsets.write_report(rows, summary, args.out, _command(args, "grasp", options), str(args.reference))
     for name in dict.fromkeys(r["dataset"] for r in rows):
         print(grasp_offsets.verdict(summary, name))
+    print(f"wrote {path}")
+    return 0
+
+
+def run_families(args: argparse.Namespace) -> int:
+    from hingelab.rollouts import family_breakdown  # on run: the parser stays light (hingelab.cli)
+
+    check_out(args.out, REPORT)
+    require_clean_for(args.out, args.allow_dirty, "hingelab diagnose families")
+    rows = [row for root in args.datasets for row in family_breakdown.episode_rows(root)]
+    summary = family_breakdown.summarize(rows, args.size_bins)
+    options = [str(d) for d in args.datasets] + ["--size-bins", *(f"{e:g}" for e in args.size_bins)]
+    path = family_breakdown.write_report(rows, summary, args.out, _command(args, "families", options))
+    for policy in dict.fromkeys(r["policy"] for r in rows):
+        print(family_breakdown.verdict(summary, policy))
     print(f"wrote {path}")
     return 0
 
