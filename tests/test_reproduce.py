@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import json
 import os
+import shlex
 import signal
 import subprocess
 import sys
@@ -21,7 +22,15 @@ from hingelab.cli.main import main
 from hingelab.errors import ConfigError, HingelabError
 from hingelab.paths import ASSETS_DIR
 from hingelab.sweeps import reproduce_plan as P
-from hingelab.sweeps.reproduce import STATE_FILE, group_alive, read_state, run_reproduction
+from hingelab.sweeps.reproduce import (
+    STATE_FILE,
+    can_resume,
+    group_alive,
+    new_state,
+    read_state,
+    run_reproduction,
+    write_state,
+)
 
 REPO = Path(__file__).resolve().parents[1]
 SHIPPED_ENCODER = ASSETS_DIR / "checkpoints" / "encoder.pt"
@@ -35,8 +44,7 @@ def _value(argv, flag):
 def test_the_plan_runs_the_shipped_recipes_in_dependency_order(tmp_path):
     stages = P.plan_stages(tmp_path / "r")
     names = [s.name for s in stages]
-    assert names[:8] == ["clouds", "encoder", "low_demos", "low_open", "low_closed", "low_experts", "high_clone",
-                         "high_rl"]
+    assert names[:7] == ["clouds", "encoder", "low_demos", "low_open", "low_closed", "low_experts", "high"]
     for i, s in enumerate(stages):  # every stage after the stages it waits for
         assert all(names.index(d) < i for d in s.deps), s.name
     by = {s.name: s for s in stages}
@@ -61,14 +69,17 @@ def test_the_plan_runs_the_shipped_recipes_in_dependency_order(tmp_path):
     experts = f"{stage_dir('low_experts')}/low_level_experts.json"
     assert by["low_experts"].argv == ("compose", "low", "--expert", f"{stage_dir('low_closed')}/model.zip:0.10",
                                       "--expert", f"{stage_dir('low_open')}/model.zip", "--out", experts)
-    clone = by["high_clone"].argv
-    assert clone[:len(P.HIGH_CLONE)] == P.HIGH_CLONE
-    assert "--learner phase-clone --env-kwargs {\"observe_extent\": true} --prior-objects all --prior-episodes 720 " \
-           "--net-arch 512 512 --clone-members 3 --seed 0" in " ".join(clone)
-    assert _value(clone, "--low-level") == experts
-    rl = by["high_rl"].argv
-    assert rl[:len(P.RL_FINE_TUNING)] == P.RL_FINE_TUNING
-    assert (_value(rl, "--base"), _value(rl, "--low-level")) == (f"{stage_dir('high_clone')}/model.zip", experts)
+    # the shipped high level: one DAgger run over the clone it fits first (assets/checkpoints/README.md)
+    high = by["high"]
+    assert high.argv == (*P.HIGH_DAGGER, "--low-level", experts, "--out", stage_dir("high"))
+    assert shlex.join(P.HIGH_DAGGER) == (
+        "train high --learner dagger --base fit "
+        "--env-kwargs '{\"observe_extent\": true, \"tool_position\": \"relative\"}' --prior-objects all "
+        "--prior-episodes 720 --net-arch 512 512 --clone-members 3 --rollout-objects all "
+        "--dagger-rounds 4 --dagger-episodes 120 --eval-episodes 30 --seed 0")
+    assert (high.deps, high.resume, high.product) == (("low_experts",), "dagger", "high_level.zip")
+    assert high.outputs == ("stages/high/model.zip", "stages/high/base.zip")
+    assert {s.resume for s in stages} <= set(P.RESUME_KINDS)
     for s in stages:
         assert _value(s.argv, "--out").startswith(stage_dir(s.name))
     # the products perceive through the reproduced encoder; the encoder's own stages and the shipped evaluations not
@@ -81,25 +92,75 @@ def test_the_plan_runs_the_shipped_recipes_in_dependency_order(tmp_path):
     assert by["eval_low_reproduced"].argv[2] == experts and "eval_low_shipped" in by
     assert by["eval_low_reproduced"].argv[3:-2] == by["eval_low_shipped"].argv[2:-2]
     for shape, size in c["pick_sets"]:
-        ours, theirs = by[P.pick_stage_name("clone", shape, size)], by[P.pick_stage_name("shipped", shape, size)]
-        assert ours.argv[2] == f"{stage_dir('high_clone')}/model.zip" and ours.argv[3:-2] == theirs.argv[2:-2]
-        assert _value(ours.argv, "--seed") == str(c["pick_seed"]) and by[P.pick_stage_name("rl", shape, size)]
+        theirs = by[P.pick_stage_name("shipped", shape, size)]
+        assert theirs.argv[:2] == ("eval", "high") and _value(theirs.argv, "--seed") == str(c["pick_seed"])
+        for policy, checkpoint in (("clone", "base.zip"), ("dagger", "model.zip")):
+            ours = by[P.pick_stage_name(policy, shape, size)]
+            assert ours.argv[2] == f"{stage_dir('high')}/{checkpoint}" and ours.argv[3:-2] == theirs.argv[2:-2]
+            assert ours.deps == ("high",) and ours.reproduced_assets
 
 
 def test_tiny_scale_changes_sizes_only(tmp_path):
     shipped, tiny = P.plan_stages(tmp_path), P.plan_stages(tmp_path, "tiny")
-    assert [s.name for s in shipped[:10]] == [t.name for t in tiny[:10]]  # the pick sets differ (fewer)
-    for s, t in zip(shipped[:10], tiny[:10]):
-        assert s.deps == t.deps
-        for flag in ("--seed", "--learner", "--base", "--low-level", "--from", "--out", "--goal-openings"):
+    assert [s.name for s in shipped[:9]] == [t.name for t in tiny[:9]]  # the pick sets differ (fewer)
+    for s, t in zip(shipped[:9], tiny[:9]):
+        assert (s.deps, s.resume, s.outputs) == (t.deps, t.resume, t.outputs)
+        for flag in ("--seed", "--learner", "--base", "--low-level", "--from", "--out", "--goal-openings",
+                     "--env-kwargs", "--prior-objects", "--rollout-objects"):
             if flag in s.argv:
                 assert _value(s.argv, flag) == _value(t.argv, flag), (s.name, flag)
     by = {t.name: t for t in tiny}
     assert _value(by["encoder"].argv, "--epochs") == "1" and _value(by["low_open"].argv, "--steps") == "150"
-    assert by["high_clone"].argv[by["high_clone"].argv.index("--net-arch") + 1:][:3] == ("16", "16", "--clone-members")
+    high = by["high"].argv
+    assert high[high.index("--net-arch") + 1:][:3] == ("16", "16", "--clone-members")
+    assert {flag: _value(high, flag) for flag in ("--prior-episodes", "--clone-members", "--clone-updates",
+                                                 "--dagger-rounds", "--dagger-episodes", "--dagger-updates",
+                                                 "--eval-episodes")} == {
+        "--prior-episodes": "12", "--clone-members": "2", "--clone-updates": "20", "--dagger-rounds": "1",
+        "--dagger-episodes": "2", "--dagger-updates": "20", "--eval-episodes": "1"}
     assert len([t for t in tiny if t.name.startswith("picks_")]) == 3  # one set, three policies
     with pytest.raises(ConfigError, match="choose one of shipped, tiny"):
         P.plan_stages(tmp_path, "huge")
+
+
+@pytest.mark.parametrize("scale", P.SCALES)
+def test_train_high_dagger_takes_the_high_stage_command_and_its_resume(tmp_path, scale):
+    """The stage's command parses as `train high --learner dagger` with the recipe's settings, and its
+    `--resume` (what an unfinished stage is continued with) is accepted against the config.json it wrote."""
+    from hingelab.cli.main import build_parser
+    from hingelab.learners.dagger.config import DaggerConfig
+    from hingelab.training.run_config import config_from_args, given_settings
+    from hingelab.training.run_folder import RunFolder, resumed_config
+
+    argv = list(next(s for s in P.plan_stages(tmp_path / "r", scale) if s.name == "high").argv)
+    args = build_parser(argv).parse_args(argv)
+    assert args.learner_class.name == "dagger"
+    config = config_from_args(DaggerConfig, args)
+    assert (config.base, config.env_kwargs, config.prior_objects, config.rollout_objects, config.seed) == (
+        "fit", {"observe_extent": True, "tool_position": "relative"}, "all", "all", 0)
+    expected = ((720, (512, 512), 3, 4, 120, 30) if scale == "shipped" else (12, (16, 16), 2, 1, 2, 1))
+    assert (config.prior_episodes, config.net_arch, config.clone_members, config.dagger_rounds,
+            config.dagger_episodes, config.eval_episodes) == expected
+    RunFolder(args.out, config).write_run_files({"learner": "dagger"})  # what the stage leaves once it started
+    assert P.RESUME_KINDS["dagger"] and can_resume({"resume": "dagger"}, args.out)
+    resumed = build_parser([*argv, "--resume"]).parse_args([*argv, "--resume"])
+    assert resumed.resume and resumed.learner_class.name == "dagger"
+    assert resumed_config(args.out, config_from_args(DaggerConfig, resumed),
+                          given_settings(DaggerConfig, resumed)) == config
+
+
+def test_an_unfinished_stage_resumes_only_from_what_its_command_needs(tmp_path):
+    run = tmp_path / "high"
+    assert not can_resume({"resume": "dagger"}, run)  # not started: started afresh
+    run.mkdir()
+    (run / "prior").mkdir()
+    assert not can_resume({"resume": "dagger"}, run)  # no config.json: `train high --resume` would refuse
+    (run / "config.json").write_text("{}")
+    assert can_resume({"resume": "dagger"}, run)  # prior, base.zip and saved rounds kept by its --resume
+    assert not can_resume({"resume": "sac"}, run) and not can_resume({"resume": "none"}, run)
+    (run / "checkpoints" / "step_000000000010").mkdir(parents=True)
+    (run / "checkpoints" / "step_000000000010" / "state.json").write_text("{}")
+    assert can_resume({"resume": "sac"}, run)
 
 
 def test_with_flags_replaces_values_and_appends_missing_flags():
@@ -148,7 +209,20 @@ FAKE_STAGE = textwrap.dedent("""
         columns = ("success,tool_drift_mm_max\\n1,3\\n0,12\\n" if command[1] == "low" else
                    "success,first_attempt_success,attempts,failure_reason\\n1,1,1,\\n1,0,2,\\n")
         (out / "episodes.csv").write_text(columns)
-    else:  # train low | high
+    elif "dagger" in argv:  # train high --learner dagger: config.json, its prior, base.zip, then the rounds
+        if "--resume" in argv and not (out / "config.json").exists():
+            print("cannot resume: no config.json", flush=True)
+            sys.exit(2)
+        out.mkdir(exist_ok=True)
+        (out / "config.json").write_text("{}")
+        (out / "prior").mkdir(exist_ok=True)
+        if not (out / "base.zip").exists():  # a resumed run keeps the base it fitted
+            (out / "base.zip").write_text(f"fitted {time.time()}")
+        if stage == os.environ.get("FAKE_HANG") and "--resume" not in argv:
+            print("hanging", flush=True)
+            time.sleep(600)
+        (out / "model.zip").write_text("fake")
+    else:  # train low (SAC: checkpoints)
         out.mkdir(exist_ok=True)
         (out / "config.json").write_text("{}")
         checkpoint = out / "checkpoints" / "step_000000000010"
@@ -193,36 +267,45 @@ def _wait_for(condition, timeout_s: float, what: str):
     raise AssertionError(f"timed out waiting for {what}")
 
 
-def test_resume_after_a_kill_continues_the_unfinished_stage_and_runs_only_the_later_ones(tmp_path, fake,
-                                                                                           monkeypatch):
-    command, launches = fake
-    out = tmp_path / "repro"
-    monkeypatch.setenv("FAKE_HANG", "low_open")
+def _kill_during(out: Path, command: list[str], stage: str, monkeypatch) -> dict:
+    """Run a tiny reproduction with stand-in stages in a process of its own, SIGKILL it (a crash, an OOM kill)
+    while ``stage`` runs, wait for the stage's process to die with it; the state as the kill left it."""
+    monkeypatch.setenv("FAKE_HANG", stage)
     driver = subprocess.Popen(
         [sys.executable, "-c", "import sys; from hingelab.sweeps.reproduce import run_reproduction; "
          "run_reproduction(sys.argv[1], scale='tiny', jobs=1, command=sys.argv[2:], progress=False)",
          str(out), *command], cwd=REPO)
 
     def hanging() -> bool:
-        log = out / "logs" / "low_open.log"
+        log = out / "logs" / f"{stage}.log"
         return log.exists() and "hanging" in log.read_text()
 
     try:
-        _wait_for(hanging, 120, "the low_open stage to start")
+        _wait_for(hanging, 120, f"the {stage} stage to start")
         running = read_state(out)
-        assert [s["status"] for s in running["stages"][:4]] == ["done", "done", "done", "running"]
-        driver.send_signal(signal.SIGKILL)  # a kill during stage 4 of the plan (a crash, an OOM kill)
+        index = [s["name"] for s in running["stages"]].index(stage)
+        assert [s["status"] for s in running["stages"][:index + 1]] == ["done"] * index + ["running"]
+        driver.send_signal(signal.SIGKILL)
         driver.wait(timeout=30)
     finally:
         if driver.poll() is None:
             driver.kill()
-    pgid = read_state(out)["stages"][3]["pgid"]
+    killed = read_state(out)
+    pgid = killed["stages"][index]["pgid"]
     _wait_for(lambda: not group_alive(pgid), 30, "the stage's process to die with the reproduction")
+    monkeypatch.delenv("FAKE_HANG")
+    return killed
+
+
+def test_resume_after_a_kill_continues_the_unfinished_stage_and_runs_only_the_later_ones(tmp_path, fake,
+                                                                                           monkeypatch):
+    command, launches = fake
+    out = tmp_path / "repro"
+    _kill_during(out, command, "low_open", monkeypatch)  # stage 4 of the plan
     before = launches()
     assert [_stage_of(x) for x in before] == ["clouds", "encoder", "low_demos", "low_open"]
     killed_at = time.time()
 
-    monkeypatch.delenv("FAKE_HANG")
     result = run_reproduction(out, resume=True, jobs=1, command=command, progress=False)
     after = launches()[len(before):]
     names = [_stage_of(x) for x in after]
@@ -249,16 +332,38 @@ def test_resume_after_a_kill_continues_the_unfinished_stage_and_runs_only_the_la
     assert assets["eval_low_shipped"] is None and assets["eval_low_reproduced"] == str(out.resolve() / "assets")
     # the table: both sides of every product, and the stages' times
     table = pd.read_csv(out / "reproduce.csv")
-    assert list(table["product"]) == ["encoder", "encoder", "low level", "low level", "high level (phase clone)",
-                                      "high level (phase clone)", "high level (RL fine-tuning)",
-                                      "high level (RL fine-tuning)"]
+    high = ["high level (phase clone DAgger starts from)"] * 2 + ["high level (DAgger, high_level.zip)"] * 2
+    assert list(table["product"]) == ["encoder", "encoder", "low level", "low level", *high]
+    assert list(table["reproduced_path"].iloc[4:]) == [str(out.resolve() / "stages" / "high" / f)
+                                                       for f in ("base.zip", "base.zip", "model.zip", "model.zip")]
+    assert (table["stages"].iloc[4:] == "high").all()  # the one DAgger run makes both: its wall time for both
+    assert (table["wall_time_s"].iloc[4:] == round(by["high"]["wall_time_s"], 1)).all()
     assert table["reproduced_value"].iloc[0] == pytest.approx(table["shipped_value"].iloc[0])  # the same encoder
     assert table["reproduced_k"].iloc[2] == 1 and table["reproduced_n"].iloc[2] == 2
     md = (out / "reproduce.md").read_text()
     assert "## The stages" in md and "low_open" in md and result.summary.startswith("Reproduced the shipped set")
+    assert "share the `high` stage's wall time" in md
     # everything done: a resume runs nothing and writes the table again
     again = run_reproduction(out, resume=True, jobs=1, command=command, progress=False)
     assert again.ran == [] and len(launches()) == len(before) + len(after)
+
+
+def test_a_dagger_stage_killed_part_way_resumes_keeping_its_fitted_base(tmp_path, fake, monkeypatch):
+    command, launches = fake
+    out = tmp_path / "repro"
+    killed = _kill_during(out, command, "high", monkeypatch)
+    base = out / "stages" / "high" / "base.zip"
+    fitted = base.read_text()  # fitted in the killed session
+    before = len(launches())
+    result = run_reproduction(out, resume=True, jobs=1, command=command, progress=False)
+    after = launches()[before:]
+    assert _stage_of(after[0]) == "high" and after[0]["argv"][-1] == "--resume"  # DAgger's own --resume
+    assert after[0]["argv"][:-1] == list(P.plan_stages(out, "tiny")[6].argv)  # the recorded command, resumed
+    assert base.read_text() == fitted  # its folder kept: the prior and base.zip were not made again
+    by = {s["name"]: s for s in result.state["stages"]}
+    assert [x["resumed"] for x in by["high"]["sessions"]] == [False, True] and by["high"]["status"] == "done"
+    # then the stages not done at the kill, once each, in plan order (jobs=1)
+    assert [_stage_of(x) for x in after] == [x["name"] for x in killed["stages"] if x["status"] != "done"]
 
 
 def test_a_failed_stage_names_its_log_and_stops_the_stages_after_it(tmp_path, fake, monkeypatch):
@@ -299,6 +404,19 @@ def test_the_one_line_errors(tmp_path, capsys):
     assert "was started with --scale tiny, not shipped" in capsys.readouterr().err
     assert main(["reproduce", "--out", str(started)]) == 1
     assert "holds a reproduction; continue it with --resume" in capsys.readouterr().err
+    old = tmp_path / "old"  # planned by an older hingelab: the phase clone, then RL over it
+    old.mkdir()
+    doc = new_state(old, "tiny")
+    high = next(s for s in doc["stages"] if s["name"] == "high")
+    doc["stages"][doc["stages"].index(high):doc["stages"].index(high) + 1] = [{**high, "name": "high_clone"},
+                                                                              {**high, "name": "high_rl"}]
+    write_state(old, doc)
+    assert main(["reproduce", "--out", str(old), "--resume"]) == 1
+    err = capsys.readouterr().err.strip()
+    assert f"--resume: {old} was planned by another version of hingelab reproduce (stages this one no longer has: " \
+           "high_clone, high_rl; none of this one's high); this one cannot finish it or make its table: start a new " \
+           "--out" in err and "\n" not in err
+    assert not (old / "logs").exists()  # refused before anything ran
     assert main(["reproduce", "--out", str(tmp_path / "p"), "--plan"]) == 0
     printed = capsys.readouterr().out
     assert "hingelab train encoder --epochs 24" in printed and not (tmp_path / "p").exists()
@@ -328,7 +446,15 @@ def test_tiny_reproduction_end_to_end(tmp_path):
     for name in ("low_open", "low_closed"):
         plain, _ = read_plain_data(out / "stages" / name / "model.zip")
         assert plain["hingelab_provenance"]["encoder_fingerprint"] == reproduced
-    with zipfile.ZipFile(out / "stages" / "high_clone" / "model.zip") as clone:
-        provenance = json.loads(clone.read("phase_clone.json"))["hingelab_provenance"]
-    assert provenance["encoder_fingerprint"] == reproduced
-    assert provenance["low_level"] == str((out / "stages" / "low_experts" / "low_level_experts.json").resolve())
+    # the high level: one DAgger run over the reproduced low level, its base clone fitted in the run, both kept
+    high = out.resolve() / "stages" / "high"
+    provenance = {}
+    for name in ("base.zip", "model.zip"):
+        with zipfile.ZipFile(high / name) as clone:
+            provenance[name] = json.loads(clone.read("phase_clone.json"))["hingelab_provenance"]
+        assert provenance[name]["encoder_fingerprint"] == reproduced
+        assert provenance[name]["low_level"] == str(out.resolve() / "stages" / "low_experts" / "low_level_experts.json")
+        assert provenance[name]["env_kwargs"]["tool_position"] == "relative"
+    assert provenance["base.zip"]["fitted_by"] == "train high --learner dagger --base fit"
+    assert provenance["model.zip"]["learner"] == "dagger" and provenance["model.zip"]["dagger"]["round"] == 1
+    assert provenance["model.zip"]["dagger"]["base"]["path"] == str(high / "base.zip")

@@ -3,8 +3,8 @@
 The stages (``hingelab.sweeps.reproduce_plan``) are the recipes of the shipped assets, each the
 ``hingelab`` command a user would type, run as a child process in dependency order, at most ``jobs`` at a
 time: the tool clouds and the encoder, the low level's demonstrations, its two experts and their manifest,
-the high level's phase clone and its RL fine-tuning; then the evaluations that compare each product with
-the shipped asset (``eval low`` and ``eval high`` on the same seeds for both). The final table
+the high level (one DAgger run, which fits its phase clone first); then the evaluations that compare each
+product with the shipped asset (``eval low`` and ``eval high`` on the same seeds for both). The final table
 (``hingelab.sweeps.reproduce_table``) is written when every stage is done.
 
 The reproduction folder::
@@ -20,7 +20,7 @@ The reproduction folder::
 it, run again); an unfinished one (running when the process was killed, or failed) goes on with its
 command's own ``--resume`` where the folder holds what that needs (``RESUME_KINDS``), else starts again in
 an emptied folder; the stages after it then run. The commands recorded in ``reproduce.json`` are the ones
-resumed: a reproduction goes on as it was started.
+resumed: a reproduction goes on as it was started (one planned with other stages, by another version, is refused).
 
 A stage's process dies with this one (``PR_SET_PDEATHSIG``) and is stopped with it (Ctrl-C, SIGTERM); a
 stage still running from a killed reproduction is refused on resume until it has stopped.
@@ -139,6 +139,14 @@ def open_folder(out: Path, scale: str | None, resume: bool) -> dict:
         if scale is not None and scale != doc["scale"]:
             raise ConfigError(f"--resume: {out} was started with --scale {doc['scale']}, not {scale}; resume it "
                               f"without --scale, or start a new --out")
+        recorded, planned = [s["name"] for s in doc["stages"]], [s.name for s in plan_stages(out, doc["scale"])]
+        if recorded != planned:  # planned by another hingelab (the shipped recipes changed): its table is not ours
+            gone, new = [n for n in recorded if n not in planned], [n for n in planned if n not in recorded]
+            differ = "; ".join([*([f"stages this one no longer has: {', '.join(gone)}"] if gone else []),
+                                *([f"none of this one's {', '.join(new)}"] if new else [])])
+            raise ConfigError(f"--resume: {out} was planned by another version of hingelab reproduce "
+                              f"({differ or 'its stages in another order'}); this one cannot finish it or make its "
+                              "table: start a new --out")
         return doc
     if (out / STATE_FILE).exists():
         raise ConfigError(f"{out} holds a reproduction; continue it with --resume, or give a new --out")
@@ -157,7 +165,7 @@ def can_resume(stage: dict, stage_dir: Path) -> bool:
         return (stage_dir / "dataset.json").exists() and (stage_dir / JOURNAL_FILE).exists()
     if kind == "sac":
         return latest_checkpoint(stage_dir) is not None
-    if kind == "clone":
+    if kind == "dagger":  # its run folder: the rounds saved, the prior and base.zip (each made again if cut off)
         return (stage_dir / CONFIG_FILE).exists()
     return False
 

@@ -13,9 +13,10 @@ links, whose ``checkpoints/encoder.pt`` is the encoder stage's checkpoint. An en
 fingerprint whatever encoder its envs use, ``train high`` likewise, and ``eval low``, ``eval high`` and
 ``compose low`` check policies against the shipped encoder and take no encoder argument. Under the linked
 assets the "shipped" encoder of those commands is the reproduced one, as it was in the checkout where the
-shipped policies were trained (``assets/checkpoints/README.md``). The reproduced low level and high level
-are passed by path (``--low-level``, ``--base``); ``DIR/assets/checkpoints`` holds no policy, so no stage
-can fall back on a shipped one unnoticed.
+shipped policies were trained (``assets/checkpoints/README.md``). The reproduced low level is passed by path
+(``--low-level``), the high level fits its own base clone (``--base fit``) and its evaluations take the reproduced
+checkpoints by path; ``DIR/assets/checkpoints`` holds no policy, so no stage can fall back on a shipped one
+unnoticed.
 """
 
 from __future__ import annotations
@@ -41,14 +42,13 @@ LOW_SAC = ("train", "low", "--envs", "1", "--in-process", "--buffer-size", "2000
 LOW_OPEN = ("--steps", "50000", "--seed", "2")
 LOW_CLOSED = ("--steps", "40000", "--seed", "4", "--goal-openings=-1:0.10")
 CLOSED_UP_TO_RAD = "0.10"  # compose low: the closed expert serves goals up to this opening
-# assets/checkpoints/README.md and analysis/high-level/README.md: the shipped high level (high_level.zip)
-HIGH_CLONE = ("train", "high", "--learner", "phase-clone", "--env-kwargs", '{"observe_extent": true}',
-              "--prior-objects", "all", "--prior-episodes", "720", "--net-arch", "512", "512", "--clone-members", "3",
-              "--seed", "0")
-# The RL fine-tuning over the clone (issue 43; no shipped asset yet). Its recipe may still change: this line
-# is the one place to change it (the stage adds --base, --low-level and --out).
-RL_FINE_TUNING = ("train", "high", "--learner", "residual-sac", "--object", "family:picksets", "--prior-objects", "all",
-                  "--prior-episodes", "120", "--steps", "60000", "--eval-every", "10000", "--envs", "1")
+# assets/checkpoints/README.md, the shipped high level (high_level.zip): one DAgger run that fits its own phase
+# clone on the prior first (RUNDIR/base.zip), then 4 rounds over it (RUNDIR/model.zip, the last round's clone)
+HIGH_DAGGER = ("train", "high", "--learner", "dagger", "--base", "fit",
+               "--env-kwargs", '{"observe_extent": true, "tool_position": "relative"}', "--prior-objects", "all",
+               "--prior-episodes", "720", "--net-arch", "512", "512", "--clone-members", "3",
+               "--rollout-objects", "all", "--dagger-rounds", "4", "--dagger-episodes", "120", "--eval-episodes", "30",
+               "--seed", "0")
 
 # What the final table measures (hingelab.sweeps.reproduce_table): fresh seeds no choice was made on for the
 # reproduction; the goal seed 3 and the pick seeds 1200 are the seeds of the shipped assets' reported figures.
@@ -66,11 +66,8 @@ TINY = {
     "low_demos": {"--episodes": "3"},
     "low_open": _TINY_LOW,
     "low_closed": _TINY_LOW,
-    "high_clone": {"--prior-episodes": "12", "--net-arch": ("16", "16"), "--clone-members": "2",
-                   "--clone-updates": "20", "--eval-episodes": "1"},
-    "high_rl": {"--prior-episodes": "12", "--steps": "60", "--eval-every": "60", "--eval-episodes": "1",
-                "--critic-pretrain": "10", "--actor-start": "30", "--learning-starts": "20", "--checkpoint-every": "30",
-                "--buffer-size": "2000", "--batch-size": "32"},
+    "high": {"--prior-episodes": "12", "--net-arch": ("16", "16"), "--clone-members": "2", "--clone-updates": "20",
+             "--dagger-rounds": "1", "--dagger-episodes": "2", "--dagger-updates": "20", "--eval-episodes": "1"},
 }
 TINY_COMPARISON = {"encoder_clouds": 100, "low_goals": 2, "pick_sets": (("sphere", 0.02),), "pick_episodes": 1}
 SCALES = ("shipped", "tiny")
@@ -81,7 +78,8 @@ RESUME_KINDS = {
     "none": "no --resume: started again from scratch",
     "eval": "eval --resume (its journal of finished episodes)",
     "sac": "train --resume from the last checkpoint (none yet: started again)",
-    "clone": "train --resume keeping the written prior (the fit is made again)",
+    "dagger": "train --resume after the last saved round, keeping the written prior and the fitted base.zip (a cut-off "
+              "round's rollouts are made again)",
 }
 
 
@@ -152,7 +150,7 @@ def plan_stages(out: Path, scale: str = "shipped") -> list[Stage]:
                      reproduced_assets, product)
 
     experts = f"{folder('low_experts')}/low_level_experts.json"
-    clone, tuned = f"{folder('high_clone')}/model.zip", f"{folder('high_rl')}/model.zip"
+    base, dagger = f"{folder('high')}/base.zip", f"{folder('high')}/model.zip"
     plan = [
         stage("clouds", [*CLOUDS, "--out", folder("clouds")], [], "none", ["dataset.json"], False, "encoder.pt"),
         stage("encoder", [*ENCODER, "--data", folder("clouds"), "--out", f"{folder('encoder')}/encoder.pt"],
@@ -166,10 +164,8 @@ def plan_stages(out: Path, scale: str = "shipped") -> list[Stage]:
         stage("low_experts", ["compose", "low", "--expert", f"{folder('low_closed')}/model.zip:{CLOSED_UP_TO_RAD}",
                               "--expert", f"{folder('low_open')}/model.zip", "--out", experts],
               ["low_open", "low_closed"], "none", ["low_level_experts.json"], product="low_level_experts.json"),
-        stage("high_clone", [*HIGH_CLONE, "--low-level", experts, "--out", folder("high_clone")], ["low_experts"],
-              "clone", ["model.zip"], product="high_level.zip"),
-        stage("high_rl", [*RL_FINE_TUNING, "--base", clone, "--low-level", experts, "--out", folder("high_rl")],
-              ["high_clone"], "sac", ["model.zip"], product="RL fine-tuning (not shipped yet)"),
+        stage("high", [*HIGH_DAGGER, "--low-level", experts, "--out", folder("high")], ["low_experts"], "dagger",
+              ["model.zip", "base.zip"], product="high_level.zip"),
     ]
     c = comparison(scale)
     low_eval = ("eval", "low", "--episodes", str(c["low_goals"]), "--seed", str(c["low_seed"]))
@@ -178,7 +174,7 @@ def plan_stages(out: Path, scale: str = "shipped") -> list[Stage]:
                    ["low_experts"], "eval", ["episodes.csv"], product="low_level_experts.json"),
              stage("eval_low_shipped", [*low_eval, "--out", folder("eval_low_shipped")], [], "eval",
                    ["episodes.csv"], False, "low_level_experts.json")]
-    policies = (("clone", clone, ["high_clone"], True), ("rl", tuned, ["high_rl"], True), ("shipped", None, [], False))
+    policies = (("clone", base, ["high"], True), ("dagger", dagger, ["high"], True), ("shipped", None, [], False))
     for policy, checkpoint, deps, reproduced in policies:
         for shape, size in c["pick_sets"]:
             name = pick_stage_name(policy, shape, size)
@@ -228,7 +224,7 @@ def describe_plan(stages: list[Stage], out: Path) -> str:
     return "\n".join(lines)
 
 
-__all__ = ["CLOUDS", "ENCODER", "LOW_DEMOS", "LOW_SAC", "LOW_OPEN", "LOW_CLOSED", "HIGH_CLONE", "RL_FINE_TUNING",
-           "COMPARISON", "TINY", "TINY_COMPARISON", "SCALES", "RESUME_KINDS", "Stage", "comparison", "describe_plan",
-           "link_assets", "pick_stage_name", "plan_stages", "stage_environment", "with_flags", "STAGES_DIR",
-           "LOGS_DIR", "ASSETS_LINK_DIR"]
+__all__ = ["CLOUDS", "ENCODER", "LOW_DEMOS", "LOW_SAC", "LOW_OPEN", "LOW_CLOSED", "HIGH_DAGGER", "COMPARISON", "TINY",
+           "TINY_COMPARISON", "SCALES", "RESUME_KINDS", "Stage", "comparison", "describe_plan", "link_assets",
+           "pick_stage_name", "plan_stages", "stage_environment", "with_flags", "STAGES_DIR", "LOGS_DIR",
+           "ASSETS_LINK_DIR"]
