@@ -45,8 +45,9 @@ def available_cores() -> int:
 
 
 def check_processes(count: int, flag: str, allow_oversubscribe: bool = False) -> None:
-    """Refuse ``count`` parallel processes (``--workers``, ``--envs``) beyond the available cores in one line:
-    each holds a simulator and its libraries (about 0.5 GB), and more of them than cores only share the cores."""
+    """Refuse ``count`` parallel processes (``--workers``, ``--envs``, ``--jobs``) beyond the available cores in one
+    line: each holds a simulator and its libraries (about 0.5 GB), and more of them than cores only share the
+    cores."""
     cores = available_cores()
     if count > cores and not allow_oversubscribe:
         raise ConfigError(f"{flag} {count}: this machine gives the run {cores} core(s); give at most {cores}, or "
@@ -56,7 +57,7 @@ def check_processes(count: int, flag: str, allow_oversubscribe: bool = False) ->
 def add_oversubscribe(p) -> None:
     """``--allow-oversubscribe``: more worker processes than cores, on purpose."""
     p.add_argument("--allow-oversubscribe", action="store_true",
-                   help="allow more parallel processes (--workers, --envs) than the cores this process may use "
+                   help="allow more parallel processes (--workers, --envs, --jobs) than the cores this process may use "
                         "(each is a simulator of about 0.5 GB)")
 
 

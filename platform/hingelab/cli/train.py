@@ -100,6 +100,8 @@ def run_policy(args: argparse.Namespace) -> int:
         config = resumed_config(out, config, given_settings(learner.config_class, args))
     if getattr(config, "subprocess_envs", False):  # one process per env: a simulator each
         check_processes(config.n_envs, "--envs", args.allow_oversubscribe)
+    if getattr(config, "jobs", 1) > 1:  # worker processes (phase clone, DAgger): a simulator each
+        check_processes(config.jobs, "--jobs", args.allow_oversubscribe)
     with folder_lock(out, args.argv):
         result = learner.train(config, out, resume=args.resume, progress=not args.no_progress, name=args.name)
     print(learner.summary(result, config, out))

@@ -171,6 +171,23 @@ class PhaseClone:
         return cls(nets, meta.get("hingelab_provenance") or {})
 
 
+def net_state(net: PhaseCloneNet) -> dict:
+    """A net as plain data (its layout and its weights as NumPy arrays): what a ``--jobs`` worker is sent and
+    sends back (``net_from_state``), as a saved clone holds it."""
+    return {"observation_dim": net.observation_dim, "hidden": tuple(net.hidden),
+            "weights": {k: v.detach().cpu().numpy().copy() for k, v in net.state_dict().items()}}
+
+
+def net_from_state(state: dict) -> PhaseCloneNet:
+    """The net of ``net_state``, in eval mode (as a fitted or loaded one); the global generators untouched."""
+    weights = {k: torch.as_tensor(v) for k, v in state["weights"].items()}
+    with preserved_global_rngs():  # the initial weights are overwritten: building the net draws nothing
+        net = PhaseCloneNet(state["observation_dim"], state["hidden"], weights["mean"].numpy(),
+                            weights["std"].numpy())
+    net.load_state_dict(weights)
+    return net.eval()
+
+
 def is_phase_clone(path) -> bool:
     """Whether ``path`` is a phase-clone zip (not a stable-baselines3 one)."""
     try:
@@ -181,4 +198,4 @@ def is_phase_clone(path) -> bool:
 
 
 __all__ = ["PHASES", "LABELS", "ACTION_DIM", "PhaseClone", "PhaseCloneNet", "batch_with_memory", "is_phase_clone",
-           "next_memory", "phase_index"]
+           "next_memory", "phase_index", "net_state", "net_from_state"]

@@ -145,14 +145,16 @@ def run_episode(policy, env, seed: int) -> dict:
 
 
 def evaluate(policy, env, episodes: int, seed: int, progress: bool = False, label: str = "eval high",
-             journal=None) -> pd.DataFrame:
+             journal=None, indices=None) -> pd.DataFrame:
     """``episodes`` episodes, episode i from ``eval_high_seed(seed, i)``; one row each. ``journal`` (an
     ``eval_journal.EpisodeJournal``): its rows are kept and their episodes not run again; each new row
-    goes into it as its episode finishes."""
+    goes into it as its episode finishes. ``indices``: only these of the ``episodes`` (a worker's share of
+    them; the rows are the same as in a run of all of them)."""
 
     rows = list(journal.rows) if journal is not None else []
     done = {int(r["episode"]) for r in rows}
-    with tqdm(range(episodes), desc=label, unit="episode", disable=not progress, initial=0) as bar:
+    order = range(episodes) if indices is None else [int(i) for i in indices]
+    with tqdm(order, desc=label, unit="episode", disable=not progress, initial=0) as bar:
         for i in bar:
             if i in done:
                 continue

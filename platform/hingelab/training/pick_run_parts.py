@@ -13,17 +13,20 @@ the privileged prior's demos (``PriorData``) and the held-out evaluation (``Pick
 
 from __future__ import annotations
 
+import json
 import time
 from pathlib import Path
 
 import gymnasium as gym
 import numpy as np
+import pandas as pd
 
 from hingelab.analysis.pick_table import pick_rates
 from hingelab.episodes.dataset import Dataset
 from hingelab.errors import ConfigError
 from hingelab.policies import ModelPolicy
 from hingelab.policies.low_level import resolve_low_level
+from hingelab.policies.phase_clone import PhaseClone, net_from_state, net_state
 from hingelab.rollouts.high_level import FailureReasonWrapper, evaluate
 from hingelab.seeds import TRAINING_EVALUATION_SEED
 from hingelab.tasks import observation_dim
@@ -31,6 +34,7 @@ from hingelab.training.high_level_demos import concat_demos, high_level_transiti
 from hingelab.training.prior import generate_prior, prior_parts
 from hingelab.training.run_folder import RunFolder
 from hingelab.training.torch_process import configure_torch
+from hingelab.workers.job_pool import chunks
 
 PRIOR_DIR = "prior"
 EVAL_SEED = TRAINING_EVALUATION_SEED
@@ -70,19 +74,25 @@ def check_pick_inputs(config) -> None:
 class PriorData:
     """The demos of a run with a ``PriorDemos`` config part; ``load()`` sets ``demos`` and ``info``."""
 
-    def __init__(self, config, run_dir: Path, name: str, progress: bool):
+    def __init__(self, config, run_dir: Path, name: str, progress: bool, pool=None):
         self.config, self.run_dir, self.name, self.progress = config, Path(run_dir), name, progress
+        self.pool = pool  # a JobPool: the prior generated in its workers
         self.demos = self.info = None
         self.modes: list[str] = []
 
     def datasets(self) -> list[str]:
-        """--from, or the prior the run generates (once; a resumed run reuses it)."""
+        """--from, or the prior the run generates (once; a resumed run reuses it when every dataset holds all
+        its episodes: a generation cut off, in any of its datasets, is made again)."""
         if self.config.from_datasets:
             return [str(p) for p in self.config.from_datasets]
         root = self.run_dir / PRIOR_DIR
-        roots = [root / folder for folder, *_ in prior_parts(self.config)]
-        if not all((r / "dataset.json").exists() and any((r / "episodes").glob("*.mcap")) for r in roots):
-            roots = generate_prior(root, self.config, name=f"{self.name}-prior", progress=self.progress)
+        parts = [(root / folder, episodes) for folder, _, _, episodes in prior_parts(self.config)]
+        if not all((r / "dataset.json").exists() and len(list((r / "episodes").glob("*.mcap"))) == episodes
+                   for r, episodes in parts):
+            roots = generate_prior(root, self.config, name=f"{self.name}-prior", progress=self.progress,
+                                   pool=self.pool)
+        else:
+            roots = [r for r, _ in parts]
         return [str(r) for r in roots]
 
     def action_mode(self, root) -> str:
@@ -120,16 +130,17 @@ class PriorData:
                      "seconds": round(time.perf_counter() - started, 2)}
 
 
-def open_prior_run(config, run_dir, learner: str, resume: bool, progress: bool, name: str | None):
+def open_prior_run(config, run_dir, learner: str, resume: bool, progress: bool, name: str | None, pool=None):
     """The opening of a run that learns from the privileged prior (the phase clone, DAgger): the run folder (new,
-    after ``check_pick_inputs``, or resumed), torch's threads, the prior's demos loaded and, in a new run,
-    recorded in ``config.json``. Returns (folder, prior); ``folder.config`` is the run's config."""
+    after ``check_pick_inputs``, or resumed), torch's threads, the prior's demos loaded (generated in ``pool``'s
+    workers, a ``JobPool``, if given) and, in a new run, recorded in ``config.json``. Returns (folder, prior);
+    ``folder.config`` is the run's config."""
     folder = RunFolder(Path(run_dir), config, resume=resume, name=name)
     configure_torch(folder.config.torch_threads)
     if not resume:
         check_pick_inputs(folder.config)
         folder.write_run_files({"learner": learner})
-    prior = PriorData(folder.config, folder.path, folder.name, progress)
+    prior = PriorData(folder.config, folder.path, folder.name, progress, pool=pool)
     prior.load()
     if not resume:
         folder.record_run_fact("prior", prior.info)
@@ -137,14 +148,27 @@ def open_prior_run(config, run_dir, learner: str, resume: bool, progress: bool, 
 
 
 class PickEvaluation:
-    """Held-out evaluations of a policy on the run's ToolPick task (or its flat version)."""
+    """Held-out evaluations of a policy on the run's ToolPick task (or its flat version). With ``pool`` (a
+    ``hingelab.workers.job_pool.JobPool``), a phase clone's episodes run in its workers, a few contiguous blocks
+    each, and their rows, merged in episode order, make the same metrics row."""
 
-    def __init__(self, config):
-        self.config = config
-        self.env = FailureReasonWrapper(gym.make(config.env_id, **config.env_arguments()))
+    def __init__(self, config, pool=None):
+        self.config, self.pool = config, pool
+        self.env = None if pool is not None else self._make_env()  # (with a pool: made if a model needs it here)
+
+    def _make_env(self):
+        return FailureReasonWrapper(gym.make(self.config.env_id, **self.config.env_arguments()))
 
     def __call__(self, model) -> dict:
-        return summarize_pick(evaluate(ModelPolicy(model), self.env, self.config.eval_episodes, EVAL_SEED))
+        if self.pool is None or not isinstance(model, PhaseClone):
+            if self.env is None:
+                self.env = self._make_env()
+            return summarize_pick(evaluate(ModelPolicy(model), self.env, self.config.eval_episodes, EVAL_SEED))
+        nets = [net_state(net) for net in model.nets]
+        blocks = chunks(self.config.eval_episodes, EVAL_BLOCKS_PER_JOB * self.pool.jobs)
+        parts = self.pool.map(_evaluate_block, [{"config": self.config, "nets": nets, "indices": block}
+                                                for block in blocks])
+        return summarize_pick(pd.concat(parts, ignore_index=True).sort_values("episode", ignore_index=True))
 
     @staticmethod
     def initial_best() -> dict:
@@ -156,7 +180,22 @@ class PickEvaluation:
             best["success_rate"], best["first_attempt_success_rate"], best["return"])
 
     def close(self) -> None:
-        self.env.close()
+        if self.env is not None:
+            self.env.close()
+
+
+EVAL_BLOCKS_PER_JOB = 3  # blocks of an evaluation per worker: a worker done early takes another
+_WORKER_ENVS: dict = {}  # a worker's evaluation envs, by their arguments: made once per run
+
+
+def _evaluate_block(job: dict) -> pd.DataFrame:
+    """A ``--jobs`` worker's block of a held-out evaluation (``PickEvaluation``): its episodes' rows."""
+    config = job["config"]
+    key = json.dumps([config.env_id, config.env_arguments()], sort_keys=True, default=str)
+    if key not in _WORKER_ENVS:
+        _WORKER_ENVS[key] = FailureReasonWrapper(gym.make(config.env_id, **config.env_arguments()))
+    model = PhaseClone([net_from_state(state) for state in job["nets"]])
+    return evaluate(ModelPolicy(model), _WORKER_ENVS[key], config.eval_episodes, EVAL_SEED, indices=job["indices"])
 
 
 __all__ = ["PRIOR_DIR", "EVAL_SEED", "summarize_pick", "prior_dataset_record", "check_pick_inputs", "PriorData",

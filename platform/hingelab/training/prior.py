@@ -36,6 +36,7 @@ from dataclasses import replace
 from pathlib import Path
 
 import gymnasium as gym
+from tqdm import tqdm
 
 from hingelab.envs.recording import RecordingWrapper
 from hingelab.episodes import create_dataset
@@ -46,6 +47,7 @@ from hingelab.seeds import prior_block
 from hingelab.sim.mesh_objects import object_label
 from hingelab.sim.objects import PICK_SETS  # noqa: F401  (the pick table's sets: --prior-objects all)
 from hingelab.training.config_parts import PRIOR_OBJECTS, PRIOR_SOURCES
+from hingelab.workers.job_pool import chunks
 
 
 def pick_set_parts(episodes: int) -> list[tuple[str, str, float, int]]:
@@ -64,18 +66,38 @@ def prior_parts(config) -> list[tuple[str, object, float, int]]:
     return pick_set_parts(config.prior_episodes)
 
 
-def generate_prior(root: Path, config, name: str, progress: bool = True) -> list[Path]:
+def generate_prior(root: Path, config, name: str, progress: bool = True, pool=None) -> list[Path]:
     """Write ``config.prior_episodes`` privileged episodes of ``config.prior_source`` under ``root``;
-    the datasets written (``prior_parts``)."""
+    the datasets written (``prior_parts``). ``pool`` (a ``hingelab.workers.job_pool.JobPool``; scripted
+    sources): the episodes recorded in its workers (``work_items``), the same episodes into the same datasets."""
     root = Path(root)
     shutil.rmtree(root, ignore_errors=True)  # a generation cut short is made again
-    roots = []
+    parts = []
     for index, (folder, object, size, episodes) in enumerate(prior_parts(config)):
         # the sets' seeds are apart (their episodes would otherwise share placements and noise)
         seed = prior_block(config.seed, index)
-        part = replace(config, object=object, size=size, prior_episodes=episodes, prior_objects="run")
-        roots.append(_generate(root / folder, part, seed, name, progress))
-    return roots
+        parts.append((root / folder, replace(config, object=object, size=size, prior_episodes=episodes,
+                                              prior_objects="run"), seed))
+    if pool is None or config.prior_source == "heuristic":
+        return [_generate(folder, part, seed, name, progress) for folder, part, seed in parts]
+    for folder, part, seed in parts:
+        _scripted_dataset(folder, part, seed, name)
+    items = [{"root": str(parts[k][0]), "config": parts[k][1], "seed": parts[k][2], "indices": indices}
+             for k, indices in work_items([part.prior_episodes for _, part, _ in parts], pool.jobs)]
+    with tqdm(total=len(items), desc="prior", unit="part", disable=not progress) as bar:
+        pool.map(_record_item, items, done=lambda *_: bar.update())
+    return [folder for folder, _, _ in parts]
+
+
+def work_items(episodes: list[int], jobs: int) -> list[tuple[int, range | None]]:
+    """How ``jobs`` processes share the datasets of ``episodes`` episodes each: (dataset, None: all its episodes)
+    when there are as many datasets as processes or more, so each dataset is recorded by one process, one
+    episode after another, its files as one process writes them; else each dataset's episodes cut into ``jobs``
+    contiguous blocks (dataset, range), written side by side into it (the same episodes, their files named in
+    the order they were written)."""
+    if len(episodes) >= jobs:
+        return [(k, None) for k in range(len(episodes))]
+    return [(k, block) for k, n in enumerate(episodes) for block in chunks(n, jobs)]
 
 
 def _generate(root: Path, config, seed: int, name: str, progress: bool) -> Path:
@@ -85,14 +107,30 @@ def _generate(root: Path, config, seed: int, name: str, progress: bool) -> Path:
             episodes=config.prior_episodes, object=config.object, size=config.size, mass=config.mass, seed=seed,
             randomize=config.randomize, max_episode_steps=config.max_episode_steps), progress=progress, name=name)
         return root
+    _scripted_dataset(root, config, seed, name)
+    _record(root, config, seed, progress)
+    return root
 
-    arguments = config.env_arguments()
+
+def _scripted_dataset(root: Path, config, seed: int, name: str) -> None:
+    """The card of a scripted prior dataset."""
     policy = config.prior_source  # scripted or scripted-feedback: eval high's baselines
     create_dataset(root, name=name, source="heuristic", seed=seed,
                    config={"policy": policy, "episodes": config.prior_episodes,
-                           "action_noise": config.prior_action_noise, **arguments},
+                           "action_noise": config.prior_action_noise, **config.env_arguments()},
                    description=f"the privileged heuristic ({policy}) as high-level actions over "
                                f"the low level {config.low_level} (hingelab train high's prior)")
+
+
+def _record_item(item: dict) -> None:
+    """A ``--jobs`` worker's share of a prior dataset (``generate_prior``)."""
+    _record(Path(item["root"]), item["config"], item["seed"], progress=False, indices=item["indices"])
+
+
+def _record(root: Path, config, seed: int, progress: bool, indices=None) -> None:
+    """The scripted demonstrator's episodes (``indices`` of them, default all) recorded into the dataset ``root``."""
+    arguments = config.env_arguments()
+    policy = config.prior_source
     demonstrator = load_policy(policy)
     demonstrator.action_noise = config.prior_action_noise
     # the demonstrator's phases go into every step's info (the phase clone learns them)
@@ -101,12 +139,11 @@ def _generate(root: Path, config, seed: int, name: str, progress: bool) -> Path:
                            extra_metadata={"object_size": config.size, "policy": policy,
                                            "low_level": config.low_level})
     try:
-        evaluate(demonstrator, env, config.prior_episodes, seed, progress=progress,
+        evaluate(demonstrator, env, config.prior_episodes, seed, progress=progress, indices=indices,
                  label=f"prior ({policy}, {object_label(config.object)} {100 * config.size:g} cm)")
     finally:
         env.close()
-    return root
 
 
 __all__ = ["PICK_SETS", "PRIOR_OBJECTS", "PRIOR_SOURCES", "generate_prior", "pick_set_parts",
-           "prior_parts"]
+           "prior_parts", "work_items"]

@@ -37,8 +37,9 @@ CONFIG_FILE = "config.json"
 RUN_FILE = "run.json"
 METRICS_FILE = "metrics.csv"
 DATASET_DIR = "dataset"
-# what a --resume may change of a run's config.json: how long it runs, what it does with corrupt input
-RESUME_SETTINGS = ("steps", "on_corrupt")
+# what a --resume may change of a run's config.json: how long it runs, what it does with corrupt input, how many
+# worker processes share its work (the phase clone's and DAgger's --jobs: the same results with any number)
+RESUME_SETTINGS = ("steps", "on_corrupt", "jobs")
 
 
 class MetricsLog:
@@ -109,7 +110,8 @@ def resumed_config(run_dir: Path, config, given: set[str]):
                  for name in sorted(given - set(RESUME_SETTINGS)) if getattr(config, name) != getattr(saved, name)]
     if differing:
         raise ConfigError(f"--resume continues {run_dir} as its config.json says, but these flags differ from it: "
-                          f"{'; '.join(differing)}. Drop them (a resume may change only --steps and --on-corrupt), "
+                          f"{'; '.join(differing)}. Drop them (a resume may change only "
+                          f"{', '.join(flag_of(by_name[n]) for n in RESUME_SETTINGS if n in by_name)}), "
                           "or start a new run with another --out")
     return replace(saved, **{name: getattr(config, name) for name in RESUME_SETTINGS if name in given})
 

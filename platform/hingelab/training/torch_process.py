@@ -39,6 +39,11 @@ def configure_torch(threads: int = 1, *, keep_heap: bool = True, flush_denormal:
     return applied
 
 
+def one_torch_thread() -> None:
+    """``configure_torch(1)``: the setup of a run's worker processes (``hingelab.workers.job_pool``), one per core."""
+    configure_torch(1)
+
+
 def _keep_heap() -> bool:
     """``mallopt`` so the heap is neither trimmed nor bypassed with mmap; False if not glibc."""
     name = ctypes.util.find_library("c")
@@ -52,4 +57,4 @@ def _keep_heap() -> bool:
     return bool(mallopt(_M_MMAP_THRESHOLD, 64 << 20)) and bool(mallopt(_M_TRIM_THRESHOLD, 512 << 20))
 
 
-__all__ = ["configure_torch"]
+__all__ = ["configure_torch", "one_torch_thread"]

@@ -22,7 +22,9 @@ class DaggerLearner:
                    "clone again on the prior's demos and every labelled step so far. Imitation error is what it "
                    "removes: the clone learns what the demonstrator would do in the states the clone itself reaches. "
                    "RUNDIR/model.zip is the last round's clone (best_model.zip the best evaluated); metrics.csv has "
-                   "one held-out evaluation per round. Every setting is a flag below and is saved in "
+                   "one held-out evaluation per round. --jobs N shares the prior's episodes, the members' fits, "
+                   "the rounds' rollouts and the evaluations among N worker processes: the same prior, labels, "
+                   "weights and metrics as one, sooner. Every setting is a flag below and is saved in "
                    "RUNDIR/config.json.")
 
     @staticmethod

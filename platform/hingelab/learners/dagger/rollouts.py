@@ -23,15 +23,16 @@ from pathlib import Path
 
 import gymnasium as gym
 import numpy as np
+from tqdm import tqdm
 
 from hingelab.envs.recording import RecordingWrapper
 from hingelab.episodes import create_dataset
 from hingelab.policies.baselines import ScriptedPolicy
-from hingelab.policies.phase_clone import PHASES, phase_index
+from hingelab.policies.phase_clone import PHASES, PhaseClone, net_from_state, net_state, phase_index
 from hingelab.rollouts.high_level import DemonstratorLabels, FailureReasonWrapper, evaluate
 from hingelab.seeds import dagger_block
 from hingelab.sim.mesh_objects import object_label
-from hingelab.training.prior import pick_set_parts
+from hingelab.training.prior import pick_set_parts, work_items
 
 
 class ShadowedClone:
@@ -86,36 +87,69 @@ def rollout_parts(config) -> list[tuple[str, str, float, int]]:
     return [part for part in pick_set_parts(config.dagger_episodes) if part[3] > 0]
 
 
-def generate_round(root: Path, config, clone, round_index: int, name: str, progress: bool = True) -> list[Path]:
+def generate_round(root: Path, config, clone, round_index: int, name: str, progress: bool = True,
+                   pool=None) -> list[Path]:
     """Record round ``round_index``'s rollouts of ``clone`` under ``root`` (made again from scratch: a round cut
     short is not kept); the datasets written. Episode i of part k is ``eval high``'s episode i of seed
-    ``dagger_block(run seed, round, k)``."""
+    ``dagger_block(run seed, round, k)``. ``pool`` (a ``hingelab.workers.job_pool.JobPool``): the episodes
+    recorded in its workers, shared as the prior's are (``hingelab.training.prior.work_items``): the same
+    episodes and labels into the same datasets."""
     root = Path(root)
     shutil.rmtree(root, ignore_errors=True)
-    roots = []
+    parts = []
     for part, (folder, object, size, episodes) in enumerate(rollout_parts(config)):
-        seed = dagger_block(config.seed, round_index, part)
-        arguments = {**config.env_arguments(), "object": object, "size": size}
         dataset = root / folder
-        create_dataset(dataset, name=name, source=config.train_source, seed=seed,
-                       config={"policy": "dagger (the clone acting, the scripted demonstrator labelling)",
-                               "round": round_index, "episodes": episodes,
-                               "demonstrator_share": config.demonstrator_share, **arguments},
-                       description=f"DAgger round {round_index}: the phase clone's rollouts labelled by the scripted "
-                                   f"demonstrator over the low level {config.low_level} (hingelab train high "
-                                   "--learner dagger)")
-        driver = ShadowedClone(clone, config.demonstrator_share)
-        env = DemonstratorLabels(FailureReasonWrapper(gym.make(config.env_id, **arguments)), driver)
-        env = RecordingWrapper(env, dataset, source=config.train_source, object_name=object_label(object),
-                               action_level="high", extra_metadata={"object_size": size, "policy": "dagger",
-                                                                    "low_level": config.low_level})
-        try:
-            evaluate(driver, env, episodes, seed, progress=progress,
-                     label=f"round {round_index} ({object_label(object)} {100 * size:g} cm)")
-        finally:
-            env.close()
-        roots.append(dataset)
-    return roots
+        parts.append({"dataset": str(dataset), "config": config, "round": round_index, "object": object,
+                      "size": size, "episodes": episodes, "seed": dagger_block(config.seed, round_index, part)})
+    if pool is None:
+        for part in parts:
+            _round_dataset(part, name)
+            _record_part(part, clone, progress=progress)
+        return [Path(part["dataset"]) for part in parts]
+    for part in parts:
+        _round_dataset(part, name)
+    nets = [net_state(net) for net in clone.nets]
+    items = [{**parts[k], "nets": nets, "indices": indices}
+             for k, indices in work_items([part["episodes"] for part in parts], pool.jobs)]
+    with tqdm(total=len(items), desc=f"round {round_index}", unit="part", disable=not progress) as bar:
+        pool.map(_record_item, items, done=lambda *_: bar.update())
+    return [Path(part["dataset"]) for part in parts]
+
+
+def _round_dataset(part: dict, name: str) -> None:
+    """The card of one dataset of a round."""
+    config, round_index = part["config"], part["round"]
+    arguments = {**config.env_arguments(), "object": part["object"], "size": part["size"]}
+    create_dataset(part["dataset"], name=name, source=config.train_source, seed=part["seed"],
+                   config={"policy": "dagger (the clone acting, the scripted demonstrator labelling)",
+                           "round": round_index, "episodes": part["episodes"],
+                           "demonstrator_share": config.demonstrator_share, **arguments},
+                   description=f"DAgger round {round_index}: the phase clone's rollouts labelled by the scripted "
+                               f"demonstrator over the low level {config.low_level} (hingelab train high "
+                               "--learner dagger)")
+
+
+def _record_item(item: dict) -> None:
+    """A ``--jobs`` worker's share of a round's dataset (``generate_round``)."""
+    clone = PhaseClone([net_from_state(state) for state in item["nets"]])
+    _record_part(item, clone, progress=False, indices=item["indices"])
+
+
+def _record_part(part: dict, clone, progress: bool, indices=None) -> None:
+    """The clone's rollouts, labelled (``ShadowedClone``), recorded into one dataset of a round: its episodes, or
+    ``indices`` of them."""
+    config, object, size = part["config"], part["object"], part["size"]
+    arguments = {**config.env_arguments(), "object": object, "size": size}
+    driver = ShadowedClone(clone, config.demonstrator_share)
+    env = DemonstratorLabels(FailureReasonWrapper(gym.make(config.env_id, **arguments)), driver)
+    env = RecordingWrapper(env, part["dataset"], source=config.train_source, object_name=object_label(object),
+                           action_level="high", extra_metadata={"object_size": size, "policy": "dagger",
+                                                                "low_level": config.low_level})
+    try:
+        evaluate(driver, env, part["episodes"], part["seed"], progress=progress, indices=indices,
+                 label=f"round {part['round']} ({object_label(object)} {100 * size:g} cm)")
+    finally:
+        env.close()
 
 
 __all__ = ["ShadowedClone", "sync_phase", "rollout_parts", "generate_round"]

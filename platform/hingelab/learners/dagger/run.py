@@ -8,7 +8,8 @@ nets, on the prior's demos and every round's labelled steps so far (``--dagger-u
 clone as ``RUNDIR/rounds/round_K.zip`` and evaluates it into ``metrics.csv`` (``env_steps``: the rollout steps
 so far). ``model.zip`` is the last round's clone, ``best_model.zip`` the best evaluated. ``--resume`` keeps the
 rounds whose clone was saved, makes a cut-off round's rollouts again and goes on: the same clones, as every fit
-depends only on its data and seeds.
+depends only on its data and seeds. ``--jobs N``: the prior, the members' fits, the rounds' rollouts and the
+evaluations in N worker processes (``hingelab.workers.job_pool``), with the same results.
 """
 
 from __future__ import annotations
@@ -28,6 +29,8 @@ from hingelab.tasks import MAX_SPEED, Z_SCALE, observation_dim
 from hingelab.training.high_level_demos import high_level_transitions
 from hingelab.training.pick_run_parts import PickEvaluation, open_prior_run
 from hingelab.training.run_folder import RunFolder
+from hingelab.training.torch_process import one_torch_thread
+from hingelab.workers.job_pool import job_pool
 
 LABEL = "train high (DAgger)"
 BASE_FILE, ROUNDS_DIR = "base.zip", "rounds"
@@ -43,14 +46,19 @@ def round_file(run_dir: Path, round_index: int) -> Path:
 def train_dagger(config: DaggerConfig, run_dir, resume: bool = False, progress: bool = True,
                  name: str | None = None) -> dict:
     """DAgger's rounds in a run folder (module doc); a summary dict."""
+    with job_pool(config.jobs, one_torch_thread) as pool:
+        return _train_dagger(config, run_dir, resume, progress, name, pool)
+
+
+def _train_dagger(config: DaggerConfig, run_dir, resume: bool, progress: bool, name: str | None, pool) -> dict:
     started = time.perf_counter()
-    folder, prior = open_prior_run(config, run_dir, "dagger", resume, progress, name)
+    folder, prior = open_prior_run(config, run_dir, "dagger", resume, progress, name, pool=pool)
     c = folder.config
     demos = PhaseDemos.from_transitions(prior.demos, where=", ".join(prior.info["datasets"]))
-    clone, base_record = _base(c, folder, demos, progress)
+    clone, base_record = _base(c, folder, demos, progress, pool)
     if not resume:
         folder.record_run_fact("base", base_record)
-    evaluation = PickEvaluation(c)
+    evaluation = PickEvaluation(c, pool=pool)
 
     done = 0  # rounds whose clone was saved: a resumed run goes on after the last
     while round_file(folder.path, done + 1).exists():
@@ -66,7 +74,7 @@ def train_dagger(config: DaggerConfig, run_dir, resume: bool = False, progress: 
         if progress:
             print(f"{LABEL} {folder.name}: round {k} of {c.dagger_rounds}: {c.dagger_episodes} rollouts of the clone")
         generate_round(folder.path / ROUNDS_DIR / str(k), c, clone, k, name=f"{folder.name}-round{k}",
-                       progress=progress)
+                       progress=progress, pool=pool)
         labelled.append(_round_demos(c, folder.path / ROUNDS_DIR / str(k)))
         env_steps += len(labelled[-1])
         data = PhaseDemos.concat([demos, *labelled])
@@ -75,7 +83,7 @@ def train_dagger(config: DaggerConfig, run_dir, resume: bool = False, progress: 
                   f"{env_steps} labelled rollout steps)")
         nets, fit = fit_phase_clone_members(data, len(clone.nets), (), c.dagger_updates, c.clone_batch_size,
                                             c.dagger_learning_rate, c.seed + k * _ROUND_SEED_STRIDE,
-                                            progress=progress, starts=clone.nets)
+                                            progress=progress, starts=clone.nets, pool=pool)
         clone = PhaseClone(nets)
         row = _row(c, k, env_steps, len(labelled[-1]), evaluation(clone))
         clone.hingelab_provenance = _provenance(c, prior, base_record, fit, row, k, env_steps)
@@ -118,7 +126,7 @@ def _round_demos(c, root: Path) -> PhaseDemos:
     return PhaseDemos.from_transitions(transitions, where=str(root))
 
 
-def _base(c, folder: RunFolder, demos: PhaseDemos, progress: bool) -> tuple[PhaseClone, dict]:
+def _base(c, folder: RunFolder, demos: PhaseDemos, progress: bool, pool=None) -> tuple[PhaseClone, dict]:
     """The clone round 1 starts from, and its record (path, sha256, how it came about)."""
     if c.base == "fit":
         path = folder.path / BASE_FILE
@@ -127,7 +135,8 @@ def _base(c, folder: RunFolder, demos: PhaseDemos, progress: bool) -> tuple[Phas
                 print(f"{LABEL} {folder.name}: fitting the base clone on {len(demos)} demo steps "
                       f"({c.clone_updates} updates, {c.clone_members} member(s))")
             nets, fit = fit_phase_clone_members(demos, c.clone_members, tuple(c.net_arch), c.clone_updates,
-                                                c.clone_batch_size, c.clone_learning_rate, c.seed, progress=progress)
+                                                c.clone_batch_size, c.clone_learning_rate, c.seed, progress=progress,
+                                                pool=pool)
             base = PhaseClone(nets)
             base.hingelab_provenance = {"env_id": c.env_id, "env_kwargs": c.env_arguments(), "learner": "phase-clone",
                                         "fit": fit, "fitted_by": "train high --learner dagger --base fit",

@@ -18,7 +18,9 @@ class PhaseCloneLearner:
                    "of the observation and its own memory of the demonstrator's phase and the steps spent in it, "
                    "which it predicts each step, cloned from scripted demos that record their phases (generated into "
                    "RUNDIR/prior, or --from). No env steps of its own: RUNDIR/model.zip and one held-out evaluation "
-                   "in RUNDIR/metrics.csv. Every setting is a flag below and is saved in RUNDIR/config.json.")
+                   "in RUNDIR/metrics.csv. --jobs N shares the prior's episodes, the members' fits and the "
+                   "evaluation among N worker processes: the same prior, weights and metrics as one, sooner. Every "
+                   "setting is a flag below and is saved in RUNDIR/config.json.")
 
     @staticmethod
     def train(config, run_dir, resume=False, progress=True, name=None) -> dict:

@@ -25,6 +25,11 @@ class PhaseCloneConfig(PriorDemos, PickReward, PickTask, RunSettings):
     clone_learning_rate: float = option(1e-3, "Adam's learning rate (cosine decay to 0)")
     clone_members: int = option(1, "nets fitted on the same demos from different seeds; the policy acts on their "
                                    "mean action and most probable next phase (an ensemble)", metavar="NETS")
+    jobs: int = option(1, "worker processes (spawned, one torch thread each) that share the run's work: the "
+                          "prior's episodes, the members' fits, the held-out evaluations (and DAgger's rollouts), "
+                          "merged in order: the same prior, weights, labels and metrics as --jobs 1 at --threads 1, "
+                          "sooner; at most the cores unless --allow-oversubscribe; a --resume may change it",
+                       metavar="N")
 
     kind = "phase-clone"
     env_id = TOOL_PICK_ID
@@ -33,6 +38,8 @@ class PhaseCloneConfig(PriorDemos, PickReward, PickTask, RunSettings):
     legacy_keys = _SAC_KEYS
 
     def __post_init__(self):
+        if not isinstance(self.jobs, int) or self.jobs < 1:
+            raise ConfigError(f"--jobs {self.jobs}: give 1 or more worker processes (1: the run in this process)")
         self.check({**self.run_checks(), **self.task_checks(), **self.prior_checks(),
                     "net_arch": len(self.net_arch) >= 1 and all(int(n) >= 1 for n in self.net_arch),
                     "clone_updates": self.clone_updates >= 1, "clone_batch_size": self.clone_batch_size >= 1,

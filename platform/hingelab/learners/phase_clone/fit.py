@@ -14,7 +14,7 @@ from torch import nn
 from tqdm import tqdm
 
 from hingelab.errors import ConfigError
-from hingelab.policies.phase_clone import ACTION_DIM, LABELS, PhaseCloneNet
+from hingelab.policies.phase_clone import ACTION_DIM, LABELS, PhaseCloneNet, net_from_state, net_state
 from hingelab.seeds import ensemble_member_seed
 
 
@@ -114,27 +114,54 @@ def fit_phase_clone(demos: PhaseDemos, hidden: tuple[int, ...], updates: int, ba
     return net, fit
 
 
+def _fit_member(job: dict) -> tuple[dict, dict]:
+    """One member's fit in a ``--jobs`` worker: ``fit_phase_clone`` of the job's demos and seed; the net as
+    ``net_state`` and the fit."""
+    start = None if job["start"] is None else net_from_state(job["start"])
+    net, fit = fit_phase_clone(PhaseDemos(**job["demos"]), job["hidden"], job["updates"], job["batch_size"],
+                               job["learning_rate"], job["seed"], progress=False, start=start)
+    return net_state(net), fit
 
 
 def fit_phase_clone_members(demos: PhaseDemos, members: int, hidden: tuple[int, ...], updates: int, batch_size: int,
                             learning_rate: float, seed: int, progress: bool = False,
-                            starts: list[PhaseCloneNet] | None = None) -> tuple[list[PhaseCloneNet], dict]:
+                            starts: list[PhaseCloneNet] | None = None,
+                            pool=None) -> tuple[list[PhaseCloneNet], dict]:
     """``members`` nets fitted by ``fit_phase_clone`` on the same demos from different seeds (an ensemble
     for ``PhaseClone``); the nets and the fit (member 0's figures, every member's, total seconds).
-    ``starts``: one net per member to go on from (``fit_phase_clone``'s ``start``)."""
+    ``starts``: one net per member to go on from (``fit_phase_clone``'s ``start``). ``pool`` (a
+    ``hingelab.workers.job_pool.JobPool``): the members fitted side by side in its workers, one torch thread
+    each: each fit depends only on the demos, its seed and its start, so the nets are the ones fitted here one
+    after another (on one thread, ``--threads 1``) bit for bit."""
     if members < 1:
         raise ConfigError(f"an ensemble needs at least one member, not {members}")
     if starts is not None and len(starts) != members:
         raise ConfigError(f"{members} members to fit from {len(starts)} nets to go on from")
     nets, fits = [], []
-    for member in range(members):
-        if progress and members > 1:
-            print(f"phase clone: member {member + 1} of {members}")
-        net, fit = fit_phase_clone(demos, hidden, updates, batch_size, learning_rate,
-                                   ensemble_member_seed(seed, member), progress=progress,
-                                   start=None if starts is None else starts[member])
-        nets.append(net)
-        fits.append(fit)
+    if pool is not None and members > 1:
+        arrays = {f: getattr(demos, f) for f in ("observations", "actions", "phases", "steps", "next_phases")}
+        jobs = [{"demos": arrays, "hidden": tuple(hidden), "updates": updates, "batch_size": batch_size,
+                 "learning_rate": learning_rate, "seed": ensemble_member_seed(seed, member),
+                 "start": None if starts is None else net_state(starts[member])} for member in range(members)]
+        if progress:
+            print(f"phase clone: fitting {members} members in {min(pool.jobs, members)} processes")
+
+        def done(member, _):
+            if progress:
+                print(f"phase clone: member {member + 1} of {members} fitted")
+
+        for state, fit in pool.map(_fit_member, jobs, done=done):
+            nets.append(net_from_state(state))
+            fits.append(fit)
+    else:
+        for member in range(members):
+            if progress and members > 1:
+                print(f"phase clone: member {member + 1} of {members}")
+            net, fit = fit_phase_clone(demos, hidden, updates, batch_size, learning_rate,
+                                       ensemble_member_seed(seed, member), progress=progress,
+                                       start=None if starts is None else starts[member])
+            nets.append(net)
+            fits.append(fit)
     fit = dict(fits[0])
     if members > 1:
         fit.update(members=members, member_fits=fits, seconds=round(sum(f["seconds"] for f in fits), 1))

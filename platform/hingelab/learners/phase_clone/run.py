@@ -8,7 +8,8 @@ evaluation into ``metrics.csv``; ``model.zip`` (and ``best_model.zip``, the same
 env arguments, the low level's sha256, the encoder's fingerprint, the prior and the fit. No env step of
 the run's own, so the run's dataset holds no training rollouts. ``--resume`` keeps a prior whose every
 dataset was written (a cut-off generation is made again) and fits the clone again from the start: the
-same weights, as the fit depends only on the demos and the seed.
+same weights, as the fit depends only on the demos and the seed. ``--jobs N``: the prior, the members' fits and
+the evaluation in N worker processes (``hingelab.workers.job_pool``), with the same results.
 """
 
 from __future__ import annotations
@@ -22,6 +23,8 @@ from hingelab.policies.phase_clone import PhaseClone
 from hingelab.provenance import code_version
 from hingelab.tasks import MAX_SPEED, Z_SCALE
 from hingelab.training.pick_run_parts import PickEvaluation, open_prior_run
+from hingelab.training.torch_process import one_torch_thread
+from hingelab.workers.job_pool import job_pool
 
 LABEL = "train high (phase clone)"
 
@@ -29,10 +32,16 @@ LABEL = "train high (phase clone)"
 def train_phase_clone(config: PhaseCloneConfig, run_dir, resume: bool = False, progress: bool = True,
                       name: str | None = None) -> dict:
     """Fit (or fit again, on ``resume``) the phase clone of a run folder; a summary dict."""
+    with job_pool(config.jobs, one_torch_thread) as pool:
+        return _train_phase_clone(config, run_dir, resume, progress, name, pool)
+
+
+def _train_phase_clone(config: PhaseCloneConfig, run_dir, resume: bool, progress: bool, name: str | None,
+                       pool) -> dict:
     started = time.perf_counter()
-    folder, prior = open_prior_run(config, run_dir, "phase-clone", resume, progress, name)
+    folder, prior = open_prior_run(config, run_dir, "phase-clone", resume, progress, name, pool=pool)
     c = folder.config
-    evaluation = PickEvaluation(c)
+    evaluation = PickEvaluation(c, pool=pool)
 
     demos = PhaseDemos.from_transitions(prior.demos, where=", ".join(prior.info["datasets"]))
     if progress:
@@ -40,7 +49,8 @@ def train_phase_clone(config: PhaseCloneConfig, run_dir, resume: bool = False, p
               f"({c.clone_updates} updates, net {' x '.join(str(n) for n in c.net_arch)}"
               f"{f', {c.clone_members} members' if c.clone_members > 1 else ''})")
     nets, fit = fit_phase_clone_members(demos, c.clone_members, tuple(c.net_arch), c.clone_updates,
-                                        c.clone_batch_size, c.clone_learning_rate, c.seed, progress=progress)
+                                        c.clone_batch_size, c.clone_learning_rate, c.seed, progress=progress,
+                                        pool=pool)
     model = PhaseClone(nets)
     folder.metrics.truncate_after(-1)  # a resumed run evaluates its clone again
     row = {"env_steps": 0, "seed": c.seed, "updates": c.clone_updates, **evaluation(model)}
