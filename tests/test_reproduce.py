@@ -76,7 +76,7 @@ def test_the_plan_runs_the_shipped_recipes_in_dependency_order(tmp_path):
         "train high --learner dagger --base fit "
         "--env-kwargs '{\"observe_extent\": true, \"tool_position\": \"relative\"}' --prior-objects all "
         "--prior-episodes 720 --net-arch 512 512 --clone-members 3 --rollout-objects all "
-        "--dagger-rounds 4 --dagger-episodes 120 --eval-episodes 30 --seed 0")
+        "--dagger-rounds 4 --dagger-episodes 120 --eval-episodes 30 --seed 0 --jobs 2")
     assert (high.deps, high.resume, high.product) == (("low_experts",), "dagger", "high_level.zip")
     assert high.outputs == ("stages/high/model.zip", "stages/high/base.zip")
     assert {s.resume for s in stages} <= set(P.RESUME_KINDS)
