@@ -189,3 +189,13 @@ def test_dagger_bad_input_gets_one_line_errors(tmp_path, capsys, tiny_run):
                      "--out", str(tmp_path / f"r{k}")])
         err = capsys.readouterr().err.strip()
         assert code != 0 and message in err and len(err.splitlines()) == 1, (message, err)
+
+
+def test_over_a_given_base_the_run_observes_as_the_base_was_trained():
+    from hingelab.learners.dagger.config import DaggerConfig
+
+    shipped = DaggerConfig(base="shipped")  # the shipped policy: the extent and the relative tool pose
+    assert shipped.env_kwargs == {"observe_extent": True, "tool_position": "relative"}
+    told = DaggerConfig(base="shipped", env_kwargs={"tool_position": "observed"})  # --env-kwargs wins (then refused
+    assert told.env_kwargs == {"observe_extent": True, "tool_position": "observed"}  # by the run, as above)
+    assert DaggerConfig(base="fit").env_kwargs == {}

@@ -145,4 +145,17 @@ class PriorDemos(RunConfig):
             raise ConfigError("--no-prior trains without demonstrations: drop --from")
 
 
-__all__ = ["RunSettings", "PickTask", "PickReward", "PriorDemos", "DEMO_ACTIONS"]
+def base_observation_form(base: str) -> dict:
+    """ToolPick-v0's observation arguments (``observe_extent``, ``tool_position``) the phase clone a learner starts
+    from (``--base shipped`` or a checkpoint's path) was trained with; {} where it cannot be read here (the run then
+    says what is wrong with it). Learners over a base observe as it was trained unless ``--env-kwargs`` says."""
+    from hingelab.policies.high_level import SHIPPED_HIGH_LEVEL, observation_form  # torch: when a config is checked
+    from hingelab.policies.phase_clone import PhaseClone
+
+    try:
+        return observation_form(PhaseClone.load(SHIPPED_HIGH_LEVEL if base == "shipped" else base))
+    except ConfigError:
+        return {}
+
+
+__all__ = ["RunSettings", "PickTask", "PickReward", "PriorDemos", "DEMO_ACTIONS", "base_observation_form"]

@@ -6,6 +6,7 @@ from dataclasses import dataclass
 
 from hingelab.errors import ConfigError
 from hingelab.learners.phase_clone.config import PhaseCloneConfig
+from hingelab.training.config_parts import base_observation_form
 from hingelab.training.run_config import option
 
 BASES = ("fit", "shipped")  # or a phase-clone checkpoint's path
@@ -43,6 +44,8 @@ class DaggerConfig(PhaseCloneConfig):
         self.check({"dagger_rounds": self.dagger_rounds >= 1, "dagger_episodes": self.dagger_episodes >= 1,
                     "dagger_updates": self.dagger_updates >= 1, "dagger_learning_rate": self.dagger_learning_rate > 0,
                     "demonstrator_share": 0 <= self.demonstrator_share <= 1})
+        if self.base != "fit":  # observe as the base was trained to (its prior too), where --env-kwargs does not say
+            object.__setattr__(self, "env_kwargs", {**base_observation_form(self.base), **self.env_kwargs})
         if self.prior_source != "scripted" and not self.from_datasets:
             raise ConfigError("--learner dagger labels the clone's rollouts with the scripted demonstrator: its "
                               "prior must be scripted too (--prior-source scripted)")

@@ -10,12 +10,11 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from pathlib import Path
 
 from hingelab.errors import ConfigError
 from hingelab.learners.sac.config import SACTrainConfig
 from hingelab.tasks import TOOL_PICK_ID
-from hingelab.training.config_parts import PickReward, PickTask, PriorDemos
+from hingelab.training.config_parts import PickReward, PickTask, PriorDemos, base_observation_form
 from hingelab.training.run_config import option
 
 BASES = ("shipped", "fit")  # or a phase-clone checkpoint's path
@@ -113,10 +112,7 @@ class ResidualSACConfig(PickTask, PickReward, PriorDemos, SACTrainConfig):
             raise ConfigError(f"--exploration-floor takes 5 positive stds, each at most --exploration-bound's "
                               f"({list(bound)}), not {list(self.exploration_floor)}")
         if self.base != "fit":  # observe as the base was trained to, where --env-kwargs does not say
-            from hingelab.policies.high_level import SHIPPED_HIGH_LEVEL  # torch: when a config is checked
-
-            form = base_observation_form(SHIPPED_HIGH_LEVEL if self.base == "shipped" else Path(self.base))
-            object.__setattr__(self, "env_kwargs", {**form, **self.env_kwargs})
+            object.__setattr__(self, "env_kwargs", {**base_observation_form(self.base), **self.env_kwargs})
         if self.base == "fit" and not self.prior:
             raise ConfigError("--base fit clones the run's privileged prior: drop --no-prior, or give --base shipped "
                               "or a phase-clone checkpoint")
@@ -151,15 +147,3 @@ def _checked_scale(scale):
     from hingelab.policies.residual import check_scale
 
     return check_scale(scale)
-
-
-def base_observation_form(path: Path) -> dict:
-    """ToolPick-v0's observation arguments (``observe_extent``, ``tool_position``) the phase clone at ``path`` was
-    trained with ({}: not readable here; the run then says what is wrong with it)."""
-    from hingelab.policies.high_level import observation_form  # torch: when a config is checked
-    from hingelab.policies.phase_clone import PhaseClone
-
-    try:
-        return observation_form(PhaseClone.load(path))
-    except ConfigError:
-        return {}
