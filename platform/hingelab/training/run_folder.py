@@ -109,9 +109,10 @@ def resumed_config(run_dir: Path, config, given: set[str]):
     differing = [f"{flag_of(by_name[name])} ({name}={getattr(config, name)!r}, the run's {getattr(saved, name)!r})"
                  for name in sorted(given - set(RESUME_SETTINGS)) if getattr(config, name) != getattr(saved, name)]
     if differing:
+        flags = [flag_of(by_name[n]) for n in RESUME_SETTINGS if n in by_name]
+        allowed = " and ".join([", ".join(flags[:-1]), flags[-1]] if len(flags) > 1 else flags)
         raise ConfigError(f"--resume continues {run_dir} as its config.json says, but these flags differ from it: "
-                          f"{'; '.join(differing)}. Drop them (a resume may change only "
-                          f"{', '.join(flag_of(by_name[n]) for n in RESUME_SETTINGS if n in by_name)}), "
+                          f"{'; '.join(differing)}. Drop them (a resume may change only {allowed}), "
                           "or start a new run with another --out")
     return replace(saved, **{name: getattr(config, name) for name in RESUME_SETTINGS if name in given})
 
