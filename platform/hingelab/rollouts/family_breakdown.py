@@ -20,6 +20,7 @@ from hingelab.analysis.wilson import wilson_interval
 from hingelab.episodes import schemas as S
 from hingelab.episodes.dataset import open_dataset
 from hingelab.errors import ConfigError
+from hingelab.rollouts.grasp_offsets import failure_reason
 from hingelab.rollouts.reward_diagnostic import write_tables
 
 SIZE_BINS_MM = (14.0, 20.0, 26.0)  # below, within and above the pick table's 15-25 mm sets
@@ -41,13 +42,11 @@ def episode_rows(root) -> list[dict]:
         record = json.loads(draw)
         params = {f"param_{k}": v for k, v in sorted((record.get("params") or {}).items())
                   if isinstance(v, (int, float, str)) and k not in ("size", "yaw")}
-        reason = index["failure_reason"].iloc[i] if "failure_reason" in index else None
         rows.append({"dataset": Path(root).name, "policy": policy_label(meta), "kind": record["kind"],
                      "size_mm": 1000 * float(record["size_m"]), "mass_g": 1000 * float(record["mass_kg"]),
                      "episode": i, "seed": int(meta.get("seed", -1)),
                      "first_attempt_success": str(meta.get("first_attempt_success")) == "True",
-                     "failure_reason": "" if reason is None or str(reason) in ("nan", "<NA>") else str(reason),
-                     **params})
+                     "failure_reason": failure_reason(index, i), **params})
     if not rows:
         raise ConfigError(f"{root} holds no episodes")
     return rows

@@ -20,6 +20,7 @@ from __future__ import annotations
 from pathlib import Path
 
 import numpy as np
+import pandas as pd
 
 from hingelab.episodes.dataset import open_dataset
 from hingelab.errors import ConfigError
@@ -69,7 +70,7 @@ def episode_rows(root) -> list[dict]:
         row = {"dataset": Path(root).name, "policy": meta.get("policy", ""), "object": meta.get("object", ""),
                "size_m": float(meta.get("object_size", "nan")), "episode": i, "seed": int(meta.get("seed", -1)),
                "first_attempt_success": str(meta.get("first_attempt_success")) == "True",
-               "failure_reason": _reason(index, i),
+               "failure_reason": failure_reason(index, i),
                "lift_step": -1 if t is None else t}
         if t is None:
             row.update({f"offset_{a}_mm": float("nan") for a in AXES} | {"closing_axis": "", "hinge_rad": float("nan")})
@@ -83,9 +84,10 @@ def episode_rows(root) -> list[dict]:
     return rows
 
 
-def _reason(index, i: int) -> str:
+def failure_reason(index, i: int) -> str:
+    """The i-th episode's failure reason in a dataset's index; "" for none (a success, or not recorded)."""
     value = index["failure_reason"].iloc[i] if "failure_reason" in index else None
-    return "" if value is None or (isinstance(value, float) and np.isnan(value)) else str(value)
+    return "" if value is None or pd.isna(value) else str(value)  # None, NaN or pd.NA (a "string" column)
 
 
 def reference_ranges(reference_rows: list[dict]) -> dict[str, tuple[float, float]]:
